@@ -1,0 +1,1 @@
+"""Subcommands of the `entitynet` console command; each module has `register(subparsers)`."""

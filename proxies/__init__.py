@@ -1,0 +1,1 @@
+"""Proxies that publish entities without the client software (transit: SIRI StopMonitoring)."""

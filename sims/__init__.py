@@ -1,0 +1,1 @@
+"""Entity behaviours, load simulations and benchmark suites."""

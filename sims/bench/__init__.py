@@ -1,0 +1,9 @@
+"""Benchmark suites: `entitynet bench SUITE [--quick] --out FILE.json`.
+
+Each suite module `sims.bench.<suite>` defines `add_arguments(parser)` (optional) and
+`run(args, progress) -> dict` returning `params`, `results` and, for comparisons, `peer` and `ratio`.
+"""
+
+SUITES = {
+    "topology": "sims.bench.topology_bench",
+}

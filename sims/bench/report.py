@@ -1,0 +1,44 @@
+"""The benchmark output contract of DESIGN.md: one JSON object per run."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+
+def machine() -> dict[str, Any]:
+    return {
+        "cores": os.cpu_count(),
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "processor": platform.machine(),
+    }
+
+
+def write_report(suite: str, body: dict[str, Any], out: str | os.PathLike | None) -> dict[str, Any]:
+    report = {"suite": suite, "machine": machine(), "params": body.get("params", {}), "results": body["results"]}
+    for key in ("peer", "ratio", "notes"):
+        if key in body:
+            report[key] = body[key]
+    text = json.dumps(report, indent=2, sort_keys=False, default=float)
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(text + "\n")
+    return report
+
+
+def median_time(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
+    """Median wall time of `repeat` calls of fn, and the last result."""
+    times, result = [], None
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), result
