@@ -49,6 +49,9 @@ QUERY_IDENTITY = "identity"
 QUERY_CELLS = "cells"
 
 MAX_INT = 2**53  # ids, sequence numbers and times fit in a float64 on any client
+#: a publisher names its own entities with local ids below this; server-assigned (forwarded) ids are above it,
+#: so a PUBLISH that names someone else's entity is recognisable and refused with NOT_OWNER
+LOCAL_ID_LIMIT = 2**32
 MAX_CELL = 2**31 - 1
 MAX_VALIDITY_MS = 24 * 3600 * 1000
 LENGTH_PREFIX = struct.Struct(">I")
