@@ -42,7 +42,9 @@ class Polygons:
     def to_shapely(self) -> np.ndarray:
         if len(self) == 0:
             return np.empty(0, dtype=object)
-        return shapely.from_ragged_array(GeometryType.POLYGON, self.xy, (self.coord_offsets, self.ring_offsets))
+        return shapely.from_ragged_array(
+            GeometryType.POLYGON, self.xy, (self.coord_offsets, self.ring_offsets)
+        )
 
     def exterior(self, i: int) -> np.ndarray:
         """Polygon i's exterior ring as an (n, 2) closed coordinate array."""

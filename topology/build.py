@@ -1,0 +1,195 @@
+"""The topology build: map file -> cleaned network -> cells -> (PVS) -> artifact.
+
+networkx and shapely are used here, at build time only; the result is compact numpy arrays.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from topology import BUNDLED_MAP
+from topology.artifact import CELL_AREA, CELL_JUNCTION, CELL_STREET, Topology
+from topology.cells import CellParams, build_cells, cumulative
+from topology.clean import CleanParams, Network, clean
+from topology.polygons import Polygons
+from topology.raw import RawMap
+
+Progress = Callable[[str], None]
+
+
+class BuildError(Exception):
+    """The map cannot become a topology (no streets, unreadable input): a clear message for the user."""
+
+
+@dataclass
+class BuildConfig:
+    clean: CleanParams = field(default_factory=CleanParams)
+    cells: CellParams = field(default_factory=CellParams)
+    crs: str | None = None
+    #: a topology.pvs.PvsConfig, or None to skip the PVS
+    pvs: Any = None
+
+
+def read_map(path: str | Path | None, crs: str | None = None) -> RawMap:
+    """Read OSM (.pbf, .osm, .osm.bz2) or GeoJSON (.geojson, .json) by extension; None = the bundled map."""
+    from topology.geojson_reader import read_geojson
+    from topology.osm_reader import MapReadError, read_osm
+
+    path = Path(path) if path is not None else BUNDLED_MAP
+    try:
+        if path.suffix.lower() in (".geojson", ".json"):
+            return read_geojson(path, crs)
+        return read_osm(path, crs)
+    except MapReadError as exc:
+        raise BuildError(str(exc)) from None
+    except ValueError as exc:
+        raise BuildError(f"{path}: {exc}") from None
+
+
+def build(raw: RawMap, config: BuildConfig | None = None, progress: Progress | None = None,
+          source: str = "") -> Topology:  # fmt: skip
+    config = config or BuildConfig()
+    say = progress or (lambda _msg: None)
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    say(f"cleaning {len(raw.ways)} ways, {len(raw.areas)} areas")
+    try:
+        net = clean(raw, config.clean)
+    except ValueError as exc:
+        raise BuildError(str(exc)) from None
+    timings["clean_s"] = time.perf_counter() - t0
+    say(f"cleaned: {len(net.node_xy)} nodes, {len(net.edges)} edges; building cells")
+    t1 = time.perf_counter()
+    cells = build_cells(net, config.cells)
+    timings["cells_s"] = time.perf_counter() - t1
+    topo = _assemble(raw, net, cells, config, source)
+    say(f"cells: {topo.n_cells}; matching {len(raw.routes)} transit routes")
+    t2 = time.perf_counter()
+    from topology.routes import build_routes
+
+    way_xy = {w.way_id: np.asarray(w.xy) for w in raw.ways}
+    topo.meta["routes"] = build_routes(topo, raw.routes, way_xy, net.report)
+    timings["routes_s"] = time.perf_counter() - t2
+    if config.pvs is not None:
+        t3 = time.perf_counter()
+        from topology.pvs import attach_pvs
+
+        attach_pvs(topo, config.pvs, progress=say)
+        timings["pvs_s"] = time.perf_counter() - t3
+    timings["total_s"] = time.perf_counter() - t0
+    topo.meta["report"] = dict(sorted(net.report.items()))
+    topo.meta["timings"] = {k: round(v, 3) for k, v in timings.items()}
+    return topo
+
+
+def _csr(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
+    offsets = np.zeros(len(lists) + 1, np.int64)
+    offsets[1:] = np.cumsum([len(x) for x in lists])
+    flat = np.fromiter((v for x in lists for v in x), np.int32, count=int(offsets[-1]))
+    return offsets, flat
+
+
+def _assemble(raw: RawMap, net: Network, cells, config: BuildConfig, source: str) -> Topology:
+    n_nodes, n_edges = len(net.node_xy), len(net.edges)
+    node_area = np.full(n_nodes, -1, np.int32)
+    for i, a in enumerate(net.areas):
+        node_area[a.node] = i
+    inc: list[list[int]] = [[] for _ in range(n_nodes)]
+    for i, e in enumerate(net.edges):
+        inc[e.u].append(i)
+        if e.v != e.u:
+            inc[e.v].append(i)
+    node_edge_offsets, node_edges = _csr(inc)
+    geom_offsets = np.zeros(n_edges + 1, np.int64)
+    geom_offsets[1:] = np.cumsum([len(e.xy) for e in net.edges])
+    geom_xy = np.vstack([e.xy for e in net.edges]).astype(np.float64)
+    geom_cum = np.concatenate([cumulative(e.xy) for e in net.edges])
+    lengths = geom_cum[geom_offsets[1:] - 1]
+    bp_offsets, _ = _csr([[0] * len(b) for b in cells.breakpoints])
+    bp_start = np.fromiter(
+        (s for b in cells.breakpoints for s, _ in b), np.float64, count=int(bp_offsets[-1])
+    )
+    bp_cell = np.fromiter((c for b in cells.breakpoints for _, c in b), np.int32, count=int(bp_offsets[-1]))
+    cell_edge_offsets, cell_edges = _csr(cells.edges)
+    cell_node_offsets, cell_nodes = _csr(cells.nodes)
+    kind = np.asarray(cells.kind, np.uint8)
+    area_cell = np.flatnonzero(kind == CELL_AREA).astype(np.int32)
+    params = {
+        "clean": asdict(config.clean),
+        "cells": asdict(config.cells) | {"junction_radius_m": config.cells.radius},
+    }
+    meta: dict[str, Any] = {
+        "crs": raw.crs,
+        "origin": list(raw.origin),
+        "bounds": list(raw.bounds),
+        "source": source,
+        "params": params,
+        "counts": {
+            "nodes": n_nodes,
+            "edges": n_edges,
+            "cells_street": int((kind == CELL_STREET).sum()),
+            "cells_junction": int((kind == CELL_JUNCTION).sum()),
+            "cells_area": int((kind == CELL_AREA).sum()),
+            "areas": len(net.areas),
+            "buildings": len(raw.buildings),
+        },
+        "area_kinds": [a.kind for a in net.areas],
+        "area_names": [a.name for a in net.areas],
+    }
+    return Topology(
+        meta=meta,
+        node_xy=np.asarray(net.node_xy, np.float64).reshape(-1, 2),
+        node_area=node_area,
+        node_edge_offsets=node_edge_offsets,
+        node_edges=node_edges,
+        edge_nodes=np.asarray([(e.u, e.v) for e in net.edges], np.int32).reshape(-1, 2),
+        edge_networks=np.asarray([e.networks for e in net.edges], np.uint8),
+        edge_length=lengths,
+        edge_geom_offsets=geom_offsets,
+        edge_geom_xy=geom_xy,
+        edge_geom_cum=geom_cum,
+        edge_bp_offsets=bp_offsets,
+        edge_bp_start=bp_start,
+        edge_bp_cell=bp_cell,
+        cell_kind=kind,
+        cell_height=np.full(len(kind), config.cells.entity_height_m, np.float32),
+        cell_footprints=Polygons.from_shapely(cells.footprints),
+        cell_edge_offsets=cell_edge_offsets,
+        cell_edges=cell_edges,
+        cell_node_offsets=cell_node_offsets,
+        cell_nodes=cell_nodes,
+        area_node=np.asarray([a.node for a in net.areas], np.int32),
+        area_cell=area_cell,
+        area_networks=np.asarray([a.networks for a in net.areas], np.uint8),
+        area_polygons=Polygons.from_shapely([a.polygon for a in net.areas]),
+        building_height=np.asarray([b.height for b in raw.buildings], np.float32),
+        building_footprints=Polygons.from_shapely([b.polygon for b in raw.buildings]),
+    )
+
+
+def report_lines(report: dict[str, int]) -> list[str]:
+    """The build report grouped as read / repaired / dropped / skipped."""
+    groups: dict[str, list[str]] = {}
+    for key, n in sorted(report.items()):
+        head, _, what = key.partition(":")
+        groups.setdefault(head, []).append(f"  {what.replace('_', ' ')}: {n}")
+    lines = []
+    for head in ("read", "repaired", "dropped", "skipped"):
+        if head in groups:
+            lines.append(f"{head}:")
+            lines.extend(groups.pop(head))
+    for head, rest in groups.items():
+        lines.append(f"{head}:")
+        lines.extend(rest)
+    return lines
+
+
+def features_dropped(report: dict[str, int] | Counter) -> int:
+    return int(sum(n for k, n in report.items() if k.startswith("dropped:")))

@@ -1,0 +1,237 @@
+"""Read OpenStreetMap data (PBF, XML, .osm.bz2) through pyosmium into the reader contract (`RawMap`).
+
+Bad features are skipped and counted; only an unreadable file or one with no map data raises MapReadError.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import osmium
+import shapely
+from shapely.geometry import Polygon
+
+from topology.projection import LocalProjection
+from topology.raw import RawArea, RawBuilding, RawMap, RawRoute, RawStop, RawWay
+from topology.tags import area_kind, building_height, parse_layer, way_networks
+
+ROUTE_MODES = {"tram": "tram", "light_rail": "tram", "bus": "bus", "trolleybus": "bus"}
+STOP_ROLES = {"stop", "stop_entry_only", "stop_exit_only"}
+MIN_POLYGON_AREA_M2 = 1.0
+
+
+class MapReadError(Exception):
+    """The input is not readable map data (clear message for the user, no traceback)."""
+
+
+def _is_stop_node(tags) -> bool:
+    return (
+        tags.get("public_transport") == "stop_position"
+        or tags.get("railway") == "tram_stop"
+        or tags.get("highway") == "bus_stop"
+    )
+
+
+class _Collector:
+    """Collects features in WGS84; projection happens once at the end, vectorised."""
+
+    def __init__(self) -> None:
+        self.report: Counter = Counter()
+        self.ways: list[tuple[int, np.ndarray, np.ndarray, dict]] = []  # id, lonlat, node ids, tags
+        self.polys: list[tuple[str, int, Polygon, dict]] = []  # "area"/"building", id, lonlat polygon, tags
+        self.routes: list[tuple[int, dict, list[int], list[int]]] = []  # id, tags, way ids, stop node ids
+        self.node_lonlat: dict[int, tuple[float, float]] = {}
+        self.node_names: dict[int, str] = {}
+
+    def node(self, n) -> None:
+        if n.tags and _is_stop_node(n.tags) and n.location.valid():
+            self.node_lonlat[n.id] = (n.location.lon, n.location.lat)
+            self.node_names[n.id] = n.tags.get("name", "")
+
+    def way(self, w) -> None:
+        tags = dict(w.tags)
+        bits = way_networks(tags)
+        if not bits:
+            if "highway" in tags or "railway" in tags:
+                self.report["skipped:not_a_modelled_network"] += 1
+            return
+        ids, coords = [], []
+        for nr in w.nodes:
+            if not nr.location.valid():
+                self.report["repaired:missing_node_location"] += 1
+                continue
+            ids.append(nr.ref)
+            coords.append((nr.location.lon, nr.location.lat))
+        if len(ids) < 2:
+            self.report["dropped:way_without_geometry"] += 1
+            return
+        lonlat = np.asarray(coords, np.float64)
+        node_ids = np.asarray(ids, np.int64)
+        for i, c in zip(ids, coords, strict=True):
+            self.node_lonlat.setdefault(i, c)
+        self.ways.append((w.id, lonlat, node_ids, tags))
+
+    def relation(self, r) -> None:
+        tags = dict(r.tags)
+        if tags.get("type") != "route" or tags.get("route") not in ROUTE_MODES:
+            return
+        way_ids, stop_ids = [], []
+        for m in r.members:
+            if m.type == "w" and m.role in ("", "forward", "backward"):
+                way_ids.append(m.ref)
+            elif m.type == "n" and m.role in STOP_ROLES:
+                stop_ids.append(m.ref)
+        self.routes.append((r.id, tags, way_ids, stop_ids))
+
+    def area(self, a) -> None:
+        tags = dict(a.tags)
+        is_building = ("building" in tags and tags.get("building") != "no") or "building:part" in tags
+        akind = None if is_building else area_kind(tags)
+        if not is_building and akind is None:
+            return
+        kind = "building" if is_building else "area"
+        try:
+            for outer in a.outer_rings():
+                shell = [(n.lon, n.lat) for n in outer]
+                holes = [[(n.lon, n.lat) for n in inner] for inner in a.inner_rings(outer)]
+                self.polys.append((kind, a.orig_id(), Polygon(shell, holes), tags))
+        except (osmium.InvalidLocationError, ValueError):
+            self.report[f"dropped:{kind}_bad_geometry"] += 1
+
+
+def read_osm(
+    path: str | Path, crs: str | None = None, bbox: tuple[float, float, float, float] | None = None
+) -> RawMap:
+    """Read an OSM file into a projected RawMap. `bbox` = (lon_min, lat_min, lon_max, lat_max) keeps only
+    features that intersect it (others are counted as dropped:outside_bbox)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapReadError(f"{path}: no such file")
+    col = _Collector()
+    try:
+        fp = osmium.FileProcessor(str(path)).with_locations().with_areas()
+        for obj in fp:
+            if obj.is_node():
+                col.node(obj)
+            elif obj.is_way():
+                col.way(obj)
+            elif obj.is_relation():
+                col.relation(obj)
+            elif obj.is_area():
+                col.area(obj)
+    except RuntimeError as exc:
+        raise MapReadError(f"{path}: not readable OpenStreetMap data ({exc})") from None
+    if not col.ways and not col.polys:
+        raise MapReadError(f"{path}: no streets, areas or buildings found (is this OpenStreetMap data?)")
+    return _assemble(col, crs, bbox)
+
+
+def _assemble(col: _Collector, crs: str | None, bbox) -> RawMap:
+    report = col.report
+    # extent: from the centrelines (what entities use), else from the polygons
+    if col.ways:
+        allc = np.concatenate([w[1] for w in col.ways])
+    else:
+        allc = np.concatenate([np.asarray(p[2].exterior.coords) for p in col.polys])
+    lon_min, lat_min = allc.min(axis=0)
+    lon_max, lat_max = allc.max(axis=0)
+    if bbox is not None:
+        lon_min, lat_min, lon_max, lat_max = bbox
+    proj = LocalProjection.for_extent(lon_min, lat_min, lon_max, lat_max, crs)
+    box = shapely.box(lon_min, lat_min, lon_max, lat_max)
+
+    raw = RawMap(crs=proj.crs, origin=proj.origin, report=report)
+    kept_ways: set[int] = set()
+    for way_id, lonlat, node_ids, tags in col.ways:
+        if bbox is not None and not box.intersects(shapely.LineString(lonlat)):
+            report["dropped:outside_bbox"] += 1
+            continue
+        kept_ways.add(way_id)
+        raw.ways.append(
+            RawWay(
+                way_id=way_id,
+                xy=proj.to_local(lonlat[:, 0], lonlat[:, 1]),
+                node_ids=node_ids,
+                networks=way_networks(tags),
+                layer=parse_layer(tags),
+                bridge=tags.get("bridge", "no") not in ("no", ""),
+                tunnel=tags.get("tunnel", "no") not in ("no", "", "building_passage"),
+                name=tags.get("name", ""),
+                highway=tags.get("highway", tags.get("railway", "")),
+            )
+        )
+    report["read:ways"] += len(raw.ways)
+
+    def project_polygon(poly: Polygon):
+        return shapely.transform(poly, lambda c: proj.to_local(c[:, 0], c[:, 1]))
+
+    for kind, fid, poly, tags in col.polys:
+        if bbox is not None and not box.intersects(poly):
+            report["dropped:outside_bbox"] += 1
+            continue
+        for part in _valid_parts(project_polygon(poly), report, kind):
+            if kind == "building":
+                if _min_height(tags) > 2.0:
+                    report["dropped:building_part_above_ground"] += 1
+                    continue
+                height, source = building_height(tags)
+                if "bad height" in source:
+                    report["repaired:unparsable_height"] += 1
+                report[f"read:building_height_from_{source.split('(')[0]}"] += 1
+                raw.buildings.append(RawBuilding(fid, part, height, source))
+            else:
+                akind, bits = area_kind(tags)
+                raw.areas.append(RawArea(fid, part, akind, bits, tags.get("name", "")))
+    report["read:buildings"] += len(raw.buildings)
+    report["read:areas"] += len(raw.areas)
+
+    for rel_id, tags, way_ids, stop_ids in col.routes:
+        present = [w for w in way_ids if w in kept_ways]
+        if not present:
+            report["dropped:route_outside_map"] += 1
+            continue
+        if len(present) < len(way_ids):
+            report["repaired:route_clipped_to_map"] += 1
+        stops = []
+        for sid in stop_ids:
+            if sid in col.node_lonlat:
+                lon, lat = col.node_lonlat[sid]
+                xy = proj.to_local(np.array([lon]), np.array([lat]))[0]
+                stops.append(RawStop(sid, (float(xy[0]), float(xy[1])), col.node_names.get(sid, "")))
+        raw.routes.append(
+            RawRoute(
+                rel_id, ROUTE_MODES[tags["route"]], tags.get("ref", ""), tags.get("name", ""), present, stops
+            )
+        )
+    report["read:routes"] += len(raw.routes)
+
+    corners = proj.to_local(np.array([lon_min, lon_max]), np.array([lat_min, lat_max]))
+    raw.bounds = (float(corners[0, 0]), float(corners[0, 1]), float(corners[1, 0]), float(corners[1, 1]))
+    return raw
+
+
+def _min_height(tags: dict) -> float:
+    try:
+        return float(tags.get("min_height", "0").replace(",", ".").rstrip(" m"))
+    except ValueError:
+        return 0.0
+
+
+def _valid_parts(poly, report: Counter, kind: str) -> list[Polygon]:
+    """Repair invalid polygons (bow-ties, self-touching rings) and split multipolygons into parts."""
+    if poly.is_empty:
+        report[f"dropped:{kind}_empty"] += 1
+        return []
+    if not poly.is_valid:
+        report[f"repaired:{kind}_invalid_polygon"] += 1
+        poly = shapely.make_valid(poly)
+    parts = [g for g in getattr(poly, "geoms", [poly]) if g.geom_type == "Polygon"]
+    for g in getattr(poly, "geoms", []):
+        if g.geom_type == "MultiPolygon":
+            parts.extend(g.geoms)
+    kept = [p for p in parts if p.area >= MIN_POLYGON_AREA_M2]
+    if len(kept) < len(parts) or not parts:
+        report[f"dropped:{kind}_degenerate_polygon"] += max(1, len(parts) - len(kept))
+    return kept

@@ -1,0 +1,83 @@
+"""Placement index for the first fix of an entity: areas first, else the nearest edge of its networks.
+
+Built lazily from the artifact (shapely STRtree; a few ms for the Helsinki map). Later fixes use continuity on
+the compiled arrays in the client core, not this index.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import shapely
+from shapely import GeometryType
+
+from topology.raw import PEDESTRIAN, TRAM, VEHICLE
+
+
+class Placement(NamedTuple):
+    """kind "area": index = area, position = (x, y) inside it; kind "edge": index = edge, offset along it."""
+
+    kind: str
+    index: int
+    offset: float
+    x: float
+    y: float
+    distance: float
+
+
+class PlacementIndex:
+    def __init__(self, topo) -> None:
+        self.topo = topo
+        lines = shapely.from_ragged_array(
+            GeometryType.LINESTRING, topo.edge_geom_xy, (topo.edge_geom_offsets,)
+        ) if topo.n_edges else np.empty(0, dtype=object)  # fmt: skip
+        self.lines = lines
+        self.trees: dict[int, tuple[shapely.STRtree, np.ndarray]] = {}
+        for bit in (PEDESTRIAN, VEHICLE, TRAM):
+            idx = np.flatnonzero(topo.edge_networks & bit)
+            self.trees[bit] = (shapely.STRtree(lines[idx]), idx)
+        self.areas = topo.area_polygons.to_shapely()
+        self.area_tree = shapely.STRtree(self.areas)
+
+    def place(self, x: float, y: float, networks: int = PEDESTRIAN | VEHICLE | TRAM) -> Placement | None:
+        """Where a point is on the networks `networks` (bitmask); None if the map has no such network.
+
+        Deterministic: equidistant edges resolve to the lowest edge id."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"cannot place a non-finite point ({x}, {y})")
+        pt = shapely.Point(x, y)
+        for a in sorted(self.area_tree.query(pt, predicate="intersects")):
+            if self.topo.area_networks[a] & networks:
+                return Placement("area", int(a), 0.0, x, y, 0.0)
+        best: tuple[float, int] | None = None
+        for bit, (tree, idx) in self.trees.items():
+            if not (bit & networks) or len(idx) == 0:
+                continue
+            hits, dists = tree.query_nearest(pt, return_distance=True, all_matches=True)
+            for h, d in zip(hits, dists, strict=True):
+                cand = (float(d), int(idx[h]))
+                if best is None or cand < best:
+                    best = cand
+        if best is None:
+            return None
+        dist, edge = best
+        offset = float(shapely.line_locate_point(self.lines[edge], pt))
+        px, py = self.topo.point_at(edge, offset)
+        return Placement("edge", edge, offset, float(px), float(py), dist)
+
+    def nearest_edges(self, xy: np.ndarray, networks: int) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorised: (edge id, distance) of the nearest edge of `networks` for each point in (n, 2) `xy`."""
+        pts = shapely.points(np.asarray(xy, np.float64))
+        best_e = np.full(len(pts), -1, np.int64)
+        best_d = np.full(len(pts), np.inf)
+        for bit, (tree, idx) in self.trees.items():
+            if not (bit & networks) or len(idx) == 0:
+                continue
+            (src, hit), d = tree.query_nearest(pts, return_distance=True)
+            e = idx[hit]
+            better = (d < best_d[src]) | ((d == best_d[src]) & (e < best_e[src]))
+            best_d[src[better]] = d[better]
+            best_e[src[better]] = e[better]
+        return best_e, best_d
