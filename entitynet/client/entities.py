@@ -1,0 +1,48 @@
+"""Entity types: the parameters an entity type uses (reference section 5.2), and nothing more.
+
+Lengths are body parts from the front: 0 parts for pedestrians and cyclists (length 0), one for buses and
+cars, two for trams (a two-part vehicle with an articulation; both parts follow the rails).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from topology.raw import PEDESTRIAN, TRAM, VEHICLE
+
+
+@dataclass(frozen=True, slots=True)
+class EntityType:
+    code: int
+    name: str
+    networks: int
+    parts: tuple[float, ...]
+    vmax: float  # m/s, caps accelerating extrapolations
+    amax: float  # m/s^2, bound on the published acceleration
+    v_stop: float  # below this estimated speed a moving entity has stopped (emergent update)
+    v_start: float  # above this a stopped entity has started (emergent update)
+    jerk_q: float  # process noise of the along-path filter
+    accel: bool  # whether the along-path filter (and the published model) carries acceleration
+
+    @property
+    def length(self) -> float:
+        return sum(self.parts)
+
+
+PEDESTRIAN_T = EntityType(0, "pedestrian", PEDESTRIAN, (), 3.0, 1.0, 0.25, 0.7, 0.4, False)
+CAR = EntityType(1, "car", VEHICLE, (4.5,), 25.0, 3.0, 0.8, 2.0, 1.0, True)
+BUS = EntityType(2, "bus", VEHICLE, (12.0,), 20.0, 1.5, 0.8, 2.0, 0.3, True)
+TRAM_T = EntityType(3, "tram", TRAM, (13.8, 13.8), 14.0, 1.3, 0.8, 2.0, 0.3, True)
+CYCLIST = EntityType(4, "cyclist", PEDESTRIAN | VEHICLE, (), 10.0, 2.0, 0.6, 1.5, 0.8, True)
+
+TYPES: dict[str, EntityType] = {t.name: t for t in (PEDESTRIAN_T, CAR, BUS, TRAM_T, CYCLIST)}
+BY_CODE: dict[int, EntityType] = {t.code: t for t in TYPES.values()}
+
+
+def entity_type(name_or_type: str | EntityType) -> EntityType:
+    if isinstance(name_or_type, EntityType):
+        return name_or_type
+    try:
+        return TYPES[name_or_type]
+    except KeyError:
+        raise ValueError(f"unknown entity type {name_or_type!r} (known: {', '.join(sorted(TYPES))})") from None

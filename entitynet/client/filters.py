@@ -1,0 +1,87 @@
+"""Scalar Kalman filters for noisy fixes, written out by hand (pure floats: ~2 us per update).
+
+`Kinematic1D` tracks (position, speed, acceleration) along one axis: the path coordinate for network dead
+reckoning, or x and y separately for the world-frame baselines. With `accel=False` it is the constant
+velocity filter (acceleration fixed at 0). Process noise is white jerk (or white acceleration) of density q.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+class Kinematic1D:
+    __slots__ = ("s", "v", "a", "p00", "p01", "p02", "p11", "p12", "p22", "t", "q", "accel")
+
+    def __init__(self, s: float, t: float, r: float, *, q: float = 0.5, accel: bool = True,
+                 v0_var: float = 100.0, a0_var: float = 4.0) -> None:
+        self.s, self.v, self.a, self.t = s, 0.0, 0.0, t
+        self.p00, self.p01, self.p02 = r, 0.0, 0.0
+        self.p11, self.p12 = v0_var, 0.0
+        self.p22 = a0_var if accel else 0.0
+        self.q, self.accel = q, accel
+
+    def predict(self, t: float) -> None:
+        dt = t - self.t
+        if dt <= 0.0:
+            return
+        h = 0.5 * dt * dt
+        q = self.q
+        p00, p01, p02, p11, p12, p22 = self.p00, self.p01, self.p02, self.p11, self.p12, self.p22
+        if self.accel:
+            self.s += self.v * dt + self.a * h
+            self.v += self.a * dt
+            r00 = p00 + dt * p01 + h * p02
+            r01 = p01 + dt * p11 + h * p12
+            r02 = p02 + dt * p12 + h * p22
+            r11 = p11 + dt * p12
+            r12 = p12 + dt * p22
+            dt2 = dt * dt
+            dt3 = dt2 * dt
+            self.p00 = r00 + dt * r01 + h * r02 + q * dt3 * dt2 / 20.0
+            self.p01 = r01 + dt * r02 + q * dt2 * dt2 / 8.0
+            self.p02 = r02 + q * dt3 / 6.0
+            self.p11 = r11 + dt * r12 + q * dt3 / 3.0
+            self.p12 = r12 + q * dt2 / 2.0
+            self.p22 = p22 + q * dt
+        else:
+            self.s += self.v * dt
+            self.p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt * dt * dt / 3.0
+            self.p01 = p01 + dt * p11 + q * dt * dt / 2.0
+            self.p11 = p11 + q * dt
+        self.t = t
+
+    def update(self, z: float, t: float, r: float) -> float:
+        """Fold in a measurement z (variance r) taken at t; returns the innovation."""
+        self.predict(t)
+        y = z - self.s
+        p00, p01, p02 = self.p00, self.p01, self.p02
+        sden = p00 + r
+        if not sden > 0.0:
+            return y
+        k0, k1, k2 = p00 / sden, p01 / sden, p02 / sden
+        self.s += k0 * y
+        self.v += k1 * y
+        self.a += k2 * y
+        self.p11 -= k1 * p01
+        self.p12 -= k1 * p02
+        self.p22 -= k2 * p02
+        self.p00 -= k0 * p00
+        self.p01 -= k0 * p01
+        self.p02 -= k0 * p02
+        return y
+
+    def state_at(self, t: float) -> tuple[float, float, float]:
+        """Predicted (s, v, a) at t without changing the filter."""
+        dt = max(t - self.t, 0.0)
+        return self.s + self.v * dt + 0.5 * self.a * dt * dt, self.v + self.a * dt, self.a
+
+    def flip(self, total: float) -> None:
+        """Re-express the state on the reversed path (s -> total - s); the covariance is unchanged."""
+        self.s, self.v, self.a = total - self.s, -self.v, -self.a
+
+    def shift(self, ds: float) -> None:
+        self.s -= ds
+
+    def speed_sigma(self) -> float:
+        return math.sqrt(max(self.p11, 0.0))

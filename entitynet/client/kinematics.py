@@ -1,0 +1,56 @@
+"""1D motion with speed, acceleration and a speed cap: distance after a time, and time to cover a distance.
+
+Both directions of the question use the same piecewise model, so a validity period computed by a player is
+exactly the moment its published extrapolation reaches the boundary:
+- a < 0: decelerate until the speed reaches 0, then stand still (never reverse);
+- a > 0: accelerate until `vmax`, then keep `vmax`;
+- a = 0 or v = vmax: constant speed.
+Every division has a defined result at zero: no motion ahead gives an unbounded time (math.inf).
+"""
+
+from __future__ import annotations
+
+import math
+
+INF = math.inf
+
+
+def advance(v: float, a: float, vmax: float, dt: float) -> tuple[float, float]:
+    """(distance, speed) after `dt` >= 0 seconds from speed v >= 0 with acceleration a, speed capped at vmax."""
+    if dt <= 0.0:
+        return 0.0, v
+    if a < 0.0:
+        t_stop = v / -a
+        if dt >= t_stop:
+            return v * t_stop + 0.5 * a * t_stop * t_stop, 0.0
+        return v * dt + 0.5 * a * dt * dt, v + a * dt
+    if a > 0.0 and v < vmax:
+        t_cap = (vmax - v) / a
+        if dt <= t_cap:
+            return v * dt + 0.5 * a * dt * dt, v + a * dt
+        return v * t_cap + 0.5 * a * t_cap * t_cap + vmax * (dt - t_cap), vmax
+    return v * dt, v
+
+
+def time_to_travel(d: float, v: float, a: float, vmax: float) -> float:
+    """Earliest t >= 0 at which `advance` has covered distance d; math.inf when it never does.
+
+    Uses t = 2d / (v + sqrt(v^2 + 2ad)), which is stable as a -> 0 and has no cancellation; a negative
+    discriminant means the entity stops before d (no real root).
+    """
+    if not d > 0.0:
+        return 0.0
+    if a > 0.0 and v < vmax:
+        t_cap = (vmax - v) / a
+        d_cap = v * t_cap + 0.5 * a * t_cap * t_cap
+        if d > d_cap:
+            return t_cap + (d - d_cap) / vmax if vmax > 0.0 else INF
+        disc = v * v + 2.0 * a * d
+        return 2.0 * d / (v + math.sqrt(disc))
+    if a < 0.0:
+        disc = v * v + 2.0 * a * d
+        if disc < 0.0:
+            return INF
+        den = v + math.sqrt(disc)
+        return 2.0 * d / den if den > 0.0 else INF
+    return d / v if v > 0.0 else INF

@@ -1,0 +1,130 @@
+"""Cell occupation and its validity period, from the entity's front and aft (reference section 4.3).
+
+The body of an entity of length L whose front is at path coordinate s is [s - L, s]; a pedestrian has L = 0,
+a two-part tram the sum of its parts (both follow the rails, so the body is still one path interval).
+
+- *front period*: time until the front enters a cell that is not in the occupation;
+- *aft period*: time until the aft leaves its first cell (only in the reference's tight mode: with a
+  lookahead the cells behind are merely over-coverage, not an error);
+- the shorter decides; the player recomputes when it expires or when it sends an update.
+
+`margin` widens the body on both sides by the drift threshold: while the truth stays within the threshold of
+the published extrapolation, the true body stays inside the published cells. `lookahead` extends the
+occupation along the known path (a-priori route, or up to the next real choice of way), so fewer periods
+expire, at the price of deliveries to viewers who see those cells before the entity gets there.
+
+Where the path ahead is not known (no route) the occupation may only reach past the next choice node as far as
+every branch stays in the junction cell: the front period is then the minimum over the branches.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from entitynet.client.kinematics import INF, time_to_travel
+from entitynet.client.path import Path
+
+
+@dataclass(frozen=True, slots=True)
+class Occupation:
+    cells: tuple[int, ...]
+    validity: float  # seconds (the shorter period, capped and floored), finite
+    front_period: float  # seconds, may be math.inf
+    aft_period: float  # seconds, may be math.inf
+    cover_start: float  # path coordinates covered by `cells`
+    cover_end: float
+
+
+def certain_end(path: Path, s_front: float, networks: int, known_until: float) -> float:
+    """How far along `path` the entity's way is certain: to the first choice node beyond `known_until`
+    (after the front), plus the stretch every branch stays in the cell at that node."""
+    net = path.net
+    k = path.index(max(s_front, known_until))
+    while k < len(path.edges):
+        de = path.edges[k]
+        s_node = path.cum[k + 1]
+        if s_node >= known_until and s_node >= s_front and net.is_choice(de, networks):
+            node_cell = path.cell(s_node - 1e-9) if s_node > 0 else path.cell(0.0)
+            allowance = INF
+            for cand in net.choices(de, networks):
+                pieces = net.pieces(*cand)
+                a0, b0, c0 = pieces[0]
+                allowance = min(allowance, b0 if c0 == node_cell else 0.0)
+            if not net.choices(de, networks):
+                allowance = 0.0
+            return min(s_node + allowance, path.length)
+        k += 1
+    return path.length
+
+
+def occupy(
+    path: Path,
+    s_front: float,
+    length: float,
+    v: float,
+    a: float,
+    vmax: float,
+    networks: int,
+    *,
+    known_until: float = 0.0,
+    margin: float = 0.0,
+    lookahead: float = 0.0,
+    tight: bool | None = None,
+    max_validity: float = 60.0,
+    min_validity: float = 0.5,
+    dead_end_at_path_end: bool = False,
+) -> Occupation:
+    """Occupation of an entity moving along `path` with front at `s_front`, modelled by (v, a, vmax).
+
+    `known_until`: path coordinate up to which the way is known a priori (route); pass `path.length` for a
+    fully known path, 0 for none. `tight` (default: lookahead == 0) adds the aft period.
+    """
+    if not (math.isfinite(s_front) and math.isfinite(v) and math.isfinite(a)):
+        raise ValueError("occupation needs finite position, speed and acceleration")
+    if tight is None:
+        tight = lookahead <= 0.0
+    v = max(v, 0.0)
+    s_aft = s_front - max(length, 0.0)
+    start = min(max(s_aft - margin, 0.0), path.length)
+    reach = min(max(s_front + margin, start), path.length)
+    end_known = max(certain_end(path, s_front, networks, known_until), reach)
+    target = reach if tight else min(reach + max(lookahead, 0.0), end_known)
+    ahead = path.boundaries_after(target, end_known)
+    cover_end = ahead[0][0] if ahead else end_known
+    # cells of [start, cover_end): the cell starting exactly at cover_end is not covered
+    cells = path.cells_between(start, reach)
+    for sa, c in path.starts_in(reach, cover_end):
+        if sa < cover_end and c not in cells:
+            cells.append(c)
+    if cover_end >= path.length and dead_end_at_path_end:
+        front = INF
+    else:
+        front = time_to_travel(cover_end - reach, v, a, vmax)
+    aft = INF
+    if tight:
+        behind = path.boundaries_after(start, end_known)
+        if behind:
+            aft = time_to_travel(behind[0][0] - start, v, a, vmax)
+    validity = max(min(front, aft, max_validity), min_validity)
+    return Occupation(tuple(cells), validity, front, aft, start, cover_end)
+
+
+def occupy_area(x: float, y: float, vx: float, vy: float, ring_xy, area_cell: int, *,
+                margin: float = 0.0, max_validity: float = 60.0, min_validity: float = 0.5) -> Occupation:
+    """An entity inside an area occupies the area cell until it could reach the area's boundary.
+
+    Conservative in every direction: (distance to the nearest boundary point - margin) / speed.
+    """
+    import numpy as np
+
+    ring = np.asarray(ring_xy, dtype=np.float64)
+    p0, p1 = ring[:-1], ring[1:]
+    d = p1 - p0
+    l2 = np.einsum("ij,ij->i", d, d)
+    t = np.clip(((x - p0[:, 0]) * d[:, 0] + (y - p0[:, 1]) * d[:, 1]) / np.where(l2 > 0, l2, 1.0), 0.0, 1.0)
+    dist = float(np.min(np.hypot(p0[:, 0] + t * d[:, 0] - x, p0[:, 1] + t * d[:, 1] - y))) if len(d) else 0.0
+    speed = math.hypot(vx, vy)
+    period = time_to_travel(dist - margin, speed, 0.0, speed)
+    validity = max(min(period, max_validity), min_validity)
+    return Occupation((int(area_cell),), validity, period, INF, 0.0, 0.0)

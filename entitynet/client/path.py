@@ -1,0 +1,139 @@
+"""A path: consecutive directed edges with a 1D coordinate `s` (metres from the start of the first edge).
+
+Network dead reckoning, cell occupation and receivers all work on this one coordinate, so an entity longer
+than a chain of short edges, a hairpin, or junction cells back to back need no special cases: the body is
+the interval [s - length, s] of the path.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from collections.abc import Sequence
+
+from entitynet.client.network import DirEdge, NetView
+
+
+class Path:
+    __slots__ = ("net", "edges", "cum")
+
+    def __init__(self, net: NetView, edges: Sequence[DirEdge]) -> None:
+        if not edges:
+            raise ValueError("a path needs at least one edge")
+        self.net = net
+        self.edges: list[DirEdge] = [(int(e), 1 if d > 0 else -1) for e, d in edges]
+        cum = [0.0]
+        for e, _ in self.edges:
+            if not 0 <= e < net.n_edges:
+                raise ValueError(f"edge {e} is not in the topology")
+            cum.append(cum[-1] + net.edge_len[e])
+        self.cum = cum
+        for a, b in zip(self.edges, self.edges[1:], strict=False):
+            if net.end_node(a) != net.start_node(b):
+                raise ValueError(f"path edges {a} and {b} do not meet at a node")
+
+    @property
+    def length(self) -> float:
+        return self.cum[-1]
+
+    def index(self, s: float) -> int:
+        """Index of the edge holding s (clamped to the path)."""
+        k = bisect_right(self.cum, s) - 1
+        return min(max(k, 0), len(self.edges) - 1)
+
+    def locate(self, s: float) -> tuple[int, float]:
+        """(edge, offset on that edge) at path coordinate s, clamped to the path."""
+        k = self.index(s)
+        de = self.edges[k]
+        d = min(max(s - self.cum[k], 0.0), self.net.edge_len[de[0]])
+        return de[0], (d if de[1] > 0 else self.net.edge_len[de[0]] - d)
+
+    def xy(self, s: float) -> tuple[float, float]:
+        e, off = self.locate(s)
+        return self.net.point(e, off)
+
+    def cell(self, s: float) -> int:
+        e, off = self.locate(s)
+        return self.net.cell_at(e, off)
+
+    def starts_in(self, s0: float, s1: float) -> list[tuple[float, int]]:
+        """(s, cell) of every cell piece that starts in (s0, s1], in order of travel."""
+        out: list[tuple[float, int]] = []
+        k = self.index(s0)
+        while k < len(self.edges) and self.cum[k] <= s1:
+            base = self.cum[k]
+            for a, _b, c in self.net.pieces(*self.edges[k]):
+                sa = base + a
+                if sa > s1:
+                    break
+                if sa > s0:
+                    out.append((sa, c))
+            k += 1
+        return out
+
+    def cells_between(self, s0: float, s1: float) -> list[int]:
+        """Cells met along [s0, s1] (clamped to the path), in order of travel, without repeats."""
+        s0 = min(max(s0, 0.0), self.length)
+        s1 = min(max(s1, s0), self.length)
+        out = [self.cell(s0)]
+        for _s, c in self.starts_in(s0, s1):
+            if c not in out:
+                out.append(c)
+        return out
+
+    def boundaries_after(self, s: float, limit: float) -> list[tuple[float, int]]:
+        """(s_boundary, cell entered) for every change of cell in (s, min(limit, length)]."""
+        prev = self.cell(s)
+        out: list[tuple[float, int]] = []
+        for sa, c in self.starts_in(s, min(limit, self.length)):
+            if c != prev:
+                out.append((sa, c))
+                prev = c
+        return out
+
+    def extended(self, ahead: Sequence[DirEdge]) -> Path:
+        return Path(self.net, self.edges + list(ahead))
+
+    def reversed(self) -> Path:
+        return Path(self.net, [(e, -d) for e, d in reversed(self.edges)])
+
+    def trimmed(self, keep_from: float) -> tuple[Path, float]:
+        """Drop whole edges that end before `keep_from`; returns the new path and the shift of s."""
+        k = self.index(keep_from)
+        if k == 0:
+            return self, 0.0
+        return Path(self.net, self.edges[k:]), self.cum[k]
+
+    def __repr__(self) -> str:
+        return f"Path({self.edges!r})"
+
+
+def follow(net: NetView, start: DirEdge, networks: int, distance: float,
+           route: Sequence[DirEdge] | None = None, route_index: int | None = None,
+           max_edges: int = 256) -> list[DirEdge]:
+    """Directed edges after `start` covering `distance` metres: the route when known, else the junction rule.
+
+    `route_index` is the position of `start` in `route`. Stops early at dead ends and area nodes.
+    """
+    out: list[DirEdge] = []
+    cur = start
+    ri = route_index
+    gone = 0.0
+    while gone < distance and len(out) < max_edges:
+        nxt: DirEdge | None = None
+        if route is not None and ri is not None and ri + 1 < len(route):
+            cand = route[ri + 1]
+            if net.start_node(cand) == net.end_node(cur):
+                nxt = cand
+                ri += 1
+            else:
+                ri = None
+        elif ri is not None:
+            ri = None
+        if nxt is None:
+            nxt = net.next_edge(cur, networks)
+        if nxt is None:
+            break
+        out.append(nxt)
+        gone += net.edge_len[nxt[0]]
+        cur = nxt
+    return out

@@ -1,0 +1,101 @@
+"""The published model as a compact msgpack payload (opaque to servers).
+
+Quantised integers keep it small and make it exact: positions in centimetres, speeds in mm/s, accelerations
+in mm/s^2, times in wire milliseconds, directed edges as signed ids (edge + 1) * dir. A player builds its
+ghost by *decoding its own payload*, so it extrapolates exactly what every receiver extrapolates.
+
+    network: [1, 1, t0_ms, etype, s0_cm, v_mms, a_mms2, vmax_mms, [part_cm...], [signed edge...]]
+    area:    [1, 2, t0_ms, etype, area, x_cm, y_cm, vx_mms, vy_mms]
+    world:   [1, 3, t0_ms, etype, x_cm, y_cm, vx_mms, vy_mms, ax_mms2, ay_mms2]
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+
+from entitynet.client.motion import (
+    KIND_AREA,
+    KIND_NETWORK,
+    KIND_WORLD,
+    AreaModel,
+    Model,
+    NetworkModel,
+    WorldModel,
+)
+from entitynet.client.network import NetView
+from entitynet.client.path import Path
+
+VERSION = 1
+
+
+class PayloadError(ValueError):
+    """A payload that is not a valid published model (wrong shape, version, or an edge not in the map)."""
+
+
+def _q(x: float, scale: float) -> int:
+    if not math.isfinite(x):
+        raise PayloadError(f"cannot encode non-finite value {x!r}")
+    return int(round(x * scale))
+
+
+def encode(model: Model) -> bytes:
+    t0 = _q(model.t0, 1000.0)
+    if isinstance(model, NetworkModel):
+        edges = [(e + 1) * d for e, d in model.path.edges]
+        body = [VERSION, KIND_NETWORK, t0, model.etype, _q(model.s0, 100.0), _q(max(model.v, 0.0), 1000.0),
+                _q(model.a, 1000.0), _q(model.vmax, 1000.0), [_q(p, 100.0) for p in model.parts], edges]
+    elif isinstance(model, AreaModel):
+        body = [VERSION, KIND_AREA, t0, model.etype, model.area, _q(model.x, 100.0), _q(model.y, 100.0),
+                _q(model.vx, 1000.0), _q(model.vy, 1000.0)]
+    elif isinstance(model, WorldModel):
+        body = [VERSION, KIND_WORLD, t0, model.etype, _q(model.x, 100.0), _q(model.y, 100.0),
+                _q(model.vx, 1000.0), _q(model.vy, 1000.0), _q(model.ax, 1000.0), _q(model.ay, 1000.0)]
+    else:
+        raise PayloadError(f"unknown model {type(model).__name__}")
+    return msgpack.packb(body, use_bin_type=True)
+
+
+def _ints(xs, n: int | None = None) -> list[int]:
+    if not isinstance(xs, list) or (n is not None and len(xs) != n):
+        raise PayloadError("malformed payload")
+    for x in xs:
+        if not isinstance(x, int) or isinstance(x, bool):
+            raise PayloadError("malformed payload: expected integers")
+    return xs
+
+
+def decode(data: bytes, net: NetView | None) -> Model:
+    """The model in a payload. Network models need the topology (`net`); world models do not."""
+    try:
+        body = msgpack.unpackb(data, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several unrelated types
+        raise PayloadError(f"not a msgpack payload ({exc.__class__.__name__})") from None
+    if not isinstance(body, list) or len(body) < 4 or body[0] != VERSION:
+        raise PayloadError("unknown payload version or shape")
+    kind = body[1]
+    if kind == KIND_NETWORK:
+        if len(body) != 10:
+            raise PayloadError("malformed network payload")
+        t0, etype, s0, v, a, vmax = _ints(body[2:8], 6)
+        parts = _ints(body[8])
+        signed = _ints(body[9])
+        if net is None:
+            raise PayloadError("a network payload needs the topology")
+        if not signed or v < 0 or vmax < 0 or any(p < 0 for p in parts):
+            raise PayloadError("malformed network payload values")
+        try:
+            path = Path(net, [(abs(x) - 1, 1 if x > 0 else -1) for x in signed if x != 0])
+        except ValueError as exc:
+            raise PayloadError(str(exc)) from None
+        return NetworkModel(t0 / 1000.0, path, s0 / 100.0, v / 1000.0, a / 1000.0, vmax / 1000.0, etype,
+                            tuple(p / 100.0 for p in parts))
+    if kind == KIND_AREA:
+        t0, etype, area, x, y, vx, vy = _ints(body[2:], 7)
+        return AreaModel(t0 / 1000.0, area, x / 100.0, y / 100.0, vx / 1000.0, vy / 1000.0, etype)
+    if kind == KIND_WORLD:
+        t0, etype, x, y, vx, vy, ax, ay = _ints(body[2:], 8)
+        return WorldModel(t0 / 1000.0, x / 100.0, y / 100.0, vx / 1000.0, vy / 1000.0, ax / 1000.0,
+                          ay / 1000.0, etype)
+    raise PayloadError(f"unknown model kind {kind!r}")

@@ -1,0 +1,154 @@
+"""Placing fixes on the network: the placement index for the first fix, continuity afterwards.
+
+Continuity projects a fix onto the segments of the edges within two hops of the current edge (one vectorised
+numpy pass over a cached segment table, no shapely). Edges the entity is expected on (its path: the route or
+the predicted way) get a head start of `switch_margin` metres, and a different edge must win `switch_count`
+fixes in a row: that is the hysteresis against flapping between parallel streets under GPS noise. When
+nothing nearby is within `reacquire` metres the placement index is asked again.
+
+Ties are deterministic: segments are ordered by (edge id, vertex index) and the first minimum wins, so a fix
+exactly on a vertex or equidistant to two edges always gets the same answer.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from entitynet.client.network import NetView
+
+
+@dataclass(frozen=True, slots=True)
+class Fix:
+    """A placement result. kind "edge": (edge, offset); kind "area": (area, x, y). xy is the inferred point."""
+
+    kind: str
+    index: int
+    offset: float
+    x: float
+    y: float
+    distance: float
+
+
+class _SegTable:
+    __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas")
+
+    def __init__(self, net: NetView, edges: list[int], areas: list[int]) -> None:
+        ax, ay, dx, dy, cum0, eid = [], [], [], [], [], []
+        for e in edges:
+            lo, hi = net.geom_off[e], net.geom_off[e + 1]
+            for k in range(lo, hi - 1):
+                ax.append(net.gx[k])
+                ay.append(net.gy[k])
+                dx.append(net.gx[k + 1] - net.gx[k])
+                dy.append(net.gy[k + 1] - net.gy[k])
+                cum0.append(net.gcum[k])
+                eid.append(e)
+        self.ax, self.ay = np.array(ax), np.array(ay)
+        self.dx, self.dy = np.array(dx), np.array(dy)
+        l2 = self.dx * self.dx + self.dy * self.dy
+        self.inv_l2 = np.where(l2 > 0.0, 1.0 / np.where(l2 > 0.0, l2, 1.0), 0.0)
+        self.slen = np.sqrt(l2)
+        self.cum0 = np.array(cum0)
+        self.edge = np.array(eid, dtype=np.int64)
+        self.edges = edges
+        self.areas = areas
+
+
+class Placer:
+    """Per-process placement service shared by all entities on one topology and network mask."""
+
+    def __init__(self, net: NetView, networks: int, *, switch_margin: float = 3.0, switch_count: int = 2,
+                 reacquire: float = 40.0) -> None:
+        self.net = net
+        self.topo = net.topo
+        self.networks = networks
+        self.switch_margin = switch_margin
+        self.switch_count = switch_count
+        self.reacquire = reacquire
+        self._tables: dict[int, _SegTable] = {}
+        self._rings: dict[int, np.ndarray] = {}
+
+    # ---- first fix -----------------------------------------------------------------------------------------
+    def first(self, x: float, y: float) -> Fix | None:
+        p = self.topo.placement_index().place(x, y, self.networks)
+        if p is None:
+            return None
+        return Fix(p.kind, int(p.index), float(p.offset), float(p.x), float(p.y), float(p.distance))
+
+    # ---- continuity ----------------------------------------------------------------------------------------
+    def table(self, edge: int) -> _SegTable:
+        t = self._tables.get(edge)
+        if t is None:
+            net = self.net
+            hop1 = net.edges_near_nodes([net.edge_from[edge], net.edge_to[edge]], self.networks)
+            nodes = {net.edge_from[e] for e in hop1} | {net.edge_to[e] for e in hop1}
+            hop2 = net.edges_near_nodes(sorted(nodes), self.networks)
+            edges = sorted(set(hop2) | {edge})
+            areas = sorted({net.node_area[n] for n in nodes if net.node_area[n] >= 0})
+            t = _SegTable(net, edges, areas)
+            self._tables[edge] = t
+        return t
+
+    def ring(self, area: int) -> np.ndarray:
+        r = self._rings.get(area)
+        if r is None:
+            r = np.ascontiguousarray(self.topo.area_polygons.exterior(area))
+            self._rings[area] = r
+        return r
+
+    def inside_area(self, area: int, x: float, y: float) -> bool:
+        """Even-odd point in polygon on the exterior ring (numpy, no shapely)."""
+        r = self.ring(area)
+        x0, y0, x1, y1 = r[:-1, 0], r[:-1, 1], r[1:, 0], r[1:, 1]
+        cond = (y0 > y) != (y1 > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xs = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+        return bool(np.count_nonzero(cond & (x < xs)) % 2)
+
+    def near(self, x: float, y: float, edge: int, preferred: set[int] | frozenset[int]) -> tuple[Fix, float]:
+        """Best placement near `edge` with the head start for `preferred` edges.
+
+        Returns (fix, distance of the best preferred candidate or inf)."""
+        t = self.table(edge)
+        for a in t.areas:
+            if self.topo.area_networks[a] & self.networks and self.inside_area(a, x, y):
+                return Fix("area", a, 0.0, x, y, 0.0), math.inf
+        rx = x - t.ax
+        ry = y - t.ay
+        u = np.clip((rx * t.dx + ry * t.dy) * t.inv_l2, 0.0, 1.0)
+        ex = rx - u * t.dx
+        ey = ry - u * t.dy
+        d = np.sqrt(ex * ex + ey * ey)
+        if preferred:
+            pref = np.fromiter((e in preferred for e in t.edge.tolist()), bool, len(t.edge))
+            cost = d + np.where(pref, 0.0, self.switch_margin)
+            dp = np.where(pref, d, np.inf)
+            kp = int(np.argmin(dp))
+            best_pref = float(dp[kp])
+        else:
+            cost = d
+            best_pref = math.inf
+        k = int(np.argmin(cost))
+        e = int(t.edge[k])
+        off = float(t.cum0[k] + u[k] * t.slen[k])
+        return Fix("edge", e, off, float(t.ax[k] + u[k] * t.dx[k]), float(t.ay[k] + u[k] * t.dy[k]),
+                   float(d[k])), best_pref
+
+    def project_on(self, x: float, y: float, edge: int) -> Fix:
+        """Projection onto one given edge (used to follow the current edge inside the hysteresis)."""
+        net = self.net
+        lo, hi = net.geom_off[edge], net.geom_off[edge + 1]
+        best = (math.inf, 0.0, 0.0, 0.0)
+        for k in range(lo, hi - 1):
+            ax, ay = net.gx[k], net.gy[k]
+            dx, dy = net.gx[k + 1] - ax, net.gy[k + 1] - ay
+            l2 = dx * dx + dy * dy
+            u = 0.0 if l2 <= 0.0 else min(max(((x - ax) * dx + (y - ay) * dy) / l2, 0.0), 1.0)
+            px, py = ax + u * dx, ay + u * dy
+            dd = math.hypot(x - px, y - py)
+            if dd < best[0]:
+                best = (dd, net.gcum[k] + u * (net.gcum[k + 1] - net.gcum[k]), px, py)
+        return Fix("edge", edge, best[1], best[2], best[3], best[0])

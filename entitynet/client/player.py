@@ -1,0 +1,473 @@
+"""The Player: an honest client's sans-IO core (reference section 4.5).
+
+Fed GPS fixes (`feed`) and the time (`tick`), it keeps its measured and inferred positions, extrapolates its
+own published model exactly as every receiver does (its ghost: the decoded payload), and returns the
+`Publish` messages to send:
+- `first`, `jump`: first placement, or a re-acquisition far from the predicted place;
+- `drift`: the ghost is more than `threshold` metres from the filtered estimate;
+- `stop` / `start`: emergent behaviour the extrapolation cannot know;
+- `path`: the entity left the predicted path (turned at a junction, reversed, entered or left an area);
+- `expiry`: the occupation's validity period ran out;
+- `heartbeat`: nothing else was sent for `heartbeat` seconds.
+
+`model` selects what is published: "network" (path-constrained dead reckoning, the default), or the
+world-frame baselines "fpw", "fvw" and "periodic" (a position every `period` seconds). With no topology
+only the world-frame models work and no cells are published.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from entitynet.client.entities import EntityType, entity_type
+from entitynet.client.filters import Kinematic1D
+from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
+from entitynet.client.network import DirEdge, NetView, netview
+from entitynet.client.occupation import Occupation, occupy, occupy_area
+from entitynet.client.path import Path, follow
+from entitynet.client.payload import decode, encode
+from entitynet.client.placement import Fix, Placer
+from entitynet.protocol import Publish, Unpublish
+
+MODELS = ("network", "fpw", "fvw", "periodic")
+MAX_PUBLISH_CELLS = 64
+MAX_PATH_EDGES = 48
+
+
+class FixRejected(ValueError):
+    """A fix that cannot be used: NaN/inf, time not after the previous fix, or a bad accuracy."""
+
+
+_PLACERS: dict[tuple[int, int], Placer] = {}
+
+
+def placer_for(net: NetView, networks: int) -> Placer:
+    key = (id(net), networks)
+    p = _PLACERS.get(key)
+    if p is None or p.net is not net:
+        p = Placer(net, networks)
+        _PLACERS[key] = p
+    return p
+
+
+class Player:
+    def __init__(
+        self,
+        topo,
+        entity: int,
+        etype: str | EntityType,
+        *,
+        model: str = "network",
+        route: Sequence[Sequence[int]] | None = None,
+        accuracy: float = 5.0,
+        threshold: float | None = None,
+        margin: float | None = None,
+        lookahead: float | None = None,
+        heartbeat: float = 60.0,
+        max_validity: float = 60.0,
+        period: float = 1.0,
+        off_network: float = 60.0,
+        off_network_timeout: float = 30.0,
+    ) -> None:
+        if model not in MODELS:
+            raise ValueError(f"unknown model {model!r} (known: {', '.join(MODELS)})")
+        if topo is None and model == "network":
+            raise ValueError("the network model needs a topology")
+        self.etype = entity_type(etype)
+        self.entity = entity
+        self.model = model
+        self.accuracy = accuracy
+        self.threshold = float(threshold) if threshold is not None else max(accuracy, 1.0)
+        self.margin = self.threshold if margin is None else float(margin)
+        self.route: list[DirEdge] = [(int(e), 1 if d > 0 else -1) for e, d in (route or [])]
+        self.route_pairs = set(zip(self.route, self.route[1:], strict=False))
+        self.route_first: dict[DirEdge, int] = {}
+        for i, de in enumerate(self.route):
+            self.route_first.setdefault(de, i)
+        if lookahead is None:
+            lookahead = 150.0 if self.route else 0.0
+        self.lookahead = lookahead
+        self.heartbeat = heartbeat
+        self.max_validity = max_validity
+        self.period = period
+        self.off_network = off_network
+        self.off_network_timeout = off_network_timeout
+        self.net: NetView | None = netview(topo) if topo is not None else None
+        self.placer = placer_for(self.net, self.etype.networks) if self.net is not None else None
+        # state
+        self.seq = 0
+        self.last_t: float | None = None
+        self.measured: tuple[float, float, float] | None = None
+        self.mode: str | None = None  # "edge" | "area" | None
+        self.path: Path | None = None
+        self.kf: Kinematic1D | None = None
+        self.area = -1
+        self.kx: Kinematic1D | None = None
+        self.ky: Kinematic1D | None = None
+        self.pending: tuple[int, int] = (-1, 0)
+        self.ghost: Model | None = None
+        self.occupation: Occupation | None = None
+        self.pub_t = -math.inf
+        self.off_since: float | None = None
+        self.published = False
+        self.stats: dict[str, int] = {}
+        self.last_fix: Fix | None = None
+
+    # ---- inferred state -----------------------------------------------------------------------------------
+    @property
+    def inferred(self) -> tuple[str, int, float, float, float] | None:
+        """(kind, edge or area, offset, x, y) of the filtered position, or None before the first placement."""
+        if self.mode == "edge" and self.path is not None:
+            e, off = self.path.locate(self.kf.s)
+            x, y = self.net.point(e, off)
+            return "edge", e, off, x, y
+        if self.mode == "area":
+            return "area", self.area, 0.0, self.kx.s, self.ky.s
+        if self.kx is not None:
+            return "world", -1, 0.0, self.kx.s, self.ky.s
+        return None
+
+    def estimate_xy(self) -> tuple[float, float]:
+        if self.mode == "edge":
+            return self.path.xy(self.kf.s)
+        return self.kx.s, self.ky.s
+
+    # ---- input ----------------------------------------------------------------------------------------------
+    def _check(self, x: float, y: float, t: float, acc: float) -> None:
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(t)):
+            raise FixRejected(f"fix with non-finite value ({x!r}, {y!r}, t={t!r})")
+        if not (math.isfinite(acc) and acc > 0.0):
+            raise FixRejected(f"fix accuracy must be finite and positive, got {acc!r}")
+        if self.last_t is not None and not t > self.last_t:
+            raise FixRejected(f"fix time {t!r} is not after the previous fix at {self.last_t!r}")
+
+    def feed(self, x: float, y: float, t: float, accuracy: float | None = None) -> list[Publish | Unpublish]:
+        """One GPS fix (local metres, seconds). Returns the messages to send now (usually none)."""
+        acc = self.accuracy if accuracy is None else float(accuracy)
+        self._check(x, y, t, acc)
+        self.last_t = t
+        self.measured = (x, y, t)
+        r = acc * acc
+        reason = None
+        # world-frame filter: the baselines' state, and the only state without a topology
+        if self.model != "network" or self.net is None:
+            if self.kx is None:
+                accel = self.model == "fvw"
+                self.kx = Kinematic1D(x, t, r, q=self.etype.jerk_q if accel else 1.0, accel=accel)
+                self.ky = Kinematic1D(y, t, r, q=self.etype.jerk_q if accel else 1.0, accel=accel)
+            else:
+                self.kx.update(x, t, r)
+                self.ky.update(y, t, r)
+        if self.net is not None:
+            reason = self._track(x, y, t, r)
+            if reason == "off":
+                return self._off_network(t)
+        self.off_since = None
+        if reason is None:
+            reason = self._decide(t)
+        if reason is None:
+            return []
+        return [self._publish(t, reason)]
+
+    def tick(self, now: float) -> list[Publish]:
+        """Time passes without a fix: re-publish when the validity period or the heartbeat runs out."""
+        if not math.isfinite(now):
+            raise ValueError(f"now must be finite, got {now!r}")
+        if not self.published or self.ghost is None:
+            return []
+        if now >= self.pub_t + self._validity() or now - self.pub_t >= self.heartbeat:
+            reason = "expiry" if now >= self.pub_t + self._validity() else "heartbeat"
+            return [self._publish(now, reason, from_ghost=True)]
+        return []
+
+    def leave(self) -> list[Unpublish]:
+        was = self.published
+        self.published = False
+        return [Unpublish(self.entity)] if was else []
+
+    # ---- tracking on the network -------------------------------------------------------------------------
+    def _off_network(self, t: float) -> list[Publish | Unpublish]:
+        if self.off_since is None:
+            self.off_since = t
+        self.stats["off_network"] = self.stats.get("off_network", 0) + 1
+        if self.published and t - self.off_since >= self.off_network_timeout:
+            self.mode = None
+            return self.leave()
+        return []
+
+    def _init_at(self, fix: Fix, t: float, r: float) -> None:
+        et = self.etype
+        if fix.kind == "area":
+            self.mode, self.area = "area", fix.index
+            self.path = None
+            if self.model == "network":
+                self.kx = Kinematic1D(fix.x, t, r, q=1.0, accel=False)
+                self.ky = Kinematic1D(fix.y, t, r, q=1.0, accel=False)
+            return
+        self.mode = "edge"
+        de = (fix.index, 1)
+        i = self.route_first.get(de, self.route_first.get((fix.index, -1)))
+        if i is not None:
+            de = self.route[i]
+        self.path = Path(self.net, [de])
+        s = self.net.dist_of(de, fix.offset)
+        self.kf = Kinematic1D(s, t, r, q=et.jerk_q, accel=et.accel)
+        self.pending = (-1, 0)
+
+    def _track(self, x: float, y: float, t: float, r: float) -> str | None:
+        placer = self.placer
+        if self.mode is None:
+            fix = placer.first(x, y)
+            if fix is None or fix.distance > self.off_network:
+                return "off"
+            self._init_at(fix, t, r)
+            self.last_fix = fix
+            return "first" if not self.published else "jump"
+        if self.mode == "area":
+            if placer.inside_area(self.area, x, y):
+                self._area_update(x, y, t, r)
+                return None
+            fix = placer.first(x, y)
+            if fix is None or fix.distance > self.off_network:
+                return "off"
+            self._init_at(fix, t, r)
+            self.last_fix = fix
+            return "path"
+        # on an edge
+        path, kf = self.path, self.kf
+        s_pred = kf.state_at(t)[0]
+        k_cur = path.index(s_pred)
+        e_cur = path.edges[k_cur][0]
+        lo = path.index(s_pred - self.etype.length - 30.0)
+        hi = path.index(s_pred + 60.0)
+        preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
+        fix, best_pref = placer.near(x, y, e_cur, preferred)
+        if fix.kind == "area":
+            self._init_at(fix, t, r)
+            self.last_fix = fix
+            return "path"
+        if fix.distance > placer.reacquire:
+            g = placer.first(x, y)
+            if g is None or g.distance > self.off_network:
+                return "off"
+            self._init_at(g, t, r)
+            self.last_fix = g
+            return "jump"
+        reason = None
+        if fix.index not in preferred:
+            cand, count = self.pending
+            count = count + 1 if cand == fix.index else 1
+            self.pending = (fix.index, count)
+            if count >= placer.switch_count or not math.isfinite(best_pref):
+                if self._reroute(fix, s_pred):
+                    reason = "path"
+                else:
+                    self._init_at(fix, t, r)
+                    self.last_fix = fix
+                    return "jump"
+            else:
+                # hysteresis: stay on the expected edges for now
+                fix = self._best_on(x, y, preferred, e_cur)
+        else:
+            self.pending = (-1, 0)
+        self.last_fix = fix
+        s_meas = self._s_of(fix, s_pred)
+        self.kf.update(s_meas, t, r)
+        kf = self.kf
+        if kf.v < -self.etype.v_start and kf.v + 2.0 * kf.speed_sigma() < 0.0:
+            self.path = self.path.reversed()
+            kf.flip(self.path.length)
+            reason = reason or "path"
+        self._maintain_path()
+        return reason
+
+    def _best_on(self, x: float, y: float, preferred: set[int], e_cur: int) -> Fix:
+        best = None
+        for e in sorted(preferred):
+            f = self.placer.project_on(x, y, e)
+            if best is None or f.distance < best.distance:
+                best = f
+        return best if best is not None else self.placer.project_on(x, y, e_cur)
+
+    def _s_of(self, fix: Fix, s_pred: float) -> float:
+        """Path coordinate of an edge fix: the occurrence of its edge nearest to the prediction."""
+        path = self.path
+        best, best_d = None, math.inf
+        for k, de in enumerate(path.edges):
+            if de[0] != fix.index:
+                continue
+            s = path.cum[k] + self.net.dist_of(de, fix.offset)
+            if abs(s - s_pred) < best_d:
+                best, best_d = s, abs(s - s_pred)
+        return s_pred if best is None else best
+
+    def _reroute(self, fix: Fix, s_pred: float) -> bool:
+        """Join a newly chosen edge to the path at a node near the prediction; False if it does not touch."""
+        net, path = self.net, self.path
+        ends = (net.edge_from[fix.index], net.edge_to[fix.index])
+        k0 = path.index(s_pred)
+        order = sorted(range(len(path.edges)), key=lambda k: (abs(k - k0), k))
+        for k in order[:8]:
+            de = path.edges[k]
+            for node, keep in ((net.end_node(de), k + 1), (net.start_node(de), k)):
+                if node in ends:
+                    d = 1 if net.edge_from[fix.index] == node else -1
+                    if keep > 0 and path.edges[keep - 1] == (fix.index, -d):
+                        continue
+                    new = path.edges[:keep] + [(fix.index, d)]
+                    if keep == 0:
+                        return False
+                    self.path = Path(net, new)
+                    self.pending = (-1, 0)
+                    return True
+            for mid in net.choices(de, self.etype.networks):
+                if net.end_node(mid) in ends:
+                    node = net.end_node(mid)
+                    d = 1 if net.edge_from[fix.index] == node else -1
+                    self.path = Path(net, path.edges[: k + 1] + [mid, (fix.index, d)])
+                    self.pending = (-1, 0)
+                    return True
+        return False
+
+    def _maintain_path(self) -> None:
+        """Keep enough path behind (the body and margin) and ahead (lookahead and extrapolation)."""
+        path, kf = self.path, self.kf
+        behind = self.etype.length + self.margin + 50.0
+        if kf.s - behind > path.cum[1] if len(path.edges) > 1 else False:
+            newp, shift = path.trimmed(kf.s - behind)
+            if shift > 0.0:
+                self.path = path = newp
+                kf.shift(shift)
+        need = kf.s + self.lookahead + self.margin + 80.0 + 15.0 * max(kf.v, 0.0)
+        if path.length < need and len(path.edges) < MAX_PATH_EDGES:
+            last = path.edges[-1]
+            ri = self._route_index(last)
+            ahead = follow(self.net, last, self.etype.networks, need - path.length, self.route, ri,
+                           max_edges=MAX_PATH_EDGES - len(path.edges))
+            if ahead:
+                self.path = path.extended(ahead)
+
+    def _route_index(self, de: DirEdge) -> int | None:
+        return self.route_first.get(de)
+
+    def _known_until(self, path: Path, s: float) -> float:
+        if not self.route:
+            return 0.0
+        k = path.index(s)
+        if path.edges[k] not in self.route_first:
+            return 0.0
+        while k + 1 < len(path.edges) and (path.edges[k], path.edges[k + 1]) in self.route_pairs:
+            k += 1
+        return path.cum[k + 1]
+
+    def _area_update(self, x: float, y: float, t: float, r: float) -> None:
+        if self.model == "network":
+            self.kx.update(x, t, r)
+            self.ky.update(y, t, r)
+
+    # ---- decisions -----------------------------------------------------------------------------------------
+    def _validity(self) -> float:
+        return self.occupation.validity if self.occupation is not None else self.max_validity
+
+    def _est_speed(self) -> float:
+        if self.model == "network" and self.mode == "edge":
+            return self.kf.v
+        return math.hypot(self.kx.v, self.ky.v)
+
+    def _decide(self, t: float) -> str | None:
+        if not self.published or self.ghost is None:
+            return "first"
+        if self.model == "periodic":
+            if t - self.pub_t >= self.period - 1e-6:
+                return "periodic"
+            return self._expiry_or_heartbeat(t)
+        g = self.ghost
+        v_est = self._est_speed()
+        gv = g.speed_at(t) if isinstance(g, NetworkModel) else math.hypot(g.vx, g.vy)
+        et = self.etype
+        if gv > et.v_stop and v_est < et.v_stop:
+            return "stop"
+        if gv <= et.v_stop and v_est > et.v_start:
+            return "start"
+        gx, gy = g.xy_at(t)
+        ex, ey = self.estimate_xy()
+        if math.hypot(gx - ex, gy - ey) > self.threshold:
+            return "drift"
+        return self._expiry_or_heartbeat(t)
+
+    def _expiry_or_heartbeat(self, t: float) -> str | None:
+        if t >= self.pub_t + self._validity():
+            return "expiry"
+        if t - self.pub_t >= self.heartbeat:
+            return "heartbeat"
+        return None
+
+    # ---- publishing ----------------------------------------------------------------------------------------
+    def _publish(self, t: float, reason: str, from_ghost: bool = False) -> Publish:
+        self.stats[reason] = self.stats.get(reason, 0) + 1
+        model = self._build_model(t, from_ghost)
+        payload = encode(model)
+        ghost = decode(payload, self.net)
+        self.ghost = ghost
+        self.occupation = self._occupation(t, ghost)
+        self.pub_t = t
+        self.seq += 1
+        self.published = True
+        validity_ms = int(self.occupation.validity * 1000.0) if self.occupation else int(self.max_validity * 1000)
+        cells = self.occupation.cells[:MAX_PUBLISH_CELLS] if self.occupation else ()
+        return Publish(self.entity, self.seq, tuple(cells), validity_ms, payload)
+
+    def _build_model(self, t: float, from_ghost: bool) -> Model:
+        et = self.etype
+        if self.model == "network" and self.mode == "edge":
+            if from_ghost and isinstance(self.ghost, NetworkModel):
+                g = self.ghost
+                s_abs, v, a = g.s_at(t), g.speed_at(t), g.a
+                path, s = g.path, s_abs
+            else:
+                s, v, a = self.kf.s, self.kf.v, self.kf.a
+                path = self.path
+            if v < et.v_stop:
+                v, a = 0.0, 0.0
+            a = min(max(a, -et.amax), et.amax) if et.accel else 0.0
+            start_s = s - et.length - self.margin
+            k0 = path.index(start_s)
+            sub = Path(self.net, path.edges[k0:])
+            return NetworkModel(t, sub, s - path.cum[k0], max(v, 0.0), a, et.vmax, et.code, et.parts)
+        if self.model == "network" and self.mode == "area":
+            vx, vy = self.kx.v, self.ky.v
+            if math.hypot(vx, vy) < et.v_stop:
+                vx = vy = 0.0
+            return AreaModel(t, self.area, self.kx.s, self.ky.s, vx, vy, et.code)
+        if from_ghost and isinstance(self.ghost, WorldModel):
+            x, y = self.ghost.xy_at(t)
+            g = self.ghost
+            dt = max(t - g.t0, 0.0)
+            return WorldModel(t, x, y, g.vx + g.ax * dt, g.vy + g.ay * dt, g.ax, g.ay, et.code)
+        if self.model == "periodic":
+            return WorldModel(t, self.kx.s, self.ky.s, 0.0, 0.0, 0.0, 0.0, et.code)
+        vx, vy = self.kx.v, self.ky.v
+        ax, ay = (self.kx.a, self.ky.a) if self.model == "fvw" else (0.0, 0.0)
+        if math.hypot(vx, vy) < et.v_stop:
+            vx = vy = ax = ay = 0.0
+        return WorldModel(t, self.kx.s, self.ky.s, vx, vy, ax, ay, et.code)
+
+    def _occupation(self, t: float, ghost: Model) -> Occupation | None:
+        if self.net is None or self.mode is None:
+            return None
+        et = self.etype
+        if self.mode == "area":
+            x, y = ghost.xy_at(t) if isinstance(ghost, AreaModel) else self.estimate_xy()
+            vx, vy = (ghost.vx, ghost.vy) if isinstance(ghost, AreaModel) else (0.0, 0.0)
+            return occupy_area(x, y, vx, vy, self.placer.ring(self.area), self.net.area_cell[self.area],
+                               margin=self.margin, max_validity=self.max_validity)
+        if isinstance(ghost, NetworkModel):
+            path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a
+            known = self._known_until(path, s)
+            lookahead = self.lookahead
+        else:
+            path, s, v, a = self.path, self.kf.s, max(self.kf.v, 0.0), 0.0
+            known, lookahead = 0.0, 0.0
+        return occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
+                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
