@@ -1,0 +1,53 @@
+"""Configuration and limits of one switchboard (one shard)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from entitynet.protocol import CodecLimits
+
+
+@dataclass(frozen=True, slots=True)
+class SwitchConfig:
+    """Everything the core needs to know; no geometry, only the cell count and the topology digest.
+
+    `authenticate(token) -> user id or None` maps auth tokens to users (entitynet.auth); with `open_mode`
+    every token is accepted (local use) and the token itself, or `anon-<session>`, is the user id.
+    """
+
+    n_cells: int
+    digest: str
+    authenticate: Callable[[str], str | None] | None = None
+    open_mode: bool = False
+    grace_s: float = 5.0  # an entity lives this long past its validity without an update
+    max_subscriptions: int = 20_000  # cells per client
+    max_follows: int = 64  # direct subscriptions per client
+    max_entities_per_client: int = 20_000  # a proxy may carry many entities over one connection
+    max_entities: int = 1_000_000
+    query_rate: float = 2.0  # queries per second per client (token bucket) ...
+    query_burst: float = 5.0  # ... with this burst
+    max_query_results: int = 1000
+    max_pending: int = 50_000  # coalesced entity states waiting for one client; beyond -> slow consumer
+    max_control: int = 1000  # non-coalescible messages (errors, pongs, results) waiting for one client
+    codec: CodecLimits = CodecLimits()
+    seed: int | None = None  # for the opaque entity ids; None = unpredictable
+
+    def __post_init__(self) -> None:
+        if self.n_cells < 0:
+            raise ValueError("n_cells must be >= 0")
+        if not (self.grace_s >= 0 and self.query_rate >= 0 and self.query_burst >= 1):
+            raise ValueError("grace_s, query_rate must be >= 0 and query_burst >= 1")
+
+    def wire_limits(self) -> dict[str, int]:
+        """The limits a client is told in WELCOME."""
+        return {
+            "max_subscriptions": self.max_subscriptions,
+            "max_follows": self.max_follows,
+            "max_entities": self.max_entities_per_client,
+            "query_rate_mhz": int(self.query_rate * 1000),
+            "max_frame": self.codec.max_frame,
+            "max_payload": self.codec.max_payload,
+            "n_cells": self.n_cells,
+            "grace_ms": int(self.grace_s * 1000),
+        }

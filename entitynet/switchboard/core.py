@@ -1,0 +1,563 @@
+"""The switchboard core: master tables and forwarding, sans-IO.
+
+Tables: entities (owner, occupied cells, validity deadline, latest payload, viewers), cell -> subscribers,
+cell -> occupants, direct followers, per-client subscriptions/limits/outbox. The shell feeds decoded messages
+with `receive(cid, msgs, now)`, runs `expire(now)` at `next_deadline()`, and writes what `take_dirty()` names.
+
+Each entity keeps the set of clients that currently know it (`viewers`). A PUBLISH computes the new set
+(the union of the subscribers of its cells and its followers, minus the owner): the members get the
+UPDATE once however many of those cells they hold, and those that dropped out get LEAVE. Set algebra runs
+in C; an UPDATE is encoded once per publish (twice when an identity is shown to part of the audience) and
+the same bytes are queued for every viewer. Nothing here assumes a single shard: cell ids are plain ints
+and a neighbouring shard would be just another client subscribing with the same messages.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+from collections import Counter
+
+import msgpack
+
+from entitynet import protocol as P
+from entitynet.protocol import ErrorCode
+from entitynet.switchboard.config import SwitchConfig
+from entitynet.switchboard.outbox import Outbox
+from entitynet.switchboard.privacy import identity_shown
+from entitynet.switchboard.ratelimit import TokenBucket
+from entitynet.switchboard.timers import ExpiryHeap
+
+log = logging.getLogger("entitynet.switchboard")
+
+_packb = msgpack.Packer(use_bin_type=True).pack
+
+
+class ClientState:
+    __slots__ = (
+        "cid", "session", "user_id", "identity", "audience", "ready", "closing", "subs", "follows",
+        "entities", "bucket", "outbox",
+    )
+
+    def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket):
+        self.cid = cid
+        self.session = session
+        self.user_id = f"anon-{session}"
+        self.identity: str | None = None
+        self.audience: frozenset[str] | None = None
+        self.ready = False
+        self.closing = False
+        self.subs: set[int] = set()
+        self.follows: set[int] = set()
+        self.entities: dict[int, int] = {}  # local id -> server id
+        self.bucket = bucket
+        self.outbox = outbox
+
+
+class EntityState:
+    __slots__ = (
+        "eid", "owner", "local", "seq", "cells", "validity_ms", "payload", "viewers", "followers",
+        "enc_plain", "enc_ident",
+    )
+
+    def __init__(self, eid: int, owner: ClientState, local: int):
+        self.eid = eid
+        self.owner = owner
+        self.local = local
+        self.seq = -1
+        self.cells: tuple[int, ...] = ()
+        self.validity_ms = 0
+        self.payload = b""
+        self.viewers: set[int] = set()
+        self.followers: set[int] = set()
+        self.enc_plain = b""
+        self.enc_ident: bytes | None = None  # cached encoding with the owner's identity
+
+
+class Switchboard:
+    def __init__(self, config: SwitchConfig, now: float = 0.0):
+        self.config = config
+        self.clients: dict[int, ClientState] = {}
+        self.entities: dict[int, EntityState] = {}
+        self.subscribers: dict[int, set[int]] = {}  # cell -> client ids
+        self.occupants: dict[int, set[int]] = {}  # cell -> entity ids
+        self.by_identity: dict[str, set[int]] = {}  # published identity -> client ids
+        self.timers = ExpiryHeap()
+        self._states: dict[int, dict[int, bytes]] = {}  # cid -> its outbox.states (hot path shortcut)
+        self._dirty: set[int] = set()
+        self._next_cid = 1
+        self._rng = random.Random(config.seed)
+        self.stats: Counter[str] = Counter()
+        self.errors: Counter[int] = Counter()
+        self._start = now
+
+    # ------------------------------------------------------------------------------------------ connections
+    def connect(self, now: float) -> int:
+        cid = self._next_cid
+        self._next_cid += 1
+        session = self._rng.randrange(1, P.MAX_INT)
+        ob = Outbox(self.config.max_pending, self.config.max_control)
+        c = ClientState(cid, session, ob, TokenBucket(self.config.query_rate, self.config.query_burst, now))
+        self.clients[cid] = c
+        self._states[cid] = ob.states
+        self.stats["connections"] += 1
+        return cid
+
+    def disconnect(self, cid: int, now: float) -> None:
+        """The connection is gone: its entities leave at once (a reconnecting client re-publishes)."""
+        c = self.clients.pop(cid, None)
+        if c is None:
+            return
+        self._detach(c)
+        self._states.pop(cid, None)
+        self._dirty.discard(cid)
+
+    def outbox(self, cid: int) -> Outbox | None:
+        c = self.clients.get(cid)
+        return c.outbox if c else None
+
+    def take_dirty(self) -> set[int]:
+        """Clients with something new to write since the last call. Also enforces the outbox bounds."""
+        dirty = self._dirty
+        self._dirty = set()
+        for cid in dirty:
+            c = self.clients.get(cid)
+            if c is None:
+                continue
+            ob = c.outbox
+            if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
+                self.slow_consumer(cid, "outbound queue limit")
+        return dirty
+
+    def slow_consumer(self, cid: int, why: str) -> None:
+        """Drop what is pending for a client that does not keep up, tell it, and close it."""
+        c = self.clients.get(cid)
+        if c is None or c.closing:
+            return
+        c.outbox.states.clear()
+        c.outbox.control.clear()
+        c.outbox.overflow = False
+        self.stats["slow_consumers"] += 1
+        self._error(c, ErrorCode.SLOW_CONSUMER, f"too far behind ({why}); disconnecting")
+
+    def protocol_error(self, cid: int, err: P.ProtocolError) -> None:
+        """The shell could not decode this client's bytes."""
+        c = self.clients.get(cid)
+        if c is not None:
+            self._error(c, err.code, err.text)
+
+    def shutdown(self) -> None:
+        for c in list(self.clients.values()):
+            self._error(c, ErrorCode.SHUTTING_DOWN, "server shutting down")
+
+    # ------------------------------------------------------------------------------------------ messages in
+    def receive(self, cid: int, msgs: list[P.Message], now: float) -> None:
+        c = self.clients.get(cid)
+        if c is None:
+            return
+        for m in msgs:
+            if c.closing:
+                return
+            t = type(m)
+            if not c.ready:
+                if t is P.Hello:
+                    self._hello(c, m, now)
+                else:
+                    self._error(c, ErrorCode.HANDSHAKE_REQUIRED, "the first message must be HELLO")
+                continue
+            if t is P.Publish:
+                self._publish(c, m, now)
+            elif t is P.Subscribe:
+                self._subscribe(c, m)
+            elif t is P.Ping:
+                self._control(c, P.Pong(m.client_ms, P.now_ms(max(now, 0.0))))
+            elif t is P.Unpublish:
+                self._unpublish(c, m)
+            elif t is P.Follow:
+                self._follow(c, m)
+            elif t is P.Unfollow:
+                self._unfollow(c, m)
+            elif t is P.Query:
+                self._query(c, m, now)
+            elif t is P.Privacy:
+                self._privacy(c, m)
+            elif t is P.Hello:
+                self._error(c, ErrorCode.BAD_FIELD, "HELLO sent twice")
+            else:
+                self._error(c, ErrorCode.UNKNOWN_TYPE, f"{t.__name__} is a server-to-client message")
+
+    # ------------------------------------------------------------------------------------------ handshake
+    def _hello(self, c: ClientState, m: P.Hello, now: float) -> None:
+        cfg = self.config
+        if m.version != P.PROTOCOL_VERSION:
+            self._error(
+                c, ErrorCode.VERSION_MISMATCH,
+                f"server speaks protocol v{P.PROTOCOL_VERSION}, not v{m.version}",
+            )
+            return
+        if m.digest != cfg.digest:
+            self._error(
+                c, ErrorCode.TOPOLOGY_MISMATCH,
+                f"topology digest mismatch: server has {cfg.digest[:16]}, client has {m.digest[:16]}",
+            )
+            return
+        if cfg.open_mode:
+            user = m.token or f"anon-{c.session}"
+        else:
+            user = cfg.authenticate(m.token) if cfg.authenticate and m.token else None
+            if user is None:
+                self._error(c, ErrorCode.AUTH_FAILED, "unknown or missing auth token")
+                return
+        c.user_id = user
+        c.ready = True
+        self._control(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), cfg.wire_limits()))
+
+    # ------------------------------------------------------------------------------------------ publishing
+    def _publish(self, c: ClientState, m: P.Publish, now: float) -> None:
+        cfg = self.config
+        local = m.entity
+        if local >= P.LOCAL_ID_LIMIT:
+            self._error(c, ErrorCode.NOT_OWNER, f"entity {local} is not one of yours (local ids are < 2**32)")
+            return
+        n = cfg.n_cells
+        for cell in m.cells:
+            if cell >= n:
+                self._error(c, ErrorCode.NO_SUCH_CELL, f"cell {cell} does not exist (this map has {n})")
+                return
+        eid = c.entities.get(local)
+        if eid is None:
+            if len(c.entities) >= cfg.max_entities_per_client or len(self.entities) >= cfg.max_entities:
+                self._error(c, ErrorCode.LIMIT_ENTITIES, f"at most {cfg.max_entities_per_client} entities")
+                return
+            eid = self._new_eid()
+            e = EntityState(eid, c, local)
+            self.entities[eid] = e
+            c.entities[local] = eid
+            self.stats["entities_created"] += 1
+        else:
+            e = self.entities[eid]
+            if m.seq <= e.seq:
+                self.stats["stale"] += 1  # out of order or duplicate: the newer state already went out
+                return
+        self.stats["updates_in"] += 1
+        old, new = e.cells, m.cells
+        if old != new:
+            occ = self.occupants
+            for cell in old:
+                if cell not in new:
+                    s = occ[cell]
+                    s.discard(eid)
+                    if not s:
+                        del occ[cell]
+            for cell in new:
+                if cell not in old:
+                    s = occ.get(cell)
+                    if s is None:
+                        occ[cell] = {eid}
+                    else:
+                        s.add(eid)
+            e.cells = new
+        e.seq = m.seq
+        e.validity_ms = m.validity_ms
+        e.payload = m.payload
+        e.enc_plain = _packb([P.UPDATE, eid, m.seq, new, m.validity_ms, m.payload, None])
+        e.enc_ident = None
+        self.timers.set(eid, now + m.validity_ms / 1000.0 + cfg.grace_s)
+
+        viewers: set[int] = set()
+        subs = self.subscribers
+        for cell in new:
+            s = subs.get(cell)
+            if s:
+                viewers |= s
+        if e.followers:
+            viewers |= e.followers
+        viewers.discard(c.cid)
+        self._deliver(e, viewers)
+        gone = e.viewers - viewers
+        if gone:
+            self._leave(eid, gone)
+        e.viewers = viewers
+
+    def _deliver(self, e: EntityState, viewers: set[int]) -> None:
+        if not viewers:
+            return
+        states = self._states
+        eid = e.eid
+        if e.owner.identity is None:
+            enc = e.enc_plain
+            for v in viewers:
+                states[v][eid] = enc
+        else:
+            clients = self.clients
+            for v in viewers:
+                states[v][eid] = self._encoded_for(e, clients[v])
+        self._dirty |= viewers
+        self.stats["deliveries"] += len(viewers)
+
+    def _encoded_for(self, e: EntityState, viewer: ClientState) -> bytes:
+        ident = identity_shown(e.owner, viewer)
+        if ident is None:
+            return e.enc_plain
+        if e.enc_ident is None:
+            e.enc_ident = _packb([P.UPDATE, e.eid, e.seq, e.cells, e.validity_ms, e.payload, ident])
+        return e.enc_ident
+
+    def _update_msg(self, e: EntityState, viewer: ClientState) -> P.Update:
+        return P.Update(e.eid, e.seq, e.cells, e.validity_ms, e.payload, identity_shown(e.owner, viewer))
+
+    def _leave(self, eid: int, clients: set[int]) -> None:
+        enc = _packb([P.LEAVE, eid])
+        states = self._states
+        for v in clients:
+            st = states.get(v)
+            if st is not None:
+                st[eid] = enc
+        self._dirty |= clients
+        self.stats["leaves"] += len(clients)
+
+    def _new_eid(self) -> int:
+        while True:
+            eid = self._rng.randrange(P.LOCAL_ID_LIMIT, P.MAX_INT)
+            if eid not in self.entities:
+                return eid
+
+    def _unpublish(self, c: ClientState, m: P.Unpublish) -> None:
+        if m.entity >= P.LOCAL_ID_LIMIT:
+            self._error(c, ErrorCode.NOT_OWNER, f"entity {m.entity} is not one of yours")
+            return
+        eid = c.entities.get(m.entity)
+        if eid is None:
+            self._error(c, ErrorCode.NO_SUCH_ENTITY, f"you publish no entity {m.entity}")
+            return
+        self._remove_entity(self.entities[eid])
+
+    def _remove_entity(self, e: EntityState) -> None:
+        eid = e.eid
+        del self.entities[eid]
+        e.owner.entities.pop(e.local, None)
+        self.timers.cancel(eid)
+        occ = self.occupants
+        for cell in e.cells:
+            s = occ.get(cell)
+            if s is not None:
+                s.discard(eid)
+                if not s:
+                    del occ[cell]
+        for f in e.followers:
+            fc = self.clients.get(f)
+            if fc is not None:
+                fc.follows.discard(eid)
+        if e.viewers:
+            self._leave(eid, e.viewers)
+        e.viewers = set()
+
+    def expire(self, now: float) -> int:
+        """Remove entities whose validity (plus grace) ran out without an update; returns how many."""
+        n = 0
+        for eid in self.timers.pop_due(now):
+            e = self.entities.get(eid)
+            if e is not None:
+                self._remove_entity(e)
+                n += 1
+        self.stats["expired"] += n
+        return n
+
+    def next_deadline(self) -> float | None:
+        return self.timers.next_deadline()
+
+    # ------------------------------------------------------------------------------------------ subscribing
+    def _subscribe(self, c: ClientState, m: P.Subscribe) -> None:
+        n = self.config.n_cells
+        for cell in (*m.added, *m.removed):
+            if cell >= n:
+                self._error(c, ErrorCode.NO_SUCH_CELL, f"cell {cell} does not exist (this map has {n})")
+                return
+        old = c.subs
+        new = (old - set(m.removed)) | set(m.added)
+        if len(new) > self.config.max_subscriptions:
+            self._error(
+                c, ErrorCode.LIMIT_SUBSCRIPTIONS,
+                f"{len(new)} cells > limit {self.config.max_subscriptions}; subscription unchanged",
+            )
+            return
+        removed = old - new
+        added = new - old
+        cid = c.cid
+        subs = self.subscribers
+        for cell in removed:
+            s = subs[cell]
+            s.discard(cid)
+            if not s:
+                del subs[cell]
+        for cell in added:
+            s = subs.get(cell)
+            if s is None:
+                subs[cell] = {cid}
+            else:
+                s.add(cid)
+        c.subs = new
+        occ = self.occupants
+        ents = self.entities
+        if removed:
+            cand: set[int] = set()
+            for cell in removed:
+                o = occ.get(cell)
+                if o:
+                    cand |= o
+            gone = [
+                eid for eid in cand
+                if cid in ents[eid].viewers and cid not in ents[eid].followers
+                and new.isdisjoint(ents[eid].cells)
+            ]
+            for eid in gone:
+                ents[eid].viewers.discard(cid)
+                self._leave(eid, {cid})
+        if added:
+            cand = set()
+            for cell in added:
+                o = occ.get(cell)
+                if o:
+                    cand |= o
+            states = c.outbox.states
+            n_snap = 0
+            for eid in cand:
+                e = ents[eid]
+                if cid in e.viewers or e.owner is c:
+                    continue
+                e.viewers.add(cid)
+                states[eid] = self._encoded_for(e, c)
+                n_snap += 1
+            if n_snap:
+                self._dirty.add(cid)
+                self.stats["snapshots"] += n_snap
+
+    def _follow(self, c: ClientState, m: P.Follow) -> None:
+        e = self.entities.get(m.entity)
+        if e is None:
+            self._error(c, ErrorCode.NO_SUCH_ENTITY, f"no entity {m.entity}")
+            return
+        if m.entity in c.follows:
+            return
+        if len(c.follows) >= self.config.max_follows:
+            self._error(c, ErrorCode.LIMIT_FOLLOWS, f"at most {self.config.max_follows} direct subscriptions")
+            return
+        c.follows.add(m.entity)
+        e.followers.add(c.cid)
+        if c.cid not in e.viewers and e.owner is not c:
+            e.viewers.add(c.cid)
+            c.outbox.states[e.eid] = self._encoded_for(e, c)
+            self._dirty.add(c.cid)
+
+    def _unfollow(self, c: ClientState, m: P.Unfollow) -> None:
+        if m.entity not in c.follows:
+            self._error(c, ErrorCode.NO_SUCH_ENTITY, f"you do not follow {m.entity}")
+            return
+        c.follows.discard(m.entity)
+        e = self.entities.get(m.entity)
+        if e is None:
+            return
+        e.followers.discard(c.cid)
+        if c.cid in e.viewers and c.subs.isdisjoint(e.cells):
+            e.viewers.discard(c.cid)
+            self._leave(e.eid, {c.cid})
+
+    # ------------------------------------------------------------------------------------------ queries
+    def _query(self, c: ClientState, m: P.Query, now: float) -> None:
+        if not c.bucket.take(now):
+            self.stats["queries_refused"] += 1
+            rate = self.config.query_rate
+            self._error(c, ErrorCode.QUERY_RATE, f"query {m.query_id} refused: over {rate}/s")
+            return
+        limit = self.config.max_query_results
+        found: list[P.Update] = []
+        if m.kind == P.QUERY_IDENTITY:
+            for ocid in self.by_identity.get(m.arg, ()):
+                owner = self.clients[ocid]
+                if identity_shown(owner, c) is None:
+                    continue  # the buddy rule: not in the audience, or the asker shows no identity itself
+                for eid in owner.entities.values():
+                    found.append(self._update_msg(self.entities[eid], c))
+        else:
+            n = self.config.n_cells
+            seen: set[int] = set()
+            for cell in m.arg:
+                if cell >= n:
+                    self._error(c, ErrorCode.NO_SUCH_CELL, f"cell {cell} does not exist (this map has {n})")
+                    return
+                seen |= self.occupants.get(cell, set())
+            found = [self._update_msg(self.entities[eid], c) for eid in seen]
+        self.stats["queries"] += 1
+        self._control(c, P.QueryResult(m.query_id, tuple(found[:limit])))
+
+    def _privacy(self, c: ClientState, m: P.Privacy) -> None:
+        if c.identity is not None:
+            s = self.by_identity.get(c.identity)
+            if s is not None:
+                s.discard(c.cid)
+                if not s:
+                    del self.by_identity[c.identity]
+        c.identity = m.identity
+        c.audience = None if m.audience is None else frozenset(m.audience)
+        if m.identity is not None:
+            self.by_identity.setdefault(m.identity, set()).add(c.cid)
+        for eid in c.entities.values():
+            self.entities[eid].enc_ident = None
+
+    # ------------------------------------------------------------------------------------------ helpers
+    def _control(self, c: ClientState, msg: P.Message) -> None:
+        c.outbox.put_control(P.encode_message(msg))
+        self._dirty.add(c.cid)
+
+    def _error(self, c: ClientState, code: ErrorCode, text: str) -> None:
+        self.errors[int(code)] += 1
+        if code in P.FATAL_ERRORS:
+            if c.closing:
+                return
+            c.outbox.control.append(P.encode_message(P.Error(int(code), text)))  # beyond the bound: last word
+            c.closing = True
+            c.outbox.close_after = True
+            self._detach(c)
+            log.info("closing client", extra={"cid": c.cid, "code": int(code), "reason": text})
+        else:
+            c.outbox.put_control(P.encode_message(P.Error(int(code), text)))
+        self._dirty.add(c.cid)
+
+    def _detach(self, c: ClientState) -> None:
+        """Remove a client's entities, subscriptions and follows from the tables (it keeps its outbox)."""
+        for eid in list(c.entities.values()):
+            self._remove_entity(self.entities[eid])
+        cid = c.cid
+        for cell in c.subs:
+            s = self.subscribers.get(cell)
+            if s is not None:
+                s.discard(cid)
+                if not s:
+                    del self.subscribers[cell]
+        for cell in c.subs:
+            for eid in self.occupants.get(cell, ()):
+                self.entities[eid].viewers.discard(cid)
+        c.subs = set()
+        for eid in c.follows:
+            e = self.entities.get(eid)
+            if e is not None:
+                e.followers.discard(cid)
+                e.viewers.discard(cid)
+        c.follows = set()
+        if c.identity is not None:
+            s = self.by_identity.get(c.identity)
+            if s is not None:
+                s.discard(cid)
+                if not s:
+                    del self.by_identity[c.identity]
+        c.ready = c.ready and not c.closing
+
+    # ------------------------------------------------------------------------------------------ introspection
+    def counts(self) -> dict[str, int]:
+        return {
+            "clients": len(self.clients),
+            "entities": len(self.entities),
+            "subscriptions": sum(len(c.subs) for c in self.clients.values()),
+            "follows": sum(len(c.follows) for c in self.clients.values()),
+            "timers": self.timers.heap_size,
+        }

@@ -1,0 +1,38 @@
+"""Drive the sans-IO switchboard in tests: connect, send messages, read what each client would receive."""
+
+from __future__ import annotations
+
+from entitynet import protocol as P
+from entitynet.switchboard import Switchboard, SwitchConfig
+
+
+def make(**kw) -> Switchboard:
+    kw.setdefault("n_cells", 100)
+    kw.setdefault("digest", "d")
+    kw.setdefault("open_mode", True)
+    kw.setdefault("seed", 1)
+    return Switchboard(SwitchConfig(**kw))
+
+
+def join(sb: Switchboard, token: str = "", now: float = 0.0) -> int:
+    cid = sb.connect(now)
+    sb.receive(cid, [P.Hello(P.PROTOCOL_VERSION, token, sb.config.digest)], now)
+    got = recv(sb, cid)
+    assert isinstance(got[0], P.Welcome), got
+    return cid
+
+
+def recv(sb: Switchboard, cid: int) -> list[P.Message]:
+    sb.take_dirty()
+    ob = sb.outbox(cid)
+    if ob is None:
+        return []
+    return P.decode_payload(P.payload_from_encoded(ob.drain())) if len(ob) else []
+
+
+def pub(entity: int, seq: int, cells, validity_ms: int = 10_000, payload: bytes = b"s") -> P.Publish:
+    return P.Publish(entity, seq, tuple(cells), validity_ms, payload)
+
+
+def of(msgs, t):
+    return [m for m in msgs if isinstance(m, t)]
