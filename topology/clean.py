@@ -150,7 +150,7 @@ def clean(raw: RawMap, params: CleanParams | None = None) -> Network:
     edges = _snap_dangles(node_xy, edges, p, report)
     edges = _drop_degenerate(node_xy, edges, p, report)
     areas = _disjoint_areas(raw, p, report)
-    edges = _join_areas(node_xy, edges, areas, report)
+    edges = _join_areas(node_xy, edges, areas, p.snap_tolerance_m, report)
     edges = _merge_degree2(edges, {a.node for a in areas}, report)
     edges = _drop_dangles(edges, {a.node for a in areas}, p, report)
     _simplify(edges, p, report)
@@ -259,7 +259,7 @@ def _disjoint_areas(raw: RawMap, p: CleanParams, report: Counter) -> list[Area]:
     return areas
 
 
-def _join_areas(node_xy, edges: list[Edge], areas: list[Area], report: Counter) -> list[Edge]:
+def _join_areas(node_xy, edges: list[Edge], areas: list[Area], tolerance: float, report: Counter) -> list[Edge]:
     """Give each area a node, and clip the edges it serves at its boundary so that they end at that node."""
     if not areas:
         return edges
@@ -302,7 +302,35 @@ def _join_areas(node_xy, edges: list[Edge], areas: list[Area], report: Counter) 
             out.append(Edge(u, v, c, e.networks, e.layer, set(e.ways)))
         if pieces and (len(pieces) > 1 or pieces[0][0] > 1e-6 or pieces[0][1] < total - 1e-6):
             report["repaired:edge_clipped_at_area"] += 1
-    return out
+    return _join_touching_nodes(node_xy, out, areas, tolerance, report)
+
+
+def _join_touching_nodes(node_xy, edges: list[Edge], areas: list[Area], tolerance: float, report: Counter):
+    """A street node on (or within the snap tolerance of) an area's boundary becomes the area node, when every
+    edge at that node is one the area serves (else the node stays, so other networks keep their junction)."""
+    inc: dict[int, list[int]] = defaultdict(list)
+    for i, e in enumerate(edges):
+        inc[e.u].append(i)
+        inc[e.v].append(i)
+    area_nodes = {a.node for a in areas}
+    candidates = [n for n in inc if n not in area_nodes]
+    if not candidates:
+        return edges
+    tree = shapely.STRtree(np.array([a.polygon for a in areas], dtype=object))
+    pts = shapely.points(np.asarray([node_xy[n] for n in candidates]))
+    src, dst = tree.query(pts, predicate="dwithin", distance=tolerance)
+    remap: dict[int, int] = {}
+    for s, d in zip(src, dst, strict=True):
+        n, area = candidates[s], areas[d]
+        if n in remap:
+            continue
+        if all(edges[i].networks & ~area.networks == 0 for i in inc[n]):
+            remap[n] = area.node
+    for e in edges:
+        e.u = remap.get(e.u, e.u)
+        e.v = remap.get(e.v, e.v)
+    report["repaired:node_joined_to_area"] += len(remap)
+    return [e for e in edges if not (e.u == e.v and e.u in area_nodes)]
 
 
 def _nearest_area_node(areas: list[Area], pt: np.ndarray) -> int:

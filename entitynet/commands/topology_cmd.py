@@ -58,8 +58,13 @@ def _add_pvs_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_pvs_export_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--pvs-at", nargs=3, type=float, metavar=("X", "Y", "Z"),
-                        help="also export the PVS (visible cells) of the view cell holding this local position")  # fmt: skip
+    parser.add_argument(
+        "--pvs-at",
+        nargs=3,
+        type=float,
+        metavar=("X", "Y", "Z"),
+        help="also export the PVS (visible cells) of the view cell holding this local position",
+    )
 
 
 def _register_pvs_command(tsub) -> None:
