@@ -1,0 +1,79 @@
+"""Viewer subscriptions (reference section 4.4): camera -> view cell -> PVS -> one SUBSCRIBE difference.
+
+`cells_at(x, y, z)` is any callable giving the visibility cells potentially visible from that camera position
+(the PVS lookup of `topology/pvs.py`, or a stub in tests): this core does not care how it is computed.
+Direct subscriptions (FOLLOW) are bounded by the server's limit, entity queries by a minimum interval; both
+limits come from WELCOME and are enforced here so a well-behaved client never trips the server's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+
+from entitynet.protocol import QUERY_CELLS, QUERY_IDENTITY, Follow, Query, Subscribe, Unfollow
+
+
+class LimitExceeded(ValueError):
+    """A direct subscription or query beyond the server's limits."""
+
+
+class Subscriptions:
+    def __init__(self, cells_at: Callable[[float, float, float], Iterable[int]], *, max_follows: int = 16,
+                 query_interval: float = 1.0) -> None:
+        self.cells_at = cells_at
+        self.max_follows = max_follows
+        self.query_interval = query_interval
+        self.cells: frozenset[int] = frozenset()
+        self.follows: set[int] = set()
+        self._last_query = -math.inf
+        self._query_id = 0
+
+    def apply_limits(self, limits: dict[str, int]) -> None:
+        """Adopt the limits a WELCOME announced (unknown keys are ignored)."""
+        if "max_follows" in limits:
+            self.max_follows = int(limits["max_follows"])
+        if "query_interval_ms" in limits:
+            self.query_interval = int(limits["query_interval_ms"]) / 1000.0
+
+    def move_camera(self, x: float, y: float, z: float) -> list[Subscribe]:
+        """The SUBSCRIBE difference for a camera at (x, y, z); empty when the PVS did not change."""
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            raise ValueError(f"camera position must be finite, got ({x!r}, {y!r}, {z!r})")
+        new = frozenset(int(c) for c in self.cells_at(x, y, z))
+        return self.set_cells(new)
+
+    def set_cells(self, new: Iterable[int]) -> list[Subscribe]:
+        new = frozenset(new)
+        added = tuple(sorted(new - self.cells))
+        removed = tuple(sorted(self.cells - new))
+        self.cells = new
+        if not added and not removed:
+            return []
+        return [Subscribe(added, removed)]
+
+    def follow(self, entity: int) -> list[Follow]:
+        if entity in self.follows:
+            return []
+        if len(self.follows) >= self.max_follows:
+            raise LimitExceeded(f"at most {self.max_follows} direct subscriptions")
+        self.follows.add(entity)
+        return [Follow(entity)]
+
+    def unfollow(self, entity: int) -> list[Unfollow]:
+        if entity not in self.follows:
+            return []
+        self.follows.discard(entity)
+        return [Unfollow(entity)]
+
+    def query(self, now: float, *, identity: str | None = None, cells: Iterable[int] | None = None) -> list[Query]:
+        """An entity query by published identity or by cells, at most one per `query_interval`."""
+        if (identity is None) == (cells is None):
+            raise ValueError("query by exactly one of identity or cells")
+        if now - self._last_query < self.query_interval:
+            raise LimitExceeded(f"at most one query per {self.query_interval:g} s")
+        self._last_query = now
+        self._query_id += 1
+        if identity is not None:
+            return [Query(self._query_id, QUERY_IDENTITY, identity)]
+        return [Query(self._query_id, QUERY_CELLS, tuple(sorted({int(c) for c in cells})))]
