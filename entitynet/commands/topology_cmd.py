@@ -33,6 +33,7 @@ def register(sub) -> None:
         "--max-cell-length", type=float, default=60.0, metavar="M", help="street cell length cap (60 m)"
     )
     b.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    b.add_argument("--no-pvs", action="store_true", help="skip view cells and the PVS (faster; no visibility)")
     _add_pvs_options(b)
     b.set_defaults(func=cmd_build)
 
@@ -114,12 +115,14 @@ def cmd_build(args: argparse.Namespace) -> int:
         ),
         crs=args.crs,
     )
-    try:
-        from topology.pvs import pvs_config_from_args
+    config.pvs = None
+    if not args.no_pvs:
+        try:
+            from topology.pvs import pvs_config_from_args
 
-        config.pvs = pvs_config_from_args(args)
-    except ImportError:
-        config.pvs = None
+            config.pvs = pvs_config_from_args(args)
+        except ImportError:
+            pass
     try:
         say(f"reading {path or 'the bundled Helsinki map'}")
         raw = read_map(path, args.crs)
