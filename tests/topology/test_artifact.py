@@ -27,7 +27,9 @@ def test_round_trip_keeps_every_array_and_the_digest(small_topo, tmp_path):
     assert np.array_equal(back.edge_geom_xy, small_topo.edge_geom_xy)
     assert np.array_equal(back.edge_bp_cell, small_topo.edge_bp_cell)
     assert back.meta["counts"] == small_topo.meta["counts"]
-    assert [p.wkt for p in back.cell_footprints.to_shapely()] == [p.wkt for p in small_topo.cell_footprints.to_shapely()]
+    assert [p.wkt for p in back.cell_footprints.to_shapely()] == [
+        p.wkt for p in small_topo.cell_footprints.to_shapely()
+    ]
 
 
 def test_digest_depends_on_content(small_topo, tmp_path):

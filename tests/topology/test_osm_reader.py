@@ -98,7 +98,10 @@ def test_explicit_crs(osm_file):
 
 def test_layers_bridge_over_street(tmp_path):
     nodes = [(1, (0, 0), {}), (2, (1, 0), {}), (3, (2, 0), {}), (4, (1, -1), {}), (5, (1, 1), {})]
-    ways = [(1, [1, 2, 3], {"highway": "residential"}), (2, [4, 2, 5], {"highway": "footway", "bridge": "yes", "layer": "1"})]
+    ways = [
+        (1, [1, 2, 3], {"highway": "residential"}),
+        (2, [4, 2, 5], {"highway": "footway", "bridge": "yes", "layer": "1"}),
+    ]
     path = tmp_path / "b.osm"
     path.write_text(osm_xml(nodes, ways))
     topo = build(read_map(path))
@@ -106,7 +109,9 @@ def test_layers_bridge_over_street(tmp_path):
 
 
 def test_building_part_above_ground_and_levels(tmp_path):
-    nodes = [(1, (0, 0), {}), (2, (1, 0), {})] + [(10 + i, p, {}) for i, p in enumerate([(0, 1), (0.2, 1), (0.2, 1.2), (0, 1.2)])]
+    nodes = [(1, (0, 0), {}), (2, (1, 0), {})] + [
+        (10 + i, p, {}) for i, p in enumerate([(0, 1), (0.2, 1), (0.2, 1.2), (0, 1.2)])
+    ]
     nodes += [(20 + i, p, {}) for i, p in enumerate([(0.5, 1), (0.7, 1), (0.7, 1.2), (0.5, 1.2)])]
     ways = [
         (1, [1, 2], {"highway": "residential"}),
