@@ -6,4 +6,5 @@ Each suite module `sims.bench.<suite>` defines `add_arguments(parser)` (optional
 
 SUITES = {
     "topology": "sims.bench.topology_bench",
+    "dr": "sims.bench.dr_bench",
 }

@@ -1,0 +1,366 @@
+"""`entitynet bench dr`: dead reckoning and cell occupation, updates against error, measured.
+
+Datasets: (a) trams and buses along the HSL GTFS shapes that run over the map (speed profiles with
+acceleration, stops with dwell, red signals at junctions; 1 Hz fixes with 5 m horizontal RMS noise);
+(b) pedestrians on walkways (random walks with pauses) and in areas (waypoint walks); (c) the real 1 Hz Munich
+car trace (world-frame models only; its fixes are the reference positions, there is no other truth).
+
+Per model (periodic 1 Hz, FPW, FVW, network) and threshold: updates per entity-minute (every PUBLISH:
+drift, emergent, validity expiry, heartbeat), the receiver's position error against the truth every 0.5 s
+(mean, p95, max), and the occupation error: the fraction of entity-time during which a cell under the true
+body is not in the last published, unexpired occupation.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import time
+from collections import Counter
+from datetime import datetime
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from entitynet.client.network import netview
+from entitynet.client.path import Path
+from entitynet.client.player import Player
+from entitynet.protocol import Publish
+from sims.behaviours import area_walk, gps, random_walk, speed_profile, vehicle_halts
+from topology.raw import PEDESTRIAN
+
+SHARED = FsPath(__file__).resolve().parents[3] / "shared" / "data"
+THRESHOLDS = (1.0, 2.0, 5.0, 10.0, 20.0)
+SAMPLE = 0.5  # receiver error sampling step (s)
+
+
+def add_arguments(parser) -> None:  # pragma: no cover - optional hook
+    pass
+
+
+# ---- scenarios ---------------------------------------------------------------------------------------------
+class Entity:
+    """Truth sampled every SAMPLE seconds: xy, and the cells under the body (None when unknown)."""
+
+    def __init__(self, name, etype, t, xy, cells, route=None, edge=None, edge_ok=None):
+        self.name, self.etype, self.t, self.xy, self.cells = name, etype, t, xy, cells
+        self.route = route
+        self.edge = edge  # true edge at each sample (network entities), for the wrong-edge rate
+        self.edge_ok = edge_ok  # whether the sample is unambiguous (>= 10 m from the edge's ends)
+
+    @property
+    def minutes(self) -> float:
+        return (self.t[-1] - self.t[0]) / 60.0
+
+
+def _sample_path(path: Path, prof, length: float, name, etype, route) -> Entity:
+    t = np.arange(0.0, prof.t[-1], SAMPLE)
+    s = np.interp(t, prof.t, prof.s)
+    xy = np.array([path.xy(v) for v in s])
+    cells = [frozenset(path.cells_between(v - length, v)) for v in s]
+    edges, ok = [], []
+    net = path.net
+    for v in s:
+        k = path.index(v)
+        d = v - path.cum[k]
+        edges.append(path.edges[k][0])
+        ok.append(10.0 <= d <= net.edge_len[path.edges[k][0]] - 10.0)
+    return Entity(name, etype, t, xy, cells, route, np.array(edges), np.array(ok))
+
+
+def _project_on_path(path: Path, pts: list[tuple[float, float]], tol: float = 25.0) -> list[float]:
+    ss = np.arange(0.0, path.length, 2.0)
+    pxy = np.array([path.xy(v) for v in ss])
+    out = []
+    for x, y in pts:
+        d = np.hypot(pxy[:, 0] - x, pxy[:, 1] - y)
+        k = int(np.argmin(d))
+        if d[k] <= tol:
+            out.append(float(ss[k]))
+    return sorted(out)
+
+
+def vehicles(topo, n: int, rng: random.Random, progress) -> list[Entity]:
+    from proxies.gtfs import match_shapes, read_feed
+
+    zp = SHARED / "hsl-gtfs-2022-02.zip"
+    feed = read_feed(zp)
+    shapes = match_shapes(feed, topo, min_length=600.0)
+    net = netview(topo)
+    seen, picked = set(), []
+    for m in shapes:
+        key = tuple(m.edges)
+        if key in seen:
+            continue
+        seen.add(key)
+        picked.append(m)
+    rng.shuffle(picked)
+    trams = [m for m in picked if m.mode == "tram"]
+    buses = [m for m in picked if m.mode == "bus"]
+    chosen = trams[: (n + 1) // 2] + buses[: n // 2]
+    progress(f"dr: {len(shapes)} GTFS shapes matched onto the map, {len(picked)} distinct; using {len(chosen)}")
+    out = []
+    for m in chosen:
+        try:
+            path = Path(net, m.edges)
+        except ValueError:
+            continue
+        stops = _project_on_path(path, [(x, y) for _n, x, y in m.stop_xy])
+        signals = [path.cum[k + 1] for k, de in enumerate(path.edges[:-1])
+                   if len(net.node_edges[net.end_node(de)]) >= 3]
+        tram = m.mode == "tram"
+        halts = vehicle_halts(stops, signals, rng, dwell=(12.0, 30.0), p_red=0.25 if tram else 0.35,
+                              red=(5.0, 35.0))
+        prof = speed_profile(path.length, halts, rng, cruise=9.0 if tram else 10.5, accel=1.0 if tram else 1.2,
+                             decel=1.2 if tram else 1.5)
+        etype = "tram" if tram else "bus"
+        length = 27.6 if tram else 12.0
+        out.append(_sample_path(path, prof, length, f"{m.mode} {m.ref} {m.shape_id}", etype, m.edges))
+    return out
+
+
+def pedestrians(topo, n: int, rng: random.Random) -> list[Entity]:
+    net = netview(topo)
+    walk_edges = [e for e in range(topo.n_edges) if topo.edge_networks[e] & PEDESTRIAN and net.edge_len[e] > 20]
+    out = []
+    n_area = max(1, n // 4)
+    while len(out) < n - n_area:
+        e = walk_edges[rng.randrange(len(walk_edges))]
+        edges = random_walk(net, (e, rng.choice((1, -1))), PEDESTRIAN, 900.0, rng)
+        path = Path(net, edges)
+        if path.length < 300.0:
+            continue
+        halts = [(rng.uniform(20.0, path.length - 20.0), rng.uniform(5.0, 25.0))
+                 for _ in range(int(path.length / 250.0))]
+        prof = speed_profile(path.length, halts, rng, cruise=1.35, accel=0.6, decel=0.8, vary=0.2)
+        out.append(_sample_path(path, prof, 0.0, f"walker {len(out)}", "pedestrian", None))
+    areas = [a for a in range(len(topo.area_node)) if topo.area_networks[a] & PEDESTRIAN]
+    sizes = sorted(((np.ptp(topo.area_polygons.exterior(a), axis=0).prod(), a) for a in areas), reverse=True)
+    for _size, a in sizes[:n_area]:
+        ring = topo.area_polygons.exterior(a)
+        ts, xy = area_walk(ring, rng, 420.0)
+        t = np.arange(0.0, ts[-1], SAMPLE)
+        sxy = np.column_stack([np.interp(t, ts, xy[:, 0]), np.interp(t, ts, xy[:, 1])])
+        cell = int(topo.area_cell[a])
+        out.append(Entity(f"area walker {a}", "pedestrian", t, sxy, [frozenset((cell,))] * len(t)))
+    return out
+
+
+def car_trace() -> Entity | None:
+    from topology.projection import LocalProjection, utm_crs_for
+
+    fp = SHARED / "traces" / "munich-car-1hz.json"
+    if not fp.exists():
+        return None
+    rows = json.loads(fp.read_text())
+    lonlat = np.array([[float(v) for v in r["point"][6:-1].split()] for r in rows])
+    ts = np.array([datetime.strptime(r["time"], "%Y-%m-%d %H:%M:%S%z").timestamp() for r in rows])
+    order = np.argsort(ts, kind="stable")
+    lonlat, ts = lonlat[order], ts[order]
+    keep = np.concatenate([[True], np.diff(ts) > 0])
+    lonlat, ts = lonlat[keep], ts[keep] - ts[keep][0]
+    c = lonlat.mean(axis=0)
+    proj = LocalProjection(utm_crs_for(c[0], c[1]), (0.0, 0.0))
+    xy = proj.to_local(lonlat[:, 0], lonlat[:, 1])
+    xy -= np.round(xy[0])
+    return Entity("munich car", "car", ts, xy, None)
+
+
+# ---- running -----------------------------------------------------------------------------------------------
+def run_entity(topo, ent: Entity, model: str, threshold: float, np_rng: np.random.Generator, acc: dict,
+               noisy: bool = True) -> None:
+    p = Player(topo if ent.cells is not None else None, 1, ent.etype, model=model,
+               route=ent.route if model == "network" else None, threshold=threshold)
+    if noisy:
+        fix_idx = np.arange(0, len(ent.t), int(round(1.0 / SAMPLE)))
+        fixes = gps(ent.xy[fix_idx], np_rng)
+        is_fix = np.zeros(len(ent.t), bool)
+        is_fix[fix_idx] = True
+        fix_of = {int(i): k for k, i in enumerate(fix_idx)}
+        ts = ent.t
+        txy = ent.xy
+    else:  # a real trace: its fixes are the reference; sample between them by interpolation
+        t = np.arange(ent.t[0], ent.t[-1], SAMPLE)
+        txy = np.column_stack([np.interp(t, ent.t, ent.xy[:, 0]), np.interp(t, ent.t, ent.xy[:, 1])])
+        fix_samples = np.searchsorted(t, ent.t).clip(0, len(t) - 1)
+        is_fix = np.zeros(len(t), bool)
+        is_fix[fix_samples] = True
+        fixes = txy[fix_samples]
+        fix_of = {int(i): k for k, i in enumerate(fix_samples)}
+        ts = t
+    last: Publish | None = None
+    errs = np.full(len(ts), np.nan)
+    occ_bad = 0
+    occ_n = 0
+    pub_cells = 0
+    true_cells = 0
+    updates = 0
+    wrong = checked = 0
+    for i in range(len(ts)):
+        now = float(ts[i])
+        if is_fix[i]:
+            fx, fy = fixes[fix_of[i]]
+            out = p.feed(float(fx), float(fy), now)
+        else:
+            out = p.tick(now)
+        for m in out:
+            if isinstance(m, Publish):
+                updates += 1
+                last = m
+        if p.ghost is not None:
+            gx, gy = p.ghost.xy_at(now)
+            errs[i] = math.hypot(gx - txy[i, 0], gy - txy[i, 1])
+        if ent.cells is not None and last is not None:
+            occ_n += 1
+            truth = ent.cells[i]
+            valid = now < p.pub_t + last.validity_ms / 1000.0
+            if not valid or not truth.issubset(last.cells):
+                occ_bad += 1
+            pub_cells += len(last.cells) if valid else 0
+            true_cells += len(truth)
+        if ent.edge is not None and is_fix[i] and ent.edge_ok[i] and model == "network":
+            inf = p.inferred
+            if inf is not None and inf[0] == "edge":
+                checked += 1
+                wrong += inf[1] != ent.edge[i]
+    acc["updates"] += updates
+    acc["minutes"] += (ts[-1] - ts[0]) / 60.0
+    acc["errs"].append(errs[~np.isnan(errs)])
+    acc["occ_bad"] += occ_bad
+    acc["occ_n"] += occ_n
+    acc["pub_cells"] += pub_cells
+    acc["true_cells"] += true_cells
+    acc["wrong"] += wrong
+    acc["checked"] += checked
+    acc["reasons"].update(p.stats)
+
+
+def _new_acc() -> dict:
+    return {"updates": 0, "minutes": 0.0, "errs": [], "occ_bad": 0, "occ_n": 0, "pub_cells": 0, "true_cells": 0,
+            "wrong": 0, "checked": 0, "reasons": Counter()}
+
+
+def _row(dataset: str, model: str, threshold: float | None, acc: dict) -> dict:
+    errs = np.concatenate(acc["errs"]) if acc["errs"] else np.zeros(1)
+    row = {
+        "dataset": dataset,
+        "model": model,
+        "threshold_m": threshold,
+        "updates_per_entity_min": round(acc["updates"] / max(acc["minutes"], 1e-9), 3),
+        "error_mean_m": round(float(errs.mean()), 3),
+        "error_p95_m": round(float(np.percentile(errs, 95)), 3),
+        "error_max_m": round(float(errs.max()), 3),
+        "occupation_error": round(acc["occ_bad"] / acc["occ_n"], 6) if acc["occ_n"] else None,
+        "cells_published_per_true_cell": round(acc["pub_cells"] / acc["true_cells"], 3) if acc["true_cells"]
+        else None,
+        "reasons": dict(sorted(acc["reasons"].items())),
+    }
+    return row
+
+
+def fixes_per_second(topo, ents: list[Entity], seconds: float = 3.0) -> tuple[float, int]:
+    """Fixes per second through the whole client core (placement, filter, decisions, occupation, payload)."""
+    rng = np.random.default_rng(7)
+    work = []
+    for k, ent in enumerate(ents):
+        idx = np.arange(0, len(ent.t), int(round(1.0 / SAMPLE)))
+        work.append((k, ent, gps(ent.xy[idx], rng), ent.t[idx]))
+    n = 0
+    t0 = time.perf_counter()
+    rounds = 0
+    while time.perf_counter() - t0 < seconds or rounds == 0:
+        players = [Player(topo, k, ent.etype, model="network", route=ent.route, threshold=5.0)
+                   for k, ent, _f, _t in work]
+        for (_k, _ent, fx, ft), p in zip(work, players, strict=True):
+            feed = p.feed
+            for (x, y), t in zip(fx.tolist(), ft.tolist(), strict=True):
+                feed(x, y, t)
+            n += len(ft)
+        rounds += 1
+    return n / (time.perf_counter() - t0), n
+
+
+def run(args, progress) -> dict:
+    from topology.artifact import load
+
+    if args.topology:
+        topo = load(args.topology)
+    else:
+        from topology.build import build, read_map
+
+        progress("dr: building the bundled map's topology (no --topology given)")
+        topo = build(read_map(None))
+    quick = bool(args.quick)
+    thresholds = (5.0,) if quick else THRESHOLDS
+    rng = random.Random(20260221)
+    np_rng = np.random.default_rng(20260221)
+    table: list[dict] = []
+    notes = []
+    results: dict = {}
+
+    datasets: dict[str, list[Entity]] = {}
+    if (SHARED / "hsl-gtfs-2022-02.zip").exists():
+        datasets["vehicles"] = vehicles(topo, 6 if quick else 36, rng, progress)
+    else:
+        notes.append("../shared/data/hsl-gtfs-2022-02.zip absent: no vehicle dataset")
+    datasets["pedestrians"] = pedestrians(topo, 6 if quick else 32, rng)
+    car = car_trace()
+    for name, ents in datasets.items():
+        progress(f"dr: {name}: {len(ents)} entities, {sum(e.minutes for e in ents):.0f} entity-minutes")
+        for model in ("periodic", "fpw", "fvw", "network"):
+            for th in ((5.0,) if model == "periodic" else thresholds):
+                acc = _new_acc()
+                for ent in ents:
+                    run_entity(topo, ent, model, th, np_rng, acc)
+                row = _row(name, model, th if model != "periodic" else None, acc)
+                if model == "network" and acc["checked"]:
+                    row["wrong_edge_rate"] = round(acc["wrong"] / acc["checked"], 4)
+                table.append(row)
+                progress(f"dr: {name} {model} {th}: {row['updates_per_entity_min']} upd/min, "
+                         f"p95 {row['error_p95_m']} m, occ err {row['occupation_error']}")
+    if car is not None:
+        if quick:
+            keep = car.t <= car.t[0] + 300.0
+            car = Entity(car.name, car.etype, car.t[keep], car.xy[keep], None)
+        for model in ("periodic", "fpw", "fvw"):
+            for th in ((5.0,) if model == "periodic" else thresholds):
+                acc = _new_acc()
+                run_entity(None, car, model, th, np_rng, acc, noisy=False)
+                table.append(_row("munich-car", model, th if model != "periodic" else None, acc))
+    else:
+        notes.append("../shared/data/traces absent: no car trace")
+
+    def pick(ds, model, th):
+        for r in table:
+            if r["dataset"] == ds and r["model"] == model and (model == "periodic" or r["threshold_m"] == th):
+                return r
+        return None
+
+    if "vehicles" in datasets:
+        net5, fpw5, per = pick("vehicles", "network", 5.0), pick("vehicles", "fpw", 5.0), pick("vehicles",
+                                                                                            "periodic", None)
+        results["network_vs_fpw_updates_ratio_5m"] = round(
+            fpw5["updates_per_entity_min"] / max(net5["updates_per_entity_min"], 1e-9), 3)
+        results["network_vs_fpw_p95_5m"] = {"network": net5["error_p95_m"], "fpw": fpw5["error_p95_m"]}
+        results["periodic_vs_network_updates_ratio_5m"] = round(
+            per["updates_per_entity_min"] / max(net5["updates_per_entity_min"], 1e-9), 3)
+        results["extra_cells_price_5m"] = net5["cells_published_per_true_cell"]
+    occ = [r["occupation_error"] for r in table if r["model"] == "network" and r["threshold_m"] == 5.0
+           and r["occupation_error"] is not None]
+    results["occupation_error"] = {r["dataset"]: r["occupation_error"] for r in table
+                                   if r["model"] == "network" and r["threshold_m"] == 5.0}
+    results["occupation_error_max_5m"] = max(occ) if occ else None
+    wer = {r["dataset"]: r.get("wrong_edge_rate") for r in table
+           if r["model"] == "network" and r["threshold_m"] == 5.0}
+    results["wrong_edge_rate"] = wer
+    fps_ents = datasets.get("vehicles", []) + datasets["pedestrians"]
+    fps, nfix = fixes_per_second(topo, fps_ents, 2.0 if quick else 5.0)
+    results["fixes_per_s"] = round(fps, 1)
+    results["table"] = table
+    progress(f"dr: fixes_per_s {fps:.0f} over {nfix} fixes")
+    params = {"thresholds_m": list(thresholds), "gps_noise_rms_m": 5.0, "fix_rate_hz": 1.0,
+              "sample_step_s": SAMPLE, "entities": {k: len(v) for k, v in datasets.items()},
+              "entity_minutes": {k: round(sum(e.minutes for e in v), 1) for k, v in datasets.items()},
+              "quick": quick}
+    return {"params": params, "results": results, "notes": notes}
