@@ -23,7 +23,12 @@ def machine() -> dict[str, Any]:
 
 
 def write_report(suite: str, body: dict[str, Any], out: str | os.PathLike | None) -> dict[str, Any]:
-    report = {"suite": suite, "machine": machine(), "params": body.get("params", {}), "results": body["results"]}
+    report = {
+        "suite": suite,
+        "machine": machine(),
+        "params": body.get("params", {}),
+        "results": body["results"],
+    }
     for key in ("peer", "ratio", "notes"):
         if key in body:
             report[key] = body[key]
