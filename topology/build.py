@@ -79,9 +79,20 @@ def build(raw: RawMap, config: BuildConfig | None = None, progress: Progress | N
     timings["routes_s"] = time.perf_counter() - t2
     if config.pvs is not None:
         t3 = time.perf_counter()
-        from topology.pvs import attach_pvs
+        from topology.pvs import compute_pvs
 
-        attach_pvs(topo, config.pvs, progress=say)
+        say("computing view cells and their PVS")
+        result = compute_pvs(
+            topo.building_footprints,
+            topo.building_height,
+            topo.cell_footprints,
+            topo.cell_height,
+            tuple(topo.meta["bounds"]),
+            config.pvs,
+            progress=say,
+        )
+        topo.extra.update(result.to_extra())
+        topo.meta["pvs"] = result.meta()
         timings["pvs_s"] = time.perf_counter() - t3
     timings["total_s"] = time.perf_counter() - t0
     topo.meta["report"] = dict(sorted(net.report.items()))

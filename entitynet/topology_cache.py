@@ -1,0 +1,52 @@
+"""The cached artifact of the bundled map, so that `entitynet demo` builds it once per machine.
+
+The cache key is the map file's hash and the entitynet version: a new map or a new builder rebuilds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from entitynet import __version__
+from topology import BUNDLED_MAP
+from topology.artifact import ArtifactError, Topology, load, save
+
+
+def cache_dir() -> Path:
+    base = os.environ.get("ENTITYNET_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "entitynet"
+    )
+    return Path(base)
+
+
+def bundled_artifact_path(with_pvs: bool = True) -> Path:
+    digest = hashlib.sha256(BUNDLED_MAP.read_bytes()).hexdigest()[:12]
+    return cache_dir() / f"helsinki-{digest}-v{__version__}{'' if with_pvs else '-nopvs'}.enttopo"
+
+
+def bundled_topology(progress: Callable[[str], None] | None = None, with_pvs: bool = True) -> tuple[Topology, Path]:
+    """Load the cached Helsinki artifact, building (and caching) it when missing or unreadable."""
+    say = progress or (lambda _m: None)
+    path = bundled_artifact_path(with_pvs)
+    if path.exists():
+        try:
+            return load(path), path
+        except ArtifactError as exc:
+            say(f"cached artifact unusable ({exc}); rebuilding")
+    from topology.build import BuildConfig, build, read_map
+
+    config = BuildConfig()
+    if with_pvs:
+        try:
+            from topology.pvs import PvsConfig
+
+            config.pvs = PvsConfig()
+        except ImportError:
+            config.pvs = None
+    say(f"building the Helsinki topology once (cached in {path.parent})")
+    topo = build(read_map(None), config, progress=say, source="helsinki.osm.pbf (bundled)")
+    save(topo, path)
+    return load(path), path
