@@ -45,6 +45,7 @@ class NetView:
         self.area_cell: list[int] = topo.area_cell.astype(int).tolist()
         self._next_cache: dict[tuple[int, int, int], DirEdge | None] = {}
         self._choice_cache: dict[tuple[int, int, int], list[DirEdge]] = {}
+        self._pieces: dict[DirEdge, list[tuple[float, float, int]]] = {}
 
     # ---- points and cells ---------------------------------------------------------------------------------
     def point(self, edge: int, offset: float) -> tuple[float, float]:
@@ -69,6 +70,12 @@ class NetView:
 
     def pieces(self, edge: int, d: int) -> list[tuple[float, float, int]]:
         """Cell pieces of a directed edge as (start, end, cell) in distances along the direction of travel."""
+        hit = self._pieces.get((edge, d))
+        if hit is None:
+            hit = self._pieces[(edge, d)] = self._make_pieces(edge, d)
+        return hit
+
+    def _make_pieces(self, edge: int, d: int) -> list[tuple[float, float, int]]:
         lo, hi = self.bp_off[edge], self.bp_off[edge + 1]
         length = self.edge_len[edge]
         starts = self.bp_start[lo:hi]

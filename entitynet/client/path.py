@@ -103,6 +103,12 @@ class Path:
             return self, 0.0
         return Path(self.net, self.edges[k:]), self.cum[k]
 
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Path) and other.net is self.net and other.edges == self.edges
+
+    def __hash__(self) -> int:
+        return hash(tuple(self.edges))
+
     def __repr__(self) -> str:
         return f"Path({self.edges!r})"
 

@@ -33,7 +33,7 @@ class Fix:
 
 
 class _SegTable:
-    __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas")
+    __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks")
 
     def __init__(self, net: NetView, edges: list[int], areas: list[int]) -> None:
         ax, ay, dx, dy, cum0, eid = [], [], [], [], [], []
@@ -55,6 +55,15 @@ class _SegTable:
         self.edge = np.array(eid, dtype=np.int64)
         self.edges = edges
         self.areas = areas
+        self.masks: dict[frozenset[int], np.ndarray] = {}
+
+    def mask(self, preferred: frozenset[int]) -> np.ndarray:
+        m = self.masks.get(preferred)
+        if m is None:
+            if len(self.masks) > 64:
+                self.masks.clear()
+            m = self.masks[preferred] = np.isin(self.edge, np.fromiter(preferred, np.int64, len(preferred)))
+        return m
 
 
 class Placer:
@@ -123,7 +132,7 @@ class Placer:
         ey = ry - u * t.dy
         d = np.sqrt(ex * ex + ey * ey)
         if preferred:
-            pref = np.fromiter((e in preferred for e in t.edge.tolist()), bool, len(t.edge))
+            pref = t.mask(frozenset(preferred))
             cost = d + np.where(pref, 0.0, self.switch_margin)
             dp = np.where(pref, d, np.inf)
             kp = int(np.argmin(dp))

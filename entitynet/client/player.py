@@ -242,7 +242,15 @@ class Player:
         lo = path.index(s_pred - self.etype.length - 30.0)
         hi = path.index(s_pred + 60.0)
         preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
-        fix, best_pref = placer.near(x, y, e_cur, preferred)
+        # fast path: a fix within the switch margin of the current edge, away from its ends, cannot be won
+        # by another edge (they all start `switch_margin` behind), so the neighbourhood search is skipped
+        cur = placer.project_on(x, y, e_cur)
+        if (cur.distance <= placer.switch_margin and 0.0 < cur.offset < self.net.edge_len[e_cur]
+                and (self.net.node_area[self.net.edge_from[e_cur]] < 0)
+                and (self.net.node_area[self.net.edge_to[e_cur]] < 0)):
+            fix, best_pref = cur, cur.distance
+        else:
+            fix, best_pref = placer.near(x, y, e_cur, preferred)
         if fix.kind == "area":
             self._init_at(fix, t, r)
             self.last_fix = fix
