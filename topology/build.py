@@ -37,16 +37,20 @@ class BuildConfig:
     pvs: Any = None
 
 
-def read_map(path: str | Path | None, crs: str | None = None) -> RawMap:
-    """Read OSM (.pbf, .osm, .osm.bz2) or GeoJSON (.geojson, .json) by extension; None = the bundled map."""
+def read_map(path: str | Path | None, crs: str | None = None, bbox: tuple[float, ...] | None = None) -> RawMap:
+    """Read OSM (.pbf, .osm, .osm.bz2) or GeoJSON (.geojson, .json) by extension; None = the bundled map.
+
+    `bbox` (lon_min, lat_min, lon_max, lat_max) keeps only OSM features that meet it."""
     from topology.geojson_reader import read_geojson
     from topology.osm_reader import MapReadError, read_osm
 
     path = Path(path) if path is not None else BUNDLED_MAP
     try:
         if path.suffix.lower() in (".geojson", ".json"):
+            if bbox is not None:
+                raise BuildError("--bbox applies to OpenStreetMap input only")
             return read_geojson(path, crs)
-        return read_osm(path, crs)
+        return read_osm(path, crs, bbox)
     except MapReadError as exc:
         raise BuildError(str(exc)) from None
     except ValueError as exc:

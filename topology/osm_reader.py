@@ -167,6 +167,7 @@ def _assemble(col: _Collector, crs: str | None, bbox) -> RawMap:
     def project_polygon(poly: Polygon):
         return shapely.transform(poly, lambda c: proj.to_local(c[:, 0], c[:, 1]))
 
+    part_flags: list[bool] = []
     for kind, fid, poly, tags in col.polys:
         if bbox is not None and not box.intersects(poly):
             report["dropped:outside_bbox"] += 1
@@ -181,9 +182,11 @@ def _assemble(col: _Collector, crs: str | None, bbox) -> RawMap:
                     report["repaired:unparsable_height"] += 1
                 report[f"read:building_height_from_{source.split('(')[0]}"] += 1
                 raw.buildings.append(RawBuilding(fid, part, height, source))
+                part_flags.append("building:part" in tags)
             else:
                 akind, bits = area_kind(tags)
                 raw.areas.append(RawArea(fid, part, akind, bits, tags.get("name", "")))
+    raw.buildings = _outlines_replaced_by_parts(raw.buildings, part_flags, report)
     report["read:buildings"] += len(raw.buildings)
     report["read:areas"] += len(raw.areas)
 
@@ -210,6 +213,22 @@ def _assemble(col: _Collector, crs: str | None, bbox) -> RawMap:
     corners = proj.to_local(np.array([lon_min, lon_max]), np.array([lat_min, lat_max]))
     raw.bounds = (float(corners[0, 0]), float(corners[0, 1]), float(corners[1, 0]), float(corners[1, 1]))
     return raw
+
+
+def _outlines_replaced_by_parts(buildings: list[RawBuilding], is_part: list[bool], report: Counter):
+    """A building outline that holds building:part polygons is drawn by its parts (the OSM 3D rule): keep the
+    parts, whose heights are specific, and drop the outline with its coarser height."""
+    parts = [b.polygon.representative_point() for b, p in zip(buildings, is_part, strict=True) if p]
+    if not parts:
+        return buildings
+    tree = shapely.STRtree(np.array(parts, dtype=object))
+    kept = []
+    for b, p in zip(buildings, is_part, strict=True):
+        if not p and len(tree.query(b.polygon, predicate="contains")):
+            report["repaired:outline_replaced_by_parts"] += 1
+            continue
+        kept.append(b)
+    return kept
 
 
 def _min_height(tags: dict) -> float:

@@ -22,6 +22,13 @@ def register(sub) -> None:
     src.add_argument("--geojson", metavar="FILE", help="GeoJSON streets/areas/buildings")
     b.add_argument("--out", metavar="FILE", help="artifact to write (default: <map name>.enttopo)")
     b.add_argument("--crs", help="metric CRS, e.g. EPSG:3067 (default: the UTM zone of the map)")
+    b.add_argument(
+        "--bbox",
+        nargs=4,
+        type=float,
+        metavar=("LON_MIN", "LAT_MIN", "LON_MAX", "LAT_MAX"),
+        help="keep only OSM features that meet this WGS84 box",
+    )
     b.add_argument("--street-width", type=float, default=16.0, metavar="M", help="cell width (default 16 m)")
     b.add_argument(
         "--entity-height", type=float, default=4.5, metavar="M", help="cell height (default 4.5 m)"
@@ -125,7 +132,9 @@ def cmd_build(args: argparse.Namespace) -> int:
             pass
     try:
         say(f"reading {path or 'the bundled Helsinki map'}")
-        raw = read_map(path, args.crs)
+        if args.bbox and not (args.bbox[0] < args.bbox[2] and args.bbox[1] < args.bbox[3]):
+            raise CommandError("--bbox wants LON_MIN LAT_MIN LON_MAX LAT_MAX with min < max")
+        raw = read_map(path, args.crs, tuple(args.bbox) if args.bbox else None)
         topo = build(
             raw, config, progress=say, source=Path(path).name if path else "helsinki.osm.pbf (bundled)"
         )

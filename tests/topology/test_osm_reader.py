@@ -134,3 +134,19 @@ def test_not_osm_is_a_clear_error(tmp_path):
     empty.write_text(osm_xml([(1, (0, 0), {})], []))
     with pytest.raises(BuildError, match="no streets"):
         read_map(empty)
+
+
+def test_outline_with_parts_is_replaced_by_its_parts(tmp_path):
+    outline = [(30 + i, p, {}) for i, p in enumerate([(0, 1), (1, 1), (1, 2), (0, 2)])]
+    part = [(40 + i, p, {}) for i, p in enumerate([(0.1, 1.1), (0.5, 1.1), (0.5, 1.5), (0.1, 1.5)])]
+    nodes = [(1, (0, 0), {}), (2, (1, 0), {}), *outline, *part]
+    ways = [
+        (1, [1, 2], {"highway": "residential"}),
+        (2, [30, 31, 32, 33, 30], {"building": "yes"}),
+        (3, [40, 41, 42, 43, 40], {"building:part": "yes", "height": "33"}),
+    ]
+    path = tmp_path / "parts.osm"
+    path.write_text(osm_xml(nodes, ways))
+    raw = read_osm(path)
+    assert raw.report["repaired:outline_replaced_by_parts"] == 1
+    assert [b.height for b in raw.buildings] == [33.0]
