@@ -283,7 +283,7 @@ class Player:
         s_meas = self._s_of(fix, s_pred)
         self.kf.update(s_meas, t, r)
         kf = self.kf
-        if kf.v < -self.etype.v_start and kf.v + 2.0 * kf.speed_sigma() < 0.0:
+        if kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0:
             self.path = self.path.reversed()
             kf.flip(self.path.length)
             reason = reason or "path"
