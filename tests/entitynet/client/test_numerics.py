@@ -80,7 +80,6 @@ def test_entity_longer_than_a_chain_of_short_edges_occupies_all_of_them():
         out = p.feed(10.0 * i, 0.0, float(i))
     (m,) = p.tick(p.pub_t + p.occupation.validity) or [None]
     assert m is not None or out
-    net = netview(topo)
     path = p.ghost.path
     s = p.ghost.s_at(p.pub_t)
     assert set(path.cells_between(s - 27.6, s)) <= set(p.occupation.cells)
