@@ -1,0 +1,70 @@
+"""Auth tokens mapped to user ids, in SQLite.
+
+Only a SHA-256 of each token is stored, so a leaked database does not leak usable tokens. Tokens are
+random (secrets.token_urlsafe); a user may hold several. Lookups are one indexed SELECT, cheap enough to run
+on the server's event loop at handshake time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import secrets
+import sqlite3
+import time
+from pathlib import Path
+
+USER_RE = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
+
+
+def default_db_path() -> Path:
+    """$ENTITYNET_USERS_DB, else $XDG_DATA_HOME/entitynet/users.sqlite (~/.local/share by default)."""
+    env = os.environ.get("ENTITYNET_USERS_DB")
+    if env:
+        return Path(env)
+    base = Path(os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share")
+    return base / "entitynet" / "users.sqlite"
+
+
+def _hash(token: str) -> str:
+    return hashlib.sha256(token.encode("utf-8")).hexdigest()
+
+
+class TokenStore:
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(str(self.path), check_same_thread=False)
+        self._db.execute(
+            "CREATE TABLE IF NOT EXISTS tokens (hash TEXT PRIMARY KEY, user TEXT NOT NULL, created REAL NOT NULL)"
+        )
+        self._db.execute("CREATE INDEX IF NOT EXISTS tokens_user ON tokens(user)")
+        self._db.commit()
+
+    def close(self) -> None:
+        self._db.close()
+
+    def add_user(self, user: str) -> str:
+        """Create a new token for `user` (a user may have several) and return it; it is not stored in clear."""
+        if not USER_RE.match(user):
+            raise ValueError("user ids are 1-64 characters of letters, digits, _ . @ -")
+        token = secrets.token_urlsafe(24)
+        with self._db:
+            self._db.execute("INSERT INTO tokens VALUES (?, ?, ?)", (_hash(token), user, time.time()))
+        return token
+
+    def authenticate(self, token: str) -> str | None:
+        if not token or len(token) > 256:
+            return None
+        row = self._db.execute("SELECT user FROM tokens WHERE hash = ?", (_hash(token),)).fetchone()
+        return row[0] if row else None
+
+    def users(self) -> list[tuple[str, int]]:
+        """(user, number of tokens), sorted by user."""
+        return list(self._db.execute("SELECT user, COUNT(*) FROM tokens GROUP BY user ORDER BY user"))
+
+    def remove_user(self, user: str) -> int:
+        """Revoke all tokens of `user`; returns how many."""
+        with self._db:
+            return self._db.execute("DELETE FROM tokens WHERE user = ?", (user,)).rowcount

@@ -1,0 +1,356 @@
+"""The trio shell around the switchboard core: listeners, per-connection reader and writer, timers.
+
+Reading: bytes -> FrameDecoder (TCP) or one WebSocket message -> decode_payload -> `Switchboard.receive`. A
+decode error queues the numbered ERROR and closes that connection only.
+
+Writing (slow-consumer policy): the core coalesces into each client's outbox (one pending state per entity),
+so memory per client is bounded by the entities it can see, whatever the client does. A flusher wakes the
+writers of clients with news every `flush_interval`; each writer drains its outbox into ONE frame and writes it.
+While a write is in progress the outbox keeps coalescing, so a slow reader gets fewer, newer states and never
+holds up anyone else (each connection has its own writer task). A client whose outbox overflows the core's
+bounds is sent SLOW_CONSUMER and closed; a client whose write blocks for `stall_timeout` (it stopped reading
+and the socket buffers are full) is closed without a goodbye, since its stream is mid-frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import ssl
+import time
+from dataclasses import dataclass
+
+import trio
+import trio_websocket
+
+from entitynet import protocol as P
+from entitynet.server import logs
+from entitynet.server.config import ServerConfig
+from entitynet.server.metrics import Metrics
+from entitynet.switchboard import Switchboard, SwitchConfig
+
+
+class ConfigError(ValueError):
+    """The server cannot start with this configuration (message says why)."""
+
+
+@dataclass
+class _Conn:
+    cid: int
+    kind: str  # "tcp" | "ws"
+    peer: str
+    stream: object
+    wake: trio.Event
+    dirty_since: float | None = None
+    closed: bool = False
+
+
+def switch_config_from(config: ServerConfig) -> SwitchConfig:
+    """Digest and cell count from the topology artifact or the config; auth from the token store."""
+    digest, n_cells = config.digest, config.n_cells
+    if config.topology:
+        from topology import artifact
+
+        try:
+            topo = artifact.load(config.topology)
+        except (OSError, artifact.ArtifactError) as exc:
+            raise ConfigError(f"cannot load topology {config.topology}: {exc}") from exc
+        digest, n_cells = topo.digest, int(topo.n_cells)
+    if digest is None or n_cells is None:
+        raise ConfigError("give a topology artifact (or digest and n_cells)")
+    authenticate = None
+    if not config.open_mode:
+        from entitynet.auth import TokenStore, default_db_path
+
+        authenticate = TokenStore(config.users_db or default_db_path()).authenticate
+    return SwitchConfig(n_cells=n_cells, digest=digest, authenticate=authenticate, open_mode=config.open_mode,
+                        **config.switch)
+
+
+def _ssl_context(config: ServerConfig) -> ssl.SSLContext | None:
+    if not (config.tls_cert or config.tls_key):
+        return None
+    if not (config.tls_cert and config.tls_key):
+        raise ConfigError("TLS needs both --tls-cert and --tls-key")
+    ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    try:
+        ctx.load_cert_chain(config.tls_cert, config.tls_key)
+    except (OSError, ssl.SSLError) as exc:
+        raise ConfigError(f"cannot load TLS certificate/key: {exc}") from exc
+    return ctx
+
+
+class Server:
+    """One shard server. Start it with `await nursery.start(serve, config)` or `entitynet serve`."""
+
+    def __init__(self, config: ServerConfig):
+        self.config = config
+        self.clock = config.clock
+        self.sb = Switchboard(switch_config_from(config), now=self.clock())
+        self.metrics = Metrics()
+        self.ssl = _ssl_context(config)
+        self.conns: dict[int, _Conn] = {}
+        self.port: int | None = None
+        self.ws_port: int | None = None
+        self.metrics_port: int | None = None
+        self._nursery: trio.Nursery | None = None
+        self._stopping = False
+        self._http = None
+        self.written = 0  # messages written (for benchmarks without scraping)
+
+    # ------------------------------------------------------------------------------------------ lifecycle
+    async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        cfg = self.config
+        if cfg.open_mode:
+            logs.event("OPEN MODE: any token is accepted; use only for local testing", logging.WARNING)
+        try:
+            async with trio.open_nursery() as nursery:
+                self._nursery = nursery
+                if cfg.port is not None:
+                    listeners = await trio.open_tcp_listeners(cfg.port, host=cfg.host)
+                    self.port = listeners[0].socket.getsockname()[1]
+                    if self.ssl:
+                        listeners = [trio.SSLListener(li, self.ssl, https_compatible=False) for li in listeners]
+                    nursery.start_soon(trio.serve_listeners, self._handle_tcp, listeners)
+                if cfg.ws_port is not None:
+                    ws = await nursery.start(
+                        lambda task_status: trio_websocket.serve_websocket(
+                            self._handle_ws, cfg.host, cfg.ws_port, self.ssl,
+                            max_message_size=self.sb.config.codec.max_frame, task_status=task_status,
+                        )
+                    )
+                    self.ws_port = ws.port
+                if cfg.metrics_port is not None:
+                    from prometheus_client import start_http_server
+
+                    self._http, _ = start_http_server(cfg.metrics_port, cfg.host, registry=self.metrics.registry)
+                    self.metrics_port = self._http.server_port
+                nursery.start_soon(self._flusher)
+                nursery.start_soon(self._housekeeping)
+                logs.event("listening", host=cfg.host, port=self.port, ws_port=self.ws_port,
+                           metrics_port=self.metrics_port, n_cells=self.sb.config.n_cells,
+                           digest=self.sb.config.digest[:16], tls=bool(self.ssl))
+                task_status.started(self)
+        finally:
+            if self._http is not None:
+                self._http.shutdown()
+                self._http.server_close()
+            logs.event("stopped")
+
+    async def stop(self) -> None:
+        """Graceful shutdown: tell every client SHUTTING_DOWN, let writers flush briefly, then cancel."""
+        if self._stopping or self._nursery is None:
+            return
+        self._stopping = True
+        logs.event("shutting down", clients=len(self.conns))
+        self.sb.shutdown()
+        self._wake_dirty()
+        with trio.move_on_after(self.config.shutdown_grace):
+            while self.conns:
+                await trio.sleep(0.01)
+        self._nursery.cancel_scope.cancel()
+
+    # ------------------------------------------------------------------------------------------ connections
+    async def _handle_tcp(self, stream) -> None:
+        if self._stopping:
+            await stream.aclose()
+            return
+        try:
+            peer = str(stream.socket.getpeername()) if hasattr(stream, "socket") else "tls"
+        except OSError:
+            peer = "?"
+        conn = self._open(stream, "tcp", peer)
+        try:
+            async with trio.open_nursery() as n:
+                n.start_soon(self._writer, conn, n.cancel_scope)
+                await self._read_tcp(conn)
+                if not self.sb.outbox(conn.cid) or not self.sb.outbox(conn.cid).close_after:
+                    n.cancel_scope.cancel()  # peer went away: nothing left to write
+        finally:
+            await self._close(conn)
+
+    async def _handle_ws(self, request) -> None:
+        if self._stopping:
+            await request.reject(503)
+            return
+        ws = await request.accept()
+        conn = self._open(ws, "ws", str(ws.remote))
+        try:
+            async with trio.open_nursery() as n:
+                n.start_soon(self._writer, conn, n.cancel_scope)
+                await self._read_ws(conn)
+                if not self.sb.outbox(conn.cid) or not self.sb.outbox(conn.cid).close_after:
+                    n.cancel_scope.cancel()
+        finally:
+            await self._close(conn)
+
+    def _open(self, stream, kind: str, peer: str) -> _Conn:
+        cid = self.sb.connect(self.clock())
+        conn = _Conn(cid, kind, peer, stream, trio.Event())
+        self.conns[cid] = conn
+        self.metrics.connections.inc()
+        logs.event("connect", logging.DEBUG, cid=cid, kind=kind, peer=peer)
+        return conn
+
+    async def _close(self, conn: _Conn) -> None:
+        if conn.closed:
+            return
+        conn.closed = True
+        self.conns.pop(conn.cid, None)
+        self.sb.disconnect(conn.cid, self.clock())
+        self._wake_dirty()
+        self.metrics.connections.dec()
+        with trio.move_on_after(0.5) as cs:
+            cs.shield = True
+            try:
+                await conn.stream.aclose()
+            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError,
+                    trio_websocket.ConnectionClosed):
+                pass
+        logs.event("disconnect", logging.DEBUG, cid=conn.cid, kind=conn.kind)
+
+    def _feed(self, conn: _Conn, msgs: list[P.Message]) -> None:
+        sb = self.sb
+        before = sb.stats["updates_in"]
+        sb.receive(conn.cid, msgs, self.clock())
+        self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
+        ob = sb.outbox(conn.cid)
+        if ob is not None and (ob.control or ob.close_after):
+            conn.wake.set()  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
+
+    def _reject(self, conn: _Conn, err: P.ProtocolError) -> None:
+        logs.event("protocol error", logging.INFO, cid=conn.cid, peer=conn.peer, code=int(err.code),
+                   reason=err.text)
+        self.sb.protocol_error(conn.cid, err)
+        conn.wake.set()
+
+    async def _read_tcp(self, conn: _Conn) -> None:
+        dec = P.FrameDecoder(self.sb.config.codec)
+        stream = conn.stream
+        size = self.config.read_size
+        while True:
+            try:
+                data = await stream.receive_some(size)
+            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
+                data = b""
+            if not data:
+                if dec.mid_frame:
+                    logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid, buffered=dec.buffered)
+                return
+            dec.receive_data(data)
+            try:
+                while (msgs := dec.next_messages()) is not None:
+                    self._feed(conn, msgs)
+            except P.ProtocolError as err:
+                self._reject(conn, err)
+                return
+            ob = self.sb.outbox(conn.cid)
+            if ob is None or ob.close_after:
+                return
+
+    async def _read_ws(self, conn: _Conn) -> None:
+        ws = conn.stream
+        limits = self.sb.config.codec
+        while True:
+            try:
+                data = await ws.get_message()
+            except trio_websocket.ConnectionClosed:
+                return
+            if not isinstance(data, bytes):
+                self._reject(conn, P.ProtocolError(P.ErrorCode.MALFORMED, "send binary WebSocket messages"))
+                return
+            try:
+                self._feed(conn, P.decode_payload(data, limits))
+            except P.ProtocolError as err:
+                self._reject(conn, err)
+                return
+            ob = self.sb.outbox(conn.cid)
+            if ob is None or ob.close_after:
+                return
+
+    async def _writer(self, conn: _Conn, scope: trio.CancelScope) -> None:
+        sb, cfg, m = self.sb, self.config, self.metrics
+        tcp = conn.kind == "tcp"
+        while True:
+            await conn.wake.wait()
+            conn.wake = trio.Event()
+            ob = sb.outbox(conn.cid)
+            if ob is None:
+                return
+            msgs = ob.drain(cfg.max_batch)
+            if msgs:
+                payload = P.payload_from_encoded(msgs)
+                with trio.move_on_after(cfg.stall_timeout) as cs:
+                    try:
+                        if tcp:
+                            await conn.stream.send_all(P.frame(payload))
+                        else:
+                            await conn.stream.send_message(payload)
+                    except (trio.BrokenResourceError, trio.ClosedResourceError, OSError,
+                            trio_websocket.ConnectionClosed):
+                        scope.cancel()
+                        return
+                if cs.cancelled_caught:
+                    m.drops.inc()
+                    sb.slow_consumer(conn.cid, f"write blocked for {cfg.stall_timeout:g} s")
+                    logs.event("slow consumer dropped", logging.WARNING, cid=conn.cid, peer=conn.peer)
+                    scope.cancel()
+                    return
+                self.written += len(msgs)
+                m.deliveries.inc(len(msgs))
+                m.frames_out.inc()
+                if conn.dirty_since is not None:
+                    m.latency.observe(max(0.0, time.monotonic() - conn.dirty_since))
+                    conn.dirty_since = None
+            if len(ob):
+                conn.wake.set()
+            elif ob.close_after:
+                scope.cancel()
+                return
+
+    def _wake_dirty(self) -> None:
+        conns = self.conns
+        t = time.monotonic()
+        for cid in self.sb.take_dirty():
+            conn = conns.get(cid)
+            if conn is not None:
+                if conn.dirty_since is None:
+                    conn.dirty_since = t
+                conn.wake.set()
+
+    async def _flusher(self) -> None:
+        interval = self.config.flush_interval
+        while True:
+            await trio.sleep(interval)
+            self._wake_dirty()
+
+    async def _housekeeping(self) -> None:
+        m, sb = self.metrics, self.sb
+        seen_errors: dict[int, int] = {}
+        while True:
+            await trio.sleep(0.1)
+            sb.expire(self.clock())
+            counts = sb.counts()
+            m.entities.set(counts["entities"])
+            m.subscriptions.set(counts["subscriptions"])
+            m.follows.set(counts["follows"])
+            for code, n in sb.errors.items():
+                if n > seen_errors.get(code, 0):
+                    m.errors.labels(str(code)).inc(n - seen_errors.get(code, 0))
+                    seen_errors[code] = n
+
+
+async def serve(config: ServerConfig, *, task_status=trio.TASK_STATUS_IGNORED) -> None:
+    """Run a server until cancelled; `task_status.started(server)` once it listens (ports filled in)."""
+    await Server(config).run(task_status=task_status)
+
+
+async def serve_until_signal(config: ServerConfig) -> None:
+    """`entitynet serve`: run until SIGINT/SIGTERM, then shut down gracefully."""
+    async with trio.open_nursery() as nursery:
+        server: Server = await nursery.start(serve, config)
+        with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+            async for signum in signals:
+                logs.event("signal", signal=signal.Signals(signum).name)
+                await server.stop()
+                break

@@ -1,0 +1,37 @@
+"""Server settings: the listeners, TLS, auth, the topology facts the core needs, and the shell's policies."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass
+class ServerConfig:
+    """Everything `serve()` needs. Ports of 0 pick a free port (see the started `Server`'s ports).
+
+    Give either `topology` (an artifact path: its digest and cell count are read from it) or `digest` and
+    `n_cells` directly (tests, or a server started before the artifact exists).
+    """
+
+    host: str = "127.0.0.1"
+    port: int | None = 7400  # TCP; None = no TCP listener
+    ws_port: int | None = None  # WebSocket; None = no WebSocket listener
+    metrics_port: int | None = None  # Prometheus /metrics over HTTP
+    tls_cert: str | None = None
+    tls_key: str | None = None
+    topology: str | None = None
+    digest: str | None = None
+    n_cells: int | None = None
+    open_mode: bool = False
+    users_db: str | None = None  # None = entitynet.auth.default_db_path()
+    flush_interval: float = 0.01  # outbound batching window (s): one write per connection per flush
+    stall_timeout: float = 5.0  # a write blocked this long (client not reading) drops the client
+    max_batch: int = 20_000  # messages per written frame
+    read_size: int = 65_536
+    shutdown_grace: float = 1.0  # time to flush SHUTTING_DOWN to everyone before closing
+    switch: dict[str, Any] = field(default_factory=dict)  # SwitchConfig overrides (limits)
+    clock: Callable[[], float] = time.time  # the server clock reported in WELCOME/PONG and used for expiry
+    log_json: bool = False

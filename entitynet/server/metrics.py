@@ -1,0 +1,25 @@
+"""Prometheus metrics of one server, in a registry of its own (several servers may share a process)."""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+
+class Metrics:
+    def __init__(self) -> None:
+        r = self.registry = CollectorRegistry()
+        self.connections = Gauge("entitynet_connections", "open client connections", registry=r)
+        self.entities = Gauge("entitynet_entities", "published entities", registry=r)
+        self.subscriptions = Gauge("entitynet_subscriptions", "cell subscriptions over all clients", registry=r)
+        self.follows = Gauge("entitynet_follows", "direct subscriptions over all clients", registry=r)
+        self.updates_in = Counter("entitynet_updates_in", "accepted PUBLISH messages", registry=r)
+        self.deliveries = Counter("entitynet_deliveries", "messages written to clients", registry=r)
+        self.frames_out = Counter("entitynet_frames_out", "frames written to clients", registry=r)
+        self.drops = Counter("entitynet_slow_consumer_drops", "clients dropped for not keeping up", registry=r)
+        self.errors = Counter("entitynet_errors", "errors sent to clients", ["code"], registry=r)
+        self.latency = Histogram(
+            "entitynet_queue_latency_seconds",
+            "time from a connection's outbox becoming non-empty to its batch being written",
+            buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5),
+            registry=r,
+        )
