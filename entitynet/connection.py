@@ -30,6 +30,17 @@ log = logging.getLogger("entitynet.connection")
 REFUSALS = {P.ErrorCode.VERSION_MISMATCH, P.ErrorCode.TOPOLOGY_MISMATCH, P.ErrorCode.AUTH_FAILED}
 
 
+_LOST = (OSError, trio.BrokenResourceError, trio.ClosedResourceError, trio.TooSlowError,
+         trio_websocket.HandshakeError, trio_websocket.ConnectionClosed, P.ProtocolError)
+
+
+def _leaves(exc: BaseException) -> list[BaseException]:
+    """The exceptions inside (nested) exception groups, or [exc]."""
+    if isinstance(exc, BaseExceptionGroup):
+        return [leaf for e in exc.exceptions for leaf in _leaves(e)]
+    return [exc]
+
+
 class QueryRefused(Exception):
     """The server refused a query (rate limit or bad cells)."""
 
@@ -195,18 +206,21 @@ class Connection:
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
         """Connect, and reconnect with backoff until cancelled. Raises HandshakeRefused for good refusals."""
         delay = self.backoff[0]
-        started = False
+        self._task_status = task_status
         while True:
             try:
-                await self._session(task_status if not started else trio.TASK_STATUS_IGNORED)
-                started = True
-                delay = self.backoff[0]
-            except HandshakeRefused:
-                raise
-            except (OSError, trio.BrokenResourceError, trio.ClosedResourceError, trio.TooSlowError,
-                    trio_websocket.HandshakeError, trio_websocket.ConnectionClosed, P.ProtocolError) as exc:
-                log.info("connection lost: %s", exc)
+                await self._session()
+            except BaseException as exc:  # noqa: B036 - sorted below; anything else propagates unchanged
+                leaves = _leaves(exc)
+                refused = [e for e in leaves if isinstance(e, HandshakeRefused)]
+                if refused:
+                    raise refused[0] from None
+                if not leaves or not all(isinstance(e, _LOST) for e in leaves):
+                    raise
+                log.info("connection lost: %s", leaves[0])
             finally:
+                if self.connected.is_set():
+                    delay = self.backoff[0]
                 self._stream = None
                 if self.connected.is_set():
                     self.connected = trio.Event()
@@ -225,7 +239,7 @@ class Connection:
             return "tcp", await trio.open_ssl_over_tcp_stream(host, port, ssl_context=self.ssl_context)
         return "tcp", await trio.open_tcp_stream(host, port)
 
-    async def _session(self, task_status) -> None:
+    async def _session(self) -> None:
         async with trio.open_nursery() as nursery:
             self._nursery = nursery
             kind, stream = await self._open()
@@ -248,7 +262,9 @@ class Connection:
             await self._deliver(welcome)
             for m in first[1:]:
                 await self._dispatch(m)
-            task_status.started(self)
+            if self._task_status is not None:
+                self._task_status.started(self)
+                self._task_status = None
             nursery.start_soon(self._pinger)
             while True:
                 for m in await self._next_messages():

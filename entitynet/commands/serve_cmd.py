@@ -1,0 +1,53 @@
+"""`entitynet serve --topology FILE`: run one switchboard shard until SIGINT/SIGTERM."""
+
+from __future__ import annotations
+
+import argparse
+
+from entitynet.cli import CommandError
+
+
+def register(sub) -> None:
+    p = sub.add_parser("serve", help="run a switchboard server (one shard)")
+    p.add_argument("--topology", metavar="FILE", required=True,
+                   help="topology artifact: the server learns its digest and cell count from it")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=7400, help="TCP port (default 7400; 0 = any free port)")
+    p.add_argument("--ws-port", type=int, metavar="PORT", help="also listen for WebSocket clients here")
+    p.add_argument("--metrics-port", type=int, metavar="PORT", help="serve Prometheus /metrics here")
+    p.add_argument("--tls-cert", metavar="PEM", help="TLS certificate chain (with --tls-key)")
+    p.add_argument("--tls-key", metavar="PEM", help="TLS private key")
+    p.add_argument("--open", action="store_true",
+                   help="accept any token (local use only; said loudly in the log)")
+    p.add_argument("--users-db", metavar="FILE", help="token store (default: see `entitynet users`)")
+    p.add_argument("--flush-ms", type=float, default=10.0, help="outbound batching window (default 10 ms)")
+    p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
+    p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+
+    import trio
+
+    from entitynet.server import ConfigError, ServerConfig, logs, serve_until_signal
+
+    if logging.getLogger().level > logging.INFO:
+        logging.getLogger("entitynet.server").setLevel(logging.INFO)
+    logs.use_json(args.log_json)
+    if args.flush_ms < 0 or args.grace < 0:
+        raise CommandError("--flush-ms and --grace must be >= 0")
+    config = ServerConfig(
+        host=args.host, port=args.port, ws_port=args.ws_port, metrics_port=args.metrics_port,
+        tls_cert=args.tls_cert, tls_key=args.tls_key, topology=args.topology, open_mode=args.open,
+        users_db=args.users_db, flush_interval=args.flush_ms / 1000.0, switch={"grace_s": args.grace},
+        log_json=args.log_json,
+    )
+    try:
+        trio.run(serve_until_signal, config)
+    except ConfigError as exc:
+        raise CommandError(str(exc)) from None
+    except OSError as exc:
+        raise CommandError(f"cannot listen: {exc}") from None
+    return 0

@@ -1,0 +1,57 @@
+"""`entitynet users add NAME | list | remove NAME`: the server's auth tokens (SQLite)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from entitynet.cli import CommandError
+
+
+def register(sub) -> None:
+    from entitynet.auth import default_db_path
+
+    p = sub.add_parser("users", help="manage auth tokens of the switchboard server")
+    p.add_argument("--db", metavar="FILE", help=f"token store (default: $ENTITYNET_USERS_DB or {default_db_path()})")
+    usub = p.add_subparsers(dest="users_command", metavar="ACTION", required=True)
+    a = usub.add_parser("add", help="create a token for NAME and print it (shown only once)")
+    a.add_argument("name")
+    a.set_defaults(func=run_add)
+    ls = usub.add_parser("list", help="users and how many tokens each holds")
+    ls.set_defaults(func=run_list)
+    r = usub.add_parser("remove", help="revoke all tokens of NAME")
+    r.add_argument("name")
+    r.set_defaults(func=run_remove)
+
+
+def _store(args: argparse.Namespace):
+    from entitynet.auth import TokenStore, default_db_path
+
+    try:
+        return TokenStore(args.db or default_db_path())
+    except Exception as exc:  # sqlite3.Error, OSError: a bad path or a file that is not a database
+        raise CommandError(f"cannot open token store: {exc}") from None
+
+
+def run_add(args: argparse.Namespace) -> int:
+    try:
+        token = _store(args).add_user(args.name)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    print(token)
+    print(f"token for {args.name} created; it is not stored in clear and cannot be shown again", file=sys.stderr)
+    return 0
+
+
+def run_list(args: argparse.Namespace) -> int:
+    for user, n in _store(args).users():
+        print(f"{user}\t{n}")
+    return 0
+
+
+def run_remove(args: argparse.Namespace) -> int:
+    n = _store(args).remove_user(args.name)
+    if n == 0:
+        raise CommandError(f"no user {args.name!r}")
+    print(f"revoked {n} token(s) of {args.name}", file=sys.stderr)
+    return 0

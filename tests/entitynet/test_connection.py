@@ -1,0 +1,98 @@
+"""The trio client connection against a real in-process server: many entities, reconnect with replay,
+clock offset from PING/PONG, queries, and a clear refusal on a topology mismatch."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import trio
+
+from entitynet import protocol as P
+from entitynet.connection import Connection, HandshakeRefused, QueryRefused
+from tests.entitynet.server_helpers import DIGEST, running
+
+
+async def _wait(pred, timeout=5.0):
+    with trio.fail_after(timeout):
+        while not pred():
+            await trio.sleep(0.005)
+
+
+def _viewer(server, cells, seen):
+    def on(m):
+        if isinstance(m, P.Welcome):
+            seen.clear()  # entity ids are per session
+        elif isinstance(m, P.Update):
+            seen[m.entity] = m
+        elif isinstance(m, P.Leave):
+            seen.pop(m.entity, None)
+
+    return Connection(("127.0.0.1", server.port), DIGEST, on_message=on, backoff=(0.01, 0.05))
+
+
+async def test_many_entities_reconnect_and_replay():
+    async with running() as server, trio.open_nursery() as n:
+        seen: dict[int, P.Update] = {}
+        view = _viewer(server, (1, 2), seen)
+        await view.subscribe((1, 2))
+        await n.start(view.run)
+        proxy = Connection(("127.0.0.1", server.port), DIGEST, backoff=(0.01, 0.05))
+        await n.start(proxy.run)
+        await proxy.publish(*[P.Publish(i, 1, (1 + i % 2,), 30_000, b"%d" % i) for i in range(50)])
+        await _wait(lambda: len(seen) == 50)
+        # the server drops both connections: they come back, re-subscribe and re-publish
+        for conn in list(server.conns.values()):
+            await conn.stream.aclose()
+        await _wait(lambda: proxy.connects == 2 and view.connects == 2)
+        await _wait(lambda: len(seen) == 50 and len(server.sb.entities) == 50)
+        assert sorted(u.payload for u in seen.values()) == sorted(b"%d" % i for i in range(50))
+        # a state published while connected again flows as usual
+        await proxy.publish(P.Publish(0, 2, (1,), 30_000, b"new"))
+        await _wait(lambda: any(u.payload == b"new" for u in seen.values()))
+        await view.set_subscription((2,))
+        await _wait(lambda: len(seen) == 25)
+        n.cancel_scope.cancel()
+
+
+async def test_clock_offset_from_ping_pong():
+    async with running(clock=lambda: time.time() + 1234.5) as server, trio.open_nursery() as n:
+        c = Connection(("127.0.0.1", server.port), DIGEST, ping_interval=0.02)
+        await n.start(c.run)
+        await _wait(lambda: len(c.clock_estimate.samples) >= 3)
+        assert c.clock_estimate.offset == pytest.approx(1234.5, abs=0.05)
+        assert c.server_time() - time.time() == pytest.approx(1234.5, abs=0.05)
+        n.cancel_scope.cancel()
+
+
+async def test_query_and_rate_refusal():
+    async with running(switch={"query_rate": 0.0, "query_burst": 1}) as server, trio.open_nursery() as n:
+        c = Connection(("127.0.0.1", server.port), DIGEST)
+        await n.start(c.run)
+        await c.publish(P.Publish(1, 1, (4,), 10_000, b"x"))
+        r = await c.query(P.QUERY_CELLS, (4,))
+        assert [u.payload for u in r.entities] == [b"x"]
+        with pytest.raises(QueryRefused):
+            await c.query(P.QUERY_CELLS, (4,))
+        n.cancel_scope.cancel()
+
+
+async def test_topology_mismatch_is_a_clear_refusal():
+    async with running() as server:
+        c = Connection(("127.0.0.1", server.port), "another-digest")
+        with pytest.raises(HandshakeRefused, match="digest"):
+            await c.run()
+
+
+async def test_websocket_transport():
+    async with running(ws_port=0) as server, trio.open_nursery() as n:
+        seen: dict[int, P.Update] = {}
+        view = Connection(f"ws://127.0.0.1:{server.ws_port}/", DIGEST,
+                          on_message=lambda m: isinstance(m, P.Update) and seen.__setitem__(m.entity, m))
+        await view.subscribe((3,))
+        await n.start(view.run)
+        pub = Connection(f"ws://127.0.0.1:{server.ws_port}/", DIGEST)
+        await n.start(pub.run)
+        await pub.publish(P.Publish(1, 1, (3,), 10_000, b"ws"))
+        await _wait(lambda: len(seen) == 1)
+        n.cancel_scope.cancel()
