@@ -2,7 +2,7 @@
 
 Only the standard library reads the feed (csv + zipfile, streamed); pyproj projects to the artifact's CRS and
 origin; the shapes that run over the map are clipped to it and map-matched onto the tram or vehicle network
-with the same matcher the topology build uses for OSM route relations.
+by a shortest path through the corridor around each shape (`match_corridor`).
 """
 
 from __future__ import annotations
@@ -106,32 +106,62 @@ def _inside_runs(xy: np.ndarray, bounds: tuple[float, float, float, float], pad:
     return runs
 
 
-def _connected_runs(topo, edges: list[list[int]]) -> list[list[tuple[int, int]]]:
-    runs: list[list[tuple[int, int]]] = []
-    prev_end = None
-    for e, d in edges:
+def match_corridor(topo, xy: np.ndarray, networks: int, *, corridor: float = 25.0,
+                   scale: float = 6.0) -> list[tuple[int, int]]:
+    """Map-match a polyline by a shortest path through its corridor.
+
+    Every edge of `networks` within `corridor` metres of the polyline may be used, in the direction in which
+    it advances along the polyline, at a cost of length * (1 + (mean distance / scale)^2): the cheapest path
+    from the node nearest the polyline's start to the node nearest its end follows the polyline, and is
+    connected by construction (unlike snapping samples to the nearest edge, which flips between the two
+    tracks of a double-track tram line)."""
+    import networkx as nx
+    import shapely
+
+    line = shapely.LineString(xy)
+    lines = shapely.from_ragged_array(shapely.GeometryType.LINESTRING, topo.edge_geom_xy,
+                                      (topo.edge_geom_offsets,))
+    cand = np.flatnonzero((topo.edge_networks & networks) != 0)
+    cand = cand[shapely.dwithin(lines[cand], line, corridor)]
+    if len(cand) == 0:
+        return []
+    g = nx.DiGraph()
+    for e in cand.tolist():
+        geom = lines[e]
+        length = float(topo.edge_length[e])
+        n_s = max(2, int(length / 5.0) + 1)
+        pts = shapely.line_interpolate_point(geom, np.linspace(0.0, length, n_s))
+        d = float(shapely.distance(pts, line).mean())
+        pos = shapely.line_locate_point(line, pts[[0, -1]])
         u, v = int(topo.edge_nodes[e][0]), int(topo.edge_nodes[e][1])
-        start, end = (u, v) if d > 0 else (v, u)
-        if prev_end is None or start != prev_end or (runs[-1] and runs[-1][-1] == (e, -d)):
-            runs.append([])
-        runs[-1].append((int(e), 1 if d > 0 else -1))
-        prev_end = end
-    return runs
+        cost = length * (1.0 + (d / scale) ** 2)
+        fwd = (u, v, 1) if pos[1] >= pos[0] else (v, u, -1)
+        for a, b, dirn, c in ((*fwd, cost), (fwd[1], fwd[0], -fwd[2], cost * 20.0 + 50.0)):
+            if a == b:
+                continue
+            if not g.has_edge(a, b) or g[a][b]["cost"] > c:
+                g.add_edge(a, b, cost=c, edge=e, dir=dirn)
+    nodes = np.array(list(g.nodes))
+    nxy = topo.node_xy[nodes]
+    start = int(nodes[np.argmin(np.hypot(*(nxy - xy[0]).T))])
+    end = int(nodes[np.argmin(np.hypot(*(nxy - xy[-1]).T))])
+    try:
+        route = nx.shortest_path(g, start, end, weight="cost")
+    except nx.NetworkXNoPath:
+        return []
+    return [(int(g[a][b]["edge"]), int(g[a][b]["dir"])) for a, b in zip(route, route[1:], strict=False)]
 
 
 def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), min_length: float = 300.0,
                  pad: float = 20.0) -> list[MatchedShape]:
     """Shapes of `modes` that run over the map, clipped and matched to connected directed-edge routes.
 
-    A shape's longest connected matched run is kept if it is at least `min_length` metres; shapes whose
-    matched length is far from the clipped shape's length (a bad match) are skipped."""
+    A matched route is kept if it is at least `min_length` metres long and within -20%/+25% of the clipped
+    shape's length (otherwise the match went astray and it is skipped)."""
     from topology.projection import LocalProjection
-    from topology.routes import match_polyline, network_graph
 
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
     bounds = tuple(topo.meta["bounds"])
-    index = topo.placement_index()
-    graphs = {}
     out: list[MatchedShape] = []
     for sid in sorted(feed.shapes):
         route_id = feed.shape_route[sid]
@@ -139,8 +169,6 @@ def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), 
         if mode not in modes:
             continue
         bits = TRAM if mode == "tram" else VEHICLE
-        if bits not in graphs:
-            graphs[bits] = network_graph(topo, bits)
         xy = proj.to_local(feed.shapes[sid][:, 0], feed.shapes[sid][:, 1])
         for run in _inside_runs(xy, bounds, pad):
             if len(run) < 2:
@@ -148,11 +176,9 @@ def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), 
             seg = float(np.hypot(*np.diff(run, axis=0).T).sum())
             if seg < min_length:
                 continue
-            matched = match_polyline(topo, index, graphs[bits], run, bits)
-            best = max(_connected_runs(topo, matched), key=lambda r: sum(topo.edge_length[e] for e, _ in r),
-                       default=[])
+            best = match_corridor(topo, run, bits)
             length = float(sum(topo.edge_length[e] for e, _ in best))
-            if length < min_length or length > 1.5 * seg:
+            if length < min_length or not 0.8 * seg <= length <= 1.25 * seg:
                 continue
             out.append(MatchedShape(sid, route_id, mode, ref, run, best))
     if out:
