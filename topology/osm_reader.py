@@ -19,6 +19,8 @@ from topology.tags import area_kind, building_height, parse_layer, way_networks
 
 ROUTE_MODES = {"tram": "tram", "light_rail": "tram", "bus": "bus", "trolleybus": "bus"}
 STOP_ROLES = {"stop", "stop_entry_only", "stop_exit_only"}
+#: older (PTv1) routes list only their platforms; a platform node stands beside its stop and serves instead
+PLATFORM_ROLES = {"platform", "platform_entry_only", "platform_exit_only"}
 MIN_POLYGON_AREA_M2 = 1.0
 
 
@@ -31,6 +33,7 @@ def _is_stop_node(tags) -> bool:
         tags.get("public_transport") == "stop_position"
         or tags.get("railway") == "tram_stop"
         or tags.get("highway") == "bus_stop"
+        or tags.get("public_transport") == "platform"
     )
 
 
@@ -77,12 +80,15 @@ class _Collector:
         tags = dict(r.tags)
         if tags.get("type") != "route" or tags.get("route") not in ROUTE_MODES:
             return
-        way_ids, stop_ids = [], []
+        way_ids, stop_ids, platform_ids = [], [], []
         for m in r.members:
             if m.type == "w" and m.role in ("", "forward", "backward"):
                 way_ids.append(m.ref)
             elif m.type == "n" and m.role in STOP_ROLES:
                 stop_ids.append(m.ref)
+            elif m.type == "n" and m.role in PLATFORM_ROLES:
+                platform_ids.append(m.ref)
+        stop_ids = stop_ids or platform_ids
         self.routes.append((r.id, tags, way_ids, stop_ids))
 
     def area(self, a) -> None:

@@ -12,6 +12,7 @@ from collections import Counter
 
 import networkx as nx
 import numpy as np
+import shapely
 
 from topology.raw import TRAM, VEHICLE
 
@@ -91,6 +92,22 @@ def match_polyline(topo, index, graph: nx.MultiGraph, xy: np.ndarray, networks: 
     return path
 
 
+def _place_stops(index, edges: list[list[int]], raw_stops, max_dist: float = 30.0) -> list[dict]:
+    """Stops onto the route's own edges (not the parallel track of the other direction)."""
+    route_edges = sorted({e for e, _ in edges})
+    lines = index.lines[route_edges]
+    stops = []
+    for st in raw_stops:
+        pt = shapely.Point(st.xy)
+        d = shapely.distance(lines, pt)
+        k = int(np.argmin(d))
+        if d[k] <= max_dist:
+            edge = route_edges[k]
+            offset = float(shapely.line_locate_point(lines[k], pt))
+            stops.append({"name": st.name, "edge": edge, "offset": round(offset, 2)})
+    return stops
+
+
 def network_graph(topo, networks: int) -> nx.MultiGraph:
     g = nx.MultiGraph()
     for e in np.flatnonzero(topo.edge_networks & networks):
@@ -112,11 +129,7 @@ def build_routes(topo, raw_routes, raw_way_xy: dict[int, np.ndarray], report: Co
         if not edges:
             report["dropped:route_not_matched"] += 1
             continue
-        stops = []
-        for st in rr.stops:
-            pl = index.place(st.xy[0], st.xy[1], bits)
-            if pl is not None and pl.kind == "edge" and pl.distance < 30.0:
-                stops.append({"name": st.name, "edge": pl.index, "offset": round(pl.offset, 2)})
+        stops = _place_stops(index, edges, rr.stops)
         out.append(
             {
                 "id": rr.route_id,

@@ -45,3 +45,19 @@ def test_placement_index(helsinki):
     a = helsinki.area_polygons.to_shapely()[0].representative_point()
     pa = idx.place(a.x, a.y, int(helsinki.area_networks[0]))
     assert pa.kind == "area"
+
+
+def test_routes_are_connected_paths_with_stops(helsinki):
+    connected = total = 0
+    for r in helsinki.routes:
+        for (e1, d1), (e2, d2) in zip(r["edges"], r["edges"][1:], strict=False):
+            end = helsinki.edge_nodes[e1][1 if d1 == 1 else 0]
+            start = helsinki.edge_nodes[e2][0 if d2 == 1 else 1]
+            connected += int(end == start)
+            total += 1
+    assert connected / total > 0.97  # gaps only where a route leaves and re-enters the extract
+    trams = [r for r in helsinki.routes if r["mode"] == "tram"]
+    assert sum(len(r["stops"]) for r in trams) >= 20
+    for r in trams:
+        route_edges = {e for e, _ in r["edges"]}
+        assert all(s["edge"] in route_edges for s in r["stops"])
