@@ -23,6 +23,7 @@ class EntityType:
     v_start: float  # above this a stopped entity has started (emergent update)
     jerk_q: float  # process noise of the along-path filter
     accel: bool  # whether the along-path filter (and the published model) carries acceleration
+    brake: float = 1.0  # comfortable braking used to extrapolate a halt at a known stop (m/s^2)
 
     @property
     def length(self) -> float:
@@ -31,8 +32,8 @@ class EntityType:
 
 PEDESTRIAN_T = EntityType(0, "pedestrian", PEDESTRIAN, (), 3.0, 1.0, 0.25, 0.7, 0.4, False)
 CAR = EntityType(1, "car", VEHICLE, (4.5,), 25.0, 3.0, 0.8, 2.0, 1.0, True)
-BUS = EntityType(2, "bus", VEHICLE, (12.0,), 20.0, 1.5, 0.8, 2.0, 0.3, True)
-TRAM_T = EntityType(3, "tram", TRAM, (13.8, 13.8), 14.0, 1.3, 0.8, 2.0, 0.3, True)
+BUS = EntityType(2, "bus", VEHICLE, (12.0,), 20.0, 1.5, 0.8, 2.0, 0.3, True, 1.2)
+TRAM_T = EntityType(3, "tram", TRAM, (13.8, 13.8), 14.0, 1.3, 0.8, 2.0, 0.3, True, 1.0)
 CYCLIST = EntityType(4, "cyclist", PEDESTRIAN | VEHICLE, (), 10.0, 2.0, 0.6, 1.5, 0.8, True)
 
 TYPES: dict[str, EntityType] = {t.name: t for t in (PEDESTRIAN_T, CAR, BUS, TRAM_T, CYCLIST)}

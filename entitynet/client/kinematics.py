@@ -54,3 +54,42 @@ def time_to_travel(d: float, v: float, a: float, vmax: float) -> float:
         den = v + math.sqrt(disc)
         return 2.0 * d / den if den > 0.0 else INF
     return d / v if v > 0.0 else INF
+
+
+def brake_plan(v: float, a: float, vmax: float, d: float, b: float) -> tuple[float, float]:
+    """When to start braking at `b` (m/s^2) so as to stop exactly `d` metres ahead, given the free motion
+    (v, a, vmax) of `advance`: returns (t_brake, deceleration used). t_brake = inf when the free motion
+    stops on its own first (or there is nothing ahead); t_brake = 0 with a harder deceleration when the
+    stop is already closer than the braking distance.
+
+    Solves (v + a t)^2 = 2 b (d - v t - a t^2 / 2) in the accelerating or decelerating phase, and the linear
+    form in the constant-speed phase; the same closed form runs at the player and at every receiver."""
+    if not (d > 0.0 and b > 0.0):
+        return (0.0, INF) if d <= 0.0 and v > 0.0 else (INF, b)
+    if v * v >= 2.0 * b * d:
+        return 0.0, (v * v / (2.0 * d)) if v > 0.0 else b
+    if a != 0.0 and not (a > 0.0 and v >= vmax):
+        t_end = (vmax - v) / a if a > 0.0 else v / -a  # end of the accelerating / decelerating phase
+        qa, qb, qc = a * (a + b), 2.0 * v * (a + b), v * v - 2.0 * b * d
+        roots = []
+        if qa == 0.0:
+            if qb != 0.0:
+                roots.append(-qc / qb)
+        else:
+            disc = qb * qb - 4.0 * qa * qc
+            if disc >= 0.0:
+                sq = math.sqrt(disc)
+                roots += [(-qb - sq) / (2.0 * qa), (-qb + sq) / (2.0 * qa)]
+        ts = [t for t in roots if 0.0 <= t <= t_end]
+        if ts:
+            return min(ts), b
+        if a < 0.0:
+            return INF, b  # stops on its own before the braking point
+        s_cap = v * t_end + 0.5 * a * t_end * t_end
+        v = vmax
+        t0, d = t_end, d - s_cap
+    else:
+        t0 = 0.0
+    if v <= 0.0:
+        return INF, b
+    return t0 + max((d - v * v / (2.0 * b)) / v, 0.0), b

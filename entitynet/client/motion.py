@@ -13,9 +13,10 @@ All models answer `xy_at(t)`; `t < t0` answers the state at t0 (receivers never 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-from entitynet.client.kinematics import advance
+from entitynet.client.kinematics import INF, advance, brake_plan, time_to_travel
 from entitynet.client.path import Path
 
 KIND_NETWORK, KIND_AREA, KIND_WORLD = 1, 2, 3
@@ -31,19 +32,52 @@ class NetworkModel:
     vmax: float
     etype: int
     parts: tuple[float, ...]  # body part lengths from the front (two entries for a two-part tram)
+    stop_s: float = INF  # a planned halt (a transit stop on the route) at this path coordinate, or inf
+    brake: float = 1.0  # deceleration used to halt there (m/s^2)
+    plan: tuple[float, float, float, float] = (INF, 0.0, 0.0, 0.0)  # derived: t_b, s_b, v_b, b_eff
 
     kind = KIND_NETWORK
+
+    def __post_init__(self) -> None:
+        if math.isfinite(self.stop_s):
+            tb, b = brake_plan(self.v, self.a, self.vmax, self.stop_s - self.s0, self.brake)
+            if math.isfinite(tb):
+                ds, vb = advance(self.v, self.a, self.vmax, tb)
+                object.__setattr__(self, "plan", (tb, self.s0 + ds, vb, b))
 
     @property
     def length(self) -> float:
         return sum(self.parts)
 
+    def _state(self, dt: float) -> tuple[float, float]:
+        tb, sb, vb, b = self.plan
+        if dt <= tb:
+            ds, v = advance(self.v, self.a, self.vmax, dt)
+            return self.s0 + ds, v
+        if not math.isfinite(b):
+            return sb, 0.0
+        ds, v = advance(vb, -b, vb, dt - tb)
+        return min(sb + ds, self.stop_s), v
+
     def s_at(self, t: float) -> float:
-        ds, _v = advance(self.v, self.a, self.vmax, t - self.t0)
-        return min(self.s0 + ds, self.path.length)
+        return min(self._state(t - self.t0)[0], self.path.length)
 
     def speed_at(self, t: float) -> float:
-        return advance(self.v, self.a, self.vmax, t - self.t0)[1]
+        return self._state(t - self.t0)[1]
+
+    def time_to(self, d: float) -> float:
+        """Seconds after t0 until the front has advanced `d` metres (math.inf if never): the inverse of
+        s_at, used for validity periods so that they match the extrapolation exactly."""
+        tb, sb, _vb, _b = self.plan
+        if not math.isfinite(tb) or self.s0 + d <= sb:
+            return time_to_travel(d, self.v, self.a, self.vmax)
+        return self._brake_time(d)
+
+    def _brake_time(self, d: float) -> float:
+        tb, sb, vb, b = self.plan
+        if not math.isfinite(b):
+            return INF
+        return tb + time_to_travel(self.s0 + d - sb, vb, -b, vb)
 
     def xy_at(self, t: float) -> tuple[float, float]:
         return self.path.xy(self.s_at(t))

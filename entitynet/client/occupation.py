@@ -20,6 +20,7 @@ every branch stays in the junction cell: the front period is then the minimum ov
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from entitynet.client.kinematics import INF, time_to_travel
@@ -74,17 +75,24 @@ def occupy(
     max_validity: float = 60.0,
     min_validity: float = 0.5,
     dead_end_at_path_end: bool = False,
+    travel: Callable[[float], float] | None = None,
 ) -> Occupation:
     """Occupation of an entity moving along `path` with front at `s_front`, modelled by (v, a, vmax).
 
     `known_until`: path coordinate up to which the way is known a priori (route); pass `path.length` for a
-    fully known path, 0 for none. `tight` (default: lookahead == 0) adds the aft period.
+    fully known path, 0 for none. `tight` (default: lookahead == 0) adds the aft period. `travel(d)`, when
+    given, is the time the published model needs to advance d metres (e.g. `NetworkModel.time_to`, which
+    knows about a planned halt); by default the (v, a, vmax) kinematics.
     """
     if not (math.isfinite(s_front) and math.isfinite(v) and math.isfinite(a)):
         raise ValueError("occupation needs finite position, speed and acceleration")
     if tight is None:
         tight = lookahead <= 0.0
     v = max(v, 0.0)
+    if travel is None:
+        def travel(d: float) -> float:
+            return time_to_travel(d, v, a, vmax)
+
     s_aft = s_front - max(length, 0.0)
     start = min(max(s_aft - margin, 0.0), path.length)
     reach = min(max(s_front + margin, start), path.length)
@@ -100,12 +108,12 @@ def occupy(
     if cover_end >= path.length and dead_end_at_path_end:
         front = INF
     else:
-        front = time_to_travel(cover_end - reach, v, a, vmax)
+        front = travel(cover_end - reach)
     aft = INF
     if tight:
         behind = path.boundaries_after(start, end_known)
         if behind:
-            aft = time_to_travel(behind[0][0] - start, v, a, vmax)
+            aft = travel(behind[0][0] - start)
     validity = max(min(front, aft, max_validity), min_validity)
     return Occupation(tuple(cells), validity, front, aft, start, cover_end)
 

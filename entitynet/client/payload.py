@@ -4,7 +4,8 @@ Quantised integers keep it small and make it exact: positions in centimetres, sp
 in mm/s^2, times in wire milliseconds, directed edges as signed ids (edge + 1) * dir. A player builds its
 ghost by *decoding its own payload*, so it extrapolates exactly what every receiver extrapolates.
 
-    network: [1, 1, t0_ms, etype, s0_cm, v_mms, a_mms2, vmax_mms, [part_cm...], [signed edge...]]
+    network: [1, 1, t0_ms, etype, s0_cm, v_mms, a_mms2, vmax_mms, [part_cm...], [signed edge...],
+              stop_cm (-1: none), brake_mms2]
     area:    [1, 2, t0_ms, etype, area, x_cm, y_cm, vx_mms, vy_mms]
     world:   [1, 3, t0_ms, etype, x_cm, y_cm, vx_mms, vy_mms, ax_mms2, ay_mms2]
 """
@@ -45,7 +46,8 @@ def encode(model: Model) -> bytes:
     if isinstance(model, NetworkModel):
         edges = [(e + 1) * d for e, d in model.path.edges]
         body = [VERSION, KIND_NETWORK, t0, model.etype, _q(model.s0, 100.0), _q(max(model.v, 0.0), 1000.0),
-                _q(model.a, 1000.0), _q(model.vmax, 1000.0), [_q(p, 100.0) for p in model.parts], edges]
+                _q(model.a, 1000.0), _q(model.vmax, 1000.0), [_q(p, 100.0) for p in model.parts], edges,
+                _q(model.stop_s, 100.0) if math.isfinite(model.stop_s) else -1, _q(model.brake, 1000.0)]
     elif isinstance(model, AreaModel):
         body = [VERSION, KIND_AREA, t0, model.etype, model.area, _q(model.x, 100.0), _q(model.y, 100.0),
                 _q(model.vx, 1000.0), _q(model.vy, 1000.0)]
@@ -76,21 +78,23 @@ def decode(data: bytes, net: NetView | None) -> Model:
         raise PayloadError("unknown payload version or shape")
     kind = body[1]
     if kind == KIND_NETWORK:
-        if len(body) != 10:
+        if len(body) != 12:
             raise PayloadError("malformed network payload")
         t0, etype, s0, v, a, vmax = _ints(body[2:8], 6)
+        stop, brake = _ints(body[10:12], 2)
         parts = _ints(body[8])
         signed = _ints(body[9])
         if net is None:
             raise PayloadError("a network payload needs the topology")
-        if not signed or v < 0 or vmax < 0 or any(p < 0 for p in parts):
+        if not signed or v < 0 or vmax < 0 or brake <= 0 or stop < -1 or any(p < 0 for p in parts):
             raise PayloadError("malformed network payload values")
         try:
             path = Path(net, [(abs(x) - 1, 1 if x > 0 else -1) for x in signed if x != 0])
         except ValueError as exc:
             raise PayloadError(str(exc)) from None
         return NetworkModel(t0 / 1000.0, path, s0 / 100.0, v / 1000.0, a / 1000.0, vmax / 1000.0, etype,
-                            tuple(p / 100.0 for p in parts))
+                            tuple(p / 100.0 for p in parts), stop / 100.0 if stop >= 0 else math.inf,
+                            brake / 1000.0)
     if kind == KIND_AREA:
         t0, etype, area, x, y, vx, vy = _ints(body[2:], 7)
         return AreaModel(t0 / 1000.0, area, x / 100.0, y / 100.0, vx / 1000.0, vy / 1000.0, etype)

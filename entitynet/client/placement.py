@@ -36,6 +36,7 @@ class _SegTable:
     __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks")
 
     def __init__(self, net: NetView, edges: list[int], areas: list[int]) -> None:
+        edges = sorted(set(edges))
         ax, ay, dx, dy, cum0, eid = [], [], [], [], [], []
         for e in edges:
             lo, hi = net.geom_off[e], net.geom_off[e + 1]
@@ -101,6 +102,20 @@ class Placer:
             self._tables[edge] = t
         return t
 
+    def on_edges(self, x: float, y: float, edges: list[int]) -> Fix:
+        """Nearest point on a given set of edges (a route), in one vectorised pass; cached per edge set."""
+        key = -1 - hash(tuple(sorted(set(edges))))
+        t = self._tables.get(key)
+        if t is None:
+            t = self._tables[key] = _SegTable(self.net, list(edges), [])
+        rx, ry = x - t.ax, y - t.ay
+        u = np.clip((rx * t.dx + ry * t.dy) * t.inv_l2, 0.0, 1.0)
+        ex, ey = rx - u * t.dx, ry - u * t.dy
+        d = np.sqrt(ex * ex + ey * ey)
+        k = int(np.argmin(d))
+        return Fix("edge", int(t.edge[k]), float(t.cum0[k] + u[k] * t.slen[k]), float(t.ax[k] + u[k] * t.dx[k]),
+                   float(t.ay[k] + u[k] * t.dy[k]), float(d[k]))
+
     def ring(self, area: int) -> np.ndarray:
         r = self._rings.get(area)
         if r is None:
@@ -117,8 +132,9 @@ class Placer:
             xs = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
         return bool(np.count_nonzero(cond & (x < xs)) % 2)
 
-    def near(self, x: float, y: float, edge: int, preferred: set[int] | frozenset[int]) -> tuple[Fix, float]:
-        """Best placement near `edge` with the head start for `preferred` edges.
+    def near(self, x: float, y: float, edge: int, preferred: set[int] | frozenset[int],
+             margin: float | None = None) -> tuple[Fix, float]:
+        """Best placement near `edge` with the head start (`margin`, default switch_margin) for `preferred`.
 
         Returns (fix, distance of the best preferred candidate or inf)."""
         t = self.table(edge)
@@ -133,7 +149,7 @@ class Placer:
         d = np.sqrt(ex * ex + ey * ey)
         if preferred:
             pref = t.mask(frozenset(preferred))
-            cost = d + np.where(pref, 0.0, self.switch_margin)
+            cost = d + np.where(pref, 0.0, self.switch_margin if margin is None else margin)
             dp = np.where(pref, d, np.inf)
             kp = int(np.argmin(dp))
             best_pref = float(dp[kp])

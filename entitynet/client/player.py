@@ -60,6 +60,7 @@ class Player:
         *,
         model: str = "network",
         route: Sequence[Sequence[int]] | None = None,
+        stops: Sequence[tuple[int, float]] = (),
         accuracy: float = 5.0,
         threshold: float | None = None,
         margin: float | None = None,
@@ -69,6 +70,10 @@ class Player:
         period: float = 1.0,
         off_network: float = 60.0,
         off_network_timeout: float = 30.0,
+        route_margin: float = 15.0,
+        confirm: int = 1,
+        filter_q: float | None = None,
+        filter_accel: bool | None = None,
     ) -> None:
         if model not in MODELS:
             raise ValueError(f"unknown model {model!r} (known: {', '.join(MODELS)})")
@@ -93,6 +98,20 @@ class Player:
         self.period = period
         self.off_network = off_network
         self.off_network_timeout = off_network_timeout
+        # a route is a-priori knowledge: leaving it needs much stronger evidence than changing street
+        self.switch_margin = route_margin if self.route else None
+        self.switch_count = 3 if self.route else None
+        self.filter_q = self.etype.jerk_q if filter_q is None else float(filter_q)
+        self.filter_accel = self.etype.accel if filter_accel is None else bool(filter_accel)
+        self.reverse_count = 0
+        self.confirm = max(int(confirm), 1)
+        self.over = 0
+        self.stops: dict[int, list[float]] = {}
+        for e, off in stops:
+            self.stops.setdefault(int(e), []).append(float(off))
+        self.vpeak = 0.0
+        self.vpeak_t = -math.inf
+        self.recent: list[tuple[float, float]] = []  # the last few fixes (on the network when placed)
         self.net: NetView | None = netview(topo) if topo is not None else None
         self.placer = placer_for(self.net, self.etype.networks) if self.net is not None else None
         # state
@@ -163,6 +182,11 @@ class Player:
             reason = self._track(x, y, t, r)
             if reason == "off":
                 return self._off_network(t)
+        lf = self.last_fix
+        self.recent.append((lf.x, lf.y) if lf is not None and self.mode == "edge" and self.model == "network"
+                           else (x, y))
+        if len(self.recent) > 3:
+            del self.recent[0]
         self.off_since = None
         if reason is None:
             reason = self._decide(t)
@@ -197,7 +221,6 @@ class Player:
         return []
 
     def _init_at(self, fix: Fix, t: float, r: float) -> None:
-        et = self.etype
         if fix.kind == "area":
             self.mode, self.area = "area", fix.index
             self.path = None
@@ -212,13 +235,13 @@ class Player:
             de = self.route[i]
         self.path = Path(self.net, [de])
         s = self.net.dist_of(de, fix.offset)
-        self.kf = Kinematic1D(s, t, r, q=et.jerk_q, accel=et.accel)
+        self.kf = Kinematic1D(s, t, r, q=self.filter_q, accel=self.filter_accel)
         self.pending = (-1, 0)
 
     def _track(self, x: float, y: float, t: float, r: float) -> str | None:
         placer = self.placer
         if self.mode is None:
-            fix = placer.first(x, y)
+            fix = self._first(x, y)
             if fix is None or fix.distance > self.off_network:
                 return "off"
             self._init_at(fix, t, r)
@@ -245,18 +268,19 @@ class Player:
         # fast path: a fix within the switch margin of the current edge, away from its ends, cannot be won
         # by another edge (they all start `switch_margin` behind), so the neighbourhood search is skipped
         cur = placer.project_on(x, y, e_cur)
-        if (cur.distance <= placer.switch_margin and 0.0 < cur.offset < self.net.edge_len[e_cur]
+        margin = placer.switch_margin if self.switch_margin is None else self.switch_margin
+        if (cur.distance <= margin and 0.0 < cur.offset < self.net.edge_len[e_cur]
                 and (self.net.node_area[self.net.edge_from[e_cur]] < 0)
                 and (self.net.node_area[self.net.edge_to[e_cur]] < 0)):
             fix, best_pref = cur, cur.distance
         else:
-            fix, best_pref = placer.near(x, y, e_cur, preferred)
+            fix, best_pref = placer.near(x, y, e_cur, preferred, margin)
         if fix.kind == "area":
             self._init_at(fix, t, r)
             self.last_fix = fix
             return "path"
         if fix.distance > placer.reacquire:
-            g = placer.first(x, y)
+            g = self._first(x, y)
             if g is None or g.distance > self.off_network:
                 return "off"
             self._init_at(g, t, r)
@@ -267,7 +291,8 @@ class Player:
             cand, count = self.pending
             count = count + 1 if cand == fix.index else 1
             self.pending = (fix.index, count)
-            if count >= placer.switch_count or not math.isfinite(best_pref):
+            need = placer.switch_count if self.switch_count is None else self.switch_count
+            if count >= need or not math.isfinite(best_pref):
                 if self._reroute(fix, s_pred):
                     reason = "path"
                 else:
@@ -283,12 +308,28 @@ class Player:
         s_meas = self._s_of(fix, s_pred)
         self.kf.update(s_meas, t, r)
         kf = self.kf
-        if kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0:
+        if kf.v > self.vpeak or t - self.vpeak_t > 120.0:
+            self.vpeak, self.vpeak_t = kf.v, t
+        backwards = not self.route and kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0
+        self.reverse_count = self.reverse_count + 1 if backwards else 0
+        if self.reverse_count >= 2:
+            self.reverse_count = 0
             self.path = self.path.reversed()
             kf.flip(self.path.length)
             reason = reason or "path"
         self._maintain_path()
         return reason
+
+    def _first(self, x: float, y: float) -> Fix | None:
+        """First placement: on the a-priori route when it is near (its edges win over a closer other
+        street within `route_margin`), else the placement index."""
+        if self.route:
+            f = self.placer.on_edges(x, y, [e for e, _d in self.route])
+            if f.distance <= self.off_network:
+                g = self.placer.first(x, y)
+                if g is None or f.distance <= g.distance + (self.switch_margin or 0.0):
+                    return f
+        return self.placer.first(x, y)
 
     def _best_on(self, x: float, y: float, preferred: set[int], e_cur: int) -> Fix:
         best = None
@@ -356,6 +397,21 @@ class Player:
             if ahead:
                 self.path = path.extended(ahead)
 
+    def _next_stop(self, path: Path, s: float, v: float) -> float:
+        """Path coordinate of the next known stop on the a-priori route ahead (inf if none known)."""
+        if not self.stops:
+            return math.inf
+        known = self._known_until(path, s)
+        k = path.index(s)
+        while k < len(path.edges) and path.cum[k] <= known:
+            e, d = path.edges[k]
+            for off in sorted(self.stops.get(e, ()), reverse=d < 0):
+                sp = path.cum[k] + self.net.dist_of((e, d), off)
+                if sp > s + 2.0 and sp <= known:
+                    return sp
+            k += 1
+        return math.inf
+
     def _route_index(self, de: DirEdge) -> int | None:
         return self.route_first.get(de)
 
@@ -396,11 +452,21 @@ class Player:
         et = self.etype
         if gv > et.v_stop and v_est < et.v_stop:
             return "stop"
-        if gv <= et.v_stop and v_est > et.v_start:
-            return "start"
         gx, gy = g.xy_at(t)
+        if gv <= et.v_stop:
+            # the published model stands still: judge by the mean of the last fixes, not by the filter,
+            # whose speed wanders with the noise of a standing GPS (a start is speed *and* displacement)
+            n = len(self.recent)
+            mx = sum(p[0] for p in self.recent) / n
+            my = sum(p[1] for p in self.recent) / n
+            if math.hypot(mx - gx, my - gy) > self.threshold:
+                return "start" if v_est > et.v_start else "drift"
+            return self._expiry_or_heartbeat(t)
         ex, ey = self.estimate_xy()
-        if math.hypot(gx - ex, gy - ey) > self.threshold:
+        drift = math.hypot(gx - ex, gy - ey)
+        # `confirm` fixes in a row over the threshold (or one over 1.5x) make a drift update
+        self.over = self.over + 1 if drift > self.threshold else 0
+        if self.over >= self.confirm or drift > 1.5 * self.threshold:
             return "drift"
         return self._expiry_or_heartbeat(t)
 
@@ -414,6 +480,7 @@ class Player:
     # ---- publishing ----------------------------------------------------------------------------------------
     def _publish(self, t: float, reason: str, from_ghost: bool = False) -> Publish:
         self.stats[reason] = self.stats.get(reason, 0) + 1
+        self.over = 0
         model = self._build_model(t, from_ghost)
         payload = encode(model)
         ghost = decode(payload, self.net)
@@ -442,7 +509,13 @@ class Player:
             start_s = s - et.length - self.margin
             k0 = path.index(start_s)
             sub = Path(self.net, path.edges[k0:])
-            return NetworkModel(t, sub, s - path.cum[k0], max(v, 0.0), a, et.vmax, et.code, et.parts)
+            s_sub = s - path.cum[k0]
+            # an accelerating vehicle is expected to reach its usual cruising speed, not the type's maximum
+            vmax = et.vmax
+            if a > 0.0 and self.vpeak > v:
+                vmax = min(max(self.vpeak, 4.0), et.vmax)
+            stop_s = self._next_stop(sub, s_sub, v) if v > 0.0 else math.inf
+            return NetworkModel(t, sub, s_sub, max(v, 0.0), a, vmax, et.code, et.parts, stop_s, et.brake)
         if self.model == "network" and self.mode == "area":
             vx, vy = self.kx.v, self.ky.v
             if math.hypot(vx, vy) < et.v_stop:
@@ -475,7 +548,9 @@ class Player:
             known = self._known_until(path, s)
             lookahead = self.lookahead
         else:
+            # world-frame baselines: the same occupation machinery on the client's network estimate
             path, s, v, a = self.path, self.kf.s, max(self.kf.v, 0.0), 0.0
-            known, lookahead = 0.0, 0.0
+            known, lookahead = self._known_until(path, s), self.lookahead
+        travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
         return occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
-                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
+                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel)

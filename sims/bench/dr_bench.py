@@ -43,9 +43,10 @@ def add_arguments(parser) -> None:  # pragma: no cover - optional hook
 class Entity:
     """Truth sampled every SAMPLE seconds: xy, and the cells under the body (None when unknown)."""
 
-    def __init__(self, name, etype, t, xy, cells, route=None, edge=None, edge_ok=None):
+    def __init__(self, name, etype, t, xy, cells, route=None, edge=None, edge_ok=None, stops=()):
         self.name, self.etype, self.t, self.xy, self.cells = name, etype, t, xy, cells
         self.route = route
+        self.stops = stops  # (edge, offset) of the route's stops
         self.edge = edge  # true edge at each sample (network entities), for the wrong-edge rate
         self.edge_ok = edge_ok  # whether the sample is unambiguous (>= 10 m from the edge's ends)
 
@@ -116,7 +117,9 @@ def vehicles(topo, n: int, rng: random.Random, progress) -> list[Entity]:
                              decel=1.2 if tram else 1.5)
         etype = "tram" if tram else "bus"
         length = 27.6 if tram else 12.0
-        out.append(_sample_path(path, prof, length, f"{m.mode} {m.ref} {m.shape_id}", etype, m.edges))
+        ent = _sample_path(path, prof, length, f"{m.mode} {m.ref} {m.shape_id}", etype, m.edges)
+        ent.stops = [path.locate(sp) for sp in stops]
+        out.append(ent)
     return out
 
 
@@ -170,8 +173,8 @@ def car_trace() -> Entity | None:
 # ---- running -----------------------------------------------------------------------------------------------
 def run_entity(topo, ent: Entity, model: str, threshold: float, np_rng: np.random.Generator, acc: dict,
                noisy: bool = True) -> None:
-    p = Player(topo if ent.cells is not None else None, 1, ent.etype, model=model,
-               route=ent.route if model == "network" else None, threshold=threshold)
+    p = Player(topo if ent.cells is not None else None, 1, ent.etype, model=model, route=ent.route,
+               stops=getattr(ent, "stops", ()) if model == "network" else (), threshold=threshold)
     if noisy:
         fix_idx = np.arange(0, len(ent.t), int(round(1.0 / SAMPLE)))
         fixes = gps(ent.xy[fix_idx], np_rng)
@@ -270,7 +273,7 @@ def fixes_per_second(topo, ents: list[Entity], seconds: float = 3.0) -> tuple[fl
     t0 = time.perf_counter()
     rounds = 0
     while time.perf_counter() - t0 < seconds or rounds == 0:
-        players = [Player(topo, k, ent.etype, model="network", route=ent.route, threshold=5.0)
+        players = [Player(topo, k, ent.etype, model="network", route=ent.route, stops=ent.stops, threshold=5.0)
                    for k, ent, _f, _t in work]
         for (_k, _ent, fx, ft), p in zip(work, players, strict=True):
             feed = p.feed
