@@ -18,6 +18,7 @@ from entitynet import __version__
 COMMAND_MODULES = [
     "entitynet.commands.topology_cmd",
     "entitynet.commands.bench_cmd",
+    "entitynet.commands.demo_cmd",
     "entitynet.commands.serve_cmd",
     "entitynet.commands.users_cmd",
 ]
