@@ -112,6 +112,7 @@ class Player:
         self.vpeak = 0.0
         self.vpeak_t = -math.inf
         self.recent: list[tuple[float, float]] = []  # the last few fixes (on the network when placed)
+        self.recent_s: list[float] = []  # their path coordinates (network mode), for a standing position
         self.net: NetView | None = netview(topo) if topo is not None else None
         self.placer = placer_for(self.net, self.etype.networks) if self.net is not None else None
         # state
@@ -185,7 +186,7 @@ class Player:
         lf = self.last_fix
         self.recent.append((lf.x, lf.y) if lf is not None and self.mode == "edge" and self.model == "network"
                            else (x, y))
-        if len(self.recent) > 3:
+        if len(self.recent) > 5:
             del self.recent[0]
         self.off_since = None
         if reason is None:
@@ -234,6 +235,7 @@ class Player:
         if i is not None:
             de = self.route[i]
         self.path = Path(self.net, [de])
+        self.recent_s.clear()
         s = self.net.dist_of(de, fix.offset)
         self.kf = Kinematic1D(s, t, r, q=self.filter_q, accel=self.filter_accel)
         self.pending = (-1, 0)
@@ -306,6 +308,11 @@ class Player:
             self.pending = (-1, 0)
         self.last_fix = fix
         s_meas = self._s_of(fix, s_pred)
+        if reason is not None:
+            self.recent_s.clear()
+        self.recent_s.append(s_meas)
+        if len(self.recent_s) > 5:
+            del self.recent_s[0]
         self.kf.update(s_meas, t, r)
         kf = self.kf
         if kf.v > self.vpeak or t - self.vpeak_t > 120.0:
@@ -316,6 +323,7 @@ class Player:
             self.reverse_count = 0
             self.path = self.path.reversed()
             kf.flip(self.path.length)
+            self.recent_s = [self.path.length - x for x in self.recent_s]
             reason = reason or "path"
         self._maintain_path()
         return reason
@@ -388,6 +396,7 @@ class Player:
             if shift > 0.0:
                 self.path = path = newp
                 kf.shift(shift)
+                self.recent_s = [x - shift for x in self.recent_s]
         need = kf.s + self.lookahead + self.margin + 80.0 + 15.0 * max(kf.v, 0.0)
         if path.length < need and len(path.edges) < MAX_PATH_EDGES:
             last = path.edges[-1]
@@ -456,10 +465,13 @@ class Player:
         if gv <= et.v_stop:
             # the published model stands still: judge by the mean of the last fixes, not by the filter,
             # whose speed wanders with the noise of a standing GPS (a start is speed *and* displacement)
-            n = len(self.recent)
-            mx = sum(p[0] for p in self.recent) / n
-            my = sum(p[1] for p in self.recent) / n
-            if math.hypot(mx - gx, my - gy) > self.threshold:
+            moved = False
+            for n, limit in ((5, self.threshold), (2, 1.6 * self.threshold)):
+                pts = self.recent[-n:]
+                mx = sum(p[0] for p in pts) / len(pts)
+                my = sum(p[1] for p in pts) / len(pts)
+                moved = moved or math.hypot(mx - gx, my - gy) > limit
+            if moved:
                 return "start" if v_est > et.v_start else "drift"
             return self._expiry_or_heartbeat(t)
         ex, ey = self.estimate_xy()
@@ -503,6 +515,10 @@ class Player:
             else:
                 s, v, a = self.kf.s, self.kf.v, self.kf.a
                 path = self.path
+                if v < et.v_stop and len(self.recent_s) >= 2:
+                    # standing: the mean of the last fixes is a better position than the lagging filter
+                    near = self.recent_s[-3:]
+                    s = sum(near) / len(near)
             if v < et.v_stop:
                 v, a = 0.0, 0.0
             a = min(max(a, -et.amax), et.amax) if et.accel else 0.0

@@ -28,7 +28,7 @@ from entitynet.client.path import Path
 from entitynet.client.player import Player
 from entitynet.protocol import Publish
 from sims.behaviours import area_walk, gps, random_walk, speed_profile, vehicle_halts
-from topology.raw import PEDESTRIAN
+from topology.raw import PEDESTRIAN, TRAM, VEHICLE
 
 SHARED = FsPath(__file__).resolve().parents[3] / "shared" / "data"
 THRESHOLDS = (1.0, 2.0, 5.0, 10.0, 20.0)
@@ -108,8 +108,9 @@ def vehicles(topo, n: int, rng: random.Random, progress) -> list[Entity]:
         except ValueError:
             continue
         stops = _project_on_path(path, [(x, y) for _n, x, y in m.stop_xy])
+        # signals stand at road junctions: nodes where at least three vehicle or tram edges meet
         signals = [path.cum[k + 1] for k, de in enumerate(path.edges[:-1])
-                   if len(net.node_edges[net.end_node(de)]) >= 3]
+                   if sum(1 for e in net.node_edges[net.end_node(de)] if net.edge_net[e] & (VEHICLE | TRAM)) >= 3]
         tram = m.mode == "tram"
         halts = vehicle_halts(stops, signals, rng, dwell=(12.0, 30.0), p_red=0.25 if tram else 0.35,
                               red=(5.0, 35.0))

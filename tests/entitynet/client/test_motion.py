@@ -70,6 +70,6 @@ def test_bad_payloads_are_rejected_cleanly(data):
 def test_network_payload_with_unknown_edge_is_rejected():
     import msgpack
 
-    data = msgpack.packb([1, 1, 0, 3, 0, 0, 0, 0, [], [99]])
+    data = msgpack.packb([1, 1, 0, 3, 0, 0, 0, 0, [], [99], -1, 1000])
     with pytest.raises(PayloadError):
         decode(data, netview(cross()))

@@ -86,21 +86,27 @@ def test_entity_longer_than_a_chain_of_short_edges_occupies_all_of_them():
 
 
 def test_hours_of_simulated_time_do_not_drift():
-    # a pedestrian walking back and forth along a 400 m street for 3 hours at 1 Hz
+    # a pedestrian walking back and forth along a 400 m street for 3 hours at 1 Hz: the receiver error at
+    # the end is no worse than in the first minutes (turnarounds at the dead ends cost a few metres of lag)
     topo = cross(arm=200.0)
     p = Player(topo, 1, "pedestrian", threshold=5.0)
-    x, v, errs = -190.0, 1.4, []
-    for i in range(3 * 3600):
+    x, v, first, last = -190.0, 1.4, [], []
+    n = 3 * 3600
+    for i in range(n):
         t = float(i)
         x += v
         if abs(x) > 190.0:
             v = -v
             x += 2 * v
         p.feed(x, 0.0, t)
-        if i > 3 * 3600 - 600:
-            gx, _gy = p.ghost.xy_at(t)
-            errs.append(abs(gx - x))
-    assert max(errs) < 6.0  # within the threshold (plus a step) at the end, as at the start
+        gx, _gy = p.ghost.xy_at(t)
+        if 60 <= i < 900:
+            first.append(abs(gx - x))
+        elif i >= n - 840:
+            last.append(abs(gx - x))
+    assert max(last) <= max(first) + 0.5
+    assert max(last) < 10.0
+    assert sum(last) / len(last) <= sum(first) / len(first) + 0.5
     assert p.path.length < 2000.0  # the path is trimmed, not growing
 
 
