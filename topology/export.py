@@ -22,7 +22,8 @@ def _networks(bits: int) -> list[str]:
 
 
 def _to_wgs84(geoms: np.ndarray, proj: LocalProjection) -> np.ndarray:
-    return shapely.transform(geoms, proj.to_wgs84)
+    """WGS84, with polygon rings in RFC 7946 winding (exteriors counter-clockwise, holes clockwise)."""
+    return shapely.orient_polygons(shapely.transform(geoms, proj.to_wgs84), exterior_cw=False)
 
 
 def _features(geoms: np.ndarray, props: list[dict[str, Any]]) -> list[dict[str, Any]]:

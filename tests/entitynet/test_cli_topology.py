@@ -36,6 +36,8 @@ def test_build_info_export(tmp_path, capsys):
     for f in doc["features"]:
         g = shape(f["geometry"])
         assert g.is_valid and not g.is_empty
+        if g.geom_type == "Polygon":
+            assert g.exterior.is_ccw and not any(r.is_ccw for r in g.interiors)  # RFC 7946 winding
         lon, lat = shapely.get_coordinates(g).T
         assert (24 < lon).all() and (lon < 26).all() and (60 < lat).all() and (lat < 61).all()
 
