@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
 
 from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
@@ -71,6 +74,7 @@ class Player:
         off_network: float = 60.0,
         off_network_timeout: float = 30.0,
         route_margin: float = 15.0,
+        lateral: float | None = None,
         confirm: int = 1,
         filter_q: float | None = None,
         filter_accel: bool | None = None,
@@ -91,7 +95,7 @@ class Player:
         for i, de in enumerate(self.route):
             self.route_first.setdefault(de, i)
         if lookahead is None:
-            lookahead = 150.0 if self.route else 0.0
+            lookahead = 150.0  # without a route `occupy` stops it at the next choice of way anyway
         self.lookahead = lookahead
         self.heartbeat = heartbeat
         self.max_validity = max_validity
@@ -104,6 +108,7 @@ class Player:
         self.filter_q = self.etype.jerk_q if filter_q is None else float(filter_q)
         self.filter_accel = self.etype.accel if filter_accel is None else bool(filter_accel)
         self.reverse_count = 0
+        self.lateral = 2.0 * accuracy if lateral is None else float(lateral)
         self.confirm = max(int(confirm), 1)
         self.over = 0
         self.stops: dict[int, list[float]] = {}
@@ -568,5 +573,57 @@ class Player:
             path, s, v, a = self.path, self.kf.s, max(self.kf.v, 0.0), 0.0
             known, lookahead = self._known_until(path, s), self.lookahead
         travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
-        return occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
-                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel)
+        occ = occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
+                     lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel)
+        if self.lateral > 0.0 and not self.route:
+            extra = self._lateral_cells(path, s, occ.cover_end - s)
+            cells = list(occ.cells)
+            for c in extra:
+                if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
+                    cells.append(c)
+            occ = replace(occ, cells=tuple(cells))
+        return occ
+
+    def _lateral_cells(self, path: Path, s: float, ahead: float) -> list[int]:
+        """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may
+        be on a parallel way (the other sidewalk) rather than the one it was placed on. Each such edge is
+        covered from `margin` behind the projected point to `ahead` metres on, in the direction of travel."""
+        net = self.net
+        x, y = path.xy(s)
+        hx, hy = path.xy(min(s + 1.0, path.length))
+        bx, by = path.xy(max(s - 1.0, 0.0))
+        dx, dy = hx - bx, hy - by
+        e_cur = path.locate(s)[0]
+        t = self.placer.table(e_cur)
+        rx, ry = x - t.ax, y - t.ay
+        u = np.clip((rx * t.dx + ry * t.dy) * t.inv_l2, 0.0, 1.0)
+        d = np.hypot(rx - u * t.dx, ry - u * t.dy)
+        near = np.flatnonzero(d <= self.lateral)
+        out: list[int] = []
+        done: set[int] = {e_cur}
+        for k in near[np.argsort(d[near], kind="stable")].tolist():
+            e = int(t.edge[k])
+            if e in done:
+                continue
+            done.add(e)
+            off = float(t.cum0[k] + u[k] * t.slen[k])
+            fwd = (t.dx[k] * dx + t.dy[k] * dy) >= 0.0
+            length = net.edge_len[e]
+            lo, hi = (off - self.margin - self.etype.length, off + ahead) if fwd else (off - ahead,
+                                                                                        off + self.margin)
+            lo, hi = max(lo, 0.0), min(hi, length)
+            for a0, b0, c in net.pieces(e, 1):
+                if b0 >= lo and a0 <= hi and c not in out:
+                    out.append(c)
+        for area in t.areas:  # an area next to the way: the entity may already be inside it
+            ring = self.placer.ring(area)
+            p0, p1 = ring[:-1], ring[1:]
+            sd = p1 - p0
+            l2 = np.einsum("ij,ij->i", sd, sd)
+            w = np.clip(((x - p0[:, 0]) * sd[:, 0] + (y - p0[:, 1]) * sd[:, 1]) / np.where(l2 > 0, l2, 1.0), 0, 1)
+            if len(sd) and float(np.min(np.hypot(p0[:, 0] + w * sd[:, 0] - x, p0[:, 1] + w * sd[:, 1] - y))) \
+                    <= self.lateral:
+                c = net.area_cell[area]
+                if c not in out:
+                    out.append(c)
+        return out
