@@ -13,12 +13,19 @@ from __future__ import annotations
 import math
 
 INF = math.inf
+A_EPS = 1e-9  # accelerations smaller than this (m/s^2) are zero: no underflowing t^2 terms
+D_EPS = 1e-9  # distances smaller than this (m) are reached at once: no denormal divisions
+
+
+def _a(a: float) -> float:
+    return 0.0 if -A_EPS < a < A_EPS else a
 
 
 def advance(v: float, a: float, vmax: float, dt: float) -> tuple[float, float]:
     """(distance, speed) after `dt` >= 0 seconds from speed v >= 0 with acceleration a, speed capped at vmax."""
     if dt <= 0.0:
         return 0.0, v
+    a = _a(a)
     if a < 0.0:
         t_stop = v / -a
         if dt >= t_stop:
@@ -38,8 +45,9 @@ def time_to_travel(d: float, v: float, a: float, vmax: float) -> float:
     Uses t = 2d / (v + sqrt(v^2 + 2ad)), which is stable as a -> 0 and has no cancellation; a negative
     discriminant means the entity stops before d (no real root).
     """
-    if not d > 0.0:
+    if not d > D_EPS:
         return 0.0
+    a = _a(a)
     if a > 0.0 and v < vmax:
         t_cap = (vmax - v) / a
         d_cap = v * t_cap + 0.5 * a * t_cap * t_cap
@@ -64,6 +72,7 @@ def brake_plan(v: float, a: float, vmax: float, d: float, b: float) -> tuple[flo
 
     Solves (v + a t)^2 = 2 b (d - v t - a t^2 / 2) in the accelerating or decelerating phase, and the linear
     form in the constant-speed phase; the same closed form runs at the player and at every receiver."""
+    a = _a(a)
     if not (d > 0.0 and b > 0.0):
         return (0.0, INF) if d <= 0.0 and v > 0.0 else (INF, b)
     if v * v >= 2.0 * b * d:

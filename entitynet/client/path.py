@@ -16,7 +16,10 @@ from entitynet.client.network import DirEdge, NetView
 class Path:
     __slots__ = ("net", "edges", "cum")
 
-    def __init__(self, net: NetView, edges: Sequence[DirEdge]) -> None:
+    def __init__(self, net: NetView, edges: Sequence[DirEdge], *, _cum: list[float] | None = None) -> None:
+        if _cum is not None:  # a slice of a path already checked: no validation needed
+            self.net, self.edges, self.cum = net, list(edges), _cum
+            return
         if not edges:
             raise ValueError("a path needs at least one edge")
         self.net = net
@@ -90,6 +93,11 @@ class Path:
                 prev = c
         return out
 
+    def suffix(self, k: int) -> Path:
+        """The path from edge k on (s shifts by cum[k]); no re-validation."""
+        c0 = self.cum[k]
+        return Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
+
     def extended(self, ahead: Sequence[DirEdge]) -> Path:
         return Path(self.net, self.edges + list(ahead))
 
@@ -101,7 +109,7 @@ class Path:
         k = self.index(keep_from)
         if k == 0:
             return self, 0.0
-        return Path(self.net, self.edges[k:]), self.cum[k]
+        return self.suffix(k), self.cum[k]
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Path) and other.net is self.net and other.edges == self.edges

@@ -269,18 +269,19 @@ class Player:
         s_pred = kf.state_at(t)[0]
         k_cur = path.index(s_pred)
         e_cur = path.edges[k_cur][0]
-        lo = path.index(s_pred - self.etype.length - 30.0)
-        hi = path.index(s_pred + 60.0)
-        preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
+        net = self.net
         # fast path: a fix within the switch margin of the current edge, away from its ends, cannot be won
         # by another edge (they all start `switch_margin` behind), so the neighbourhood search is skipped
         cur = placer.project_on(x, y, e_cur)
         margin = placer.switch_margin if self.switch_margin is None else self.switch_margin
-        if (cur.distance <= margin and 0.0 < cur.offset < self.net.edge_len[e_cur]
-                and (self.net.node_area[self.net.edge_from[e_cur]] < 0)
-                and (self.net.node_area[self.net.edge_to[e_cur]] < 0)):
+        if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
+                and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
             fix, best_pref = cur, cur.distance
+            preferred = None
         else:
+            lo = path.index(s_pred - self.etype.length - 30.0)
+            hi = path.index(s_pred + 60.0)
+            preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
             fix, best_pref = placer.near(x, y, e_cur, preferred, margin)
         if fix.kind == "area":
             self._init_at(fix, t, r)
@@ -294,7 +295,7 @@ class Player:
             self.last_fix = g
             return "jump"
         reason = None
-        if fix.index not in preferred:
+        if preferred is not None and fix.index not in preferred:
             cand, count = self.pending
             count = count + 1 if cand == fix.index else 1
             self.pending = (fix.index, count)
@@ -312,7 +313,7 @@ class Player:
         else:
             self.pending = (-1, 0)
         self.last_fix = fix
-        s_meas = self._s_of(fix, s_pred)
+        s_meas = self._s_of(fix, s_pred, k_cur)
         if reason is not None:
             self.recent_s.clear()
         self.recent_s.append(s_meas)
@@ -352,11 +353,19 @@ class Player:
                 best = f
         return best if best is not None else self.placer.project_on(x, y, e_cur)
 
-    def _s_of(self, fix: Fix, s_pred: float) -> float:
+    def _s_of(self, fix: Fix, s_pred: float, k_hint: int = 0) -> float:
         """Path coordinate of an edge fix: the occurrence of its edge nearest to the prediction."""
         path = self.path
+        edges = path.edges
+        n = len(edges)
+        # the usual case: the edge at (or next to) the predicted one, and no other occurrence nearby
+        for k in (k_hint, k_hint + 1, k_hint - 1):
+            if 0 <= k < n and edges[k][0] == fix.index:
+                if all(edges[j][0] != fix.index for j in range(max(k - 3, 0), min(k + 4, n)) if j != k):
+                    return path.cum[k] + self.net.dist_of(edges[k], fix.offset)
+                break
         best, best_d = None, math.inf
-        for k, de in enumerate(path.edges):
+        for k, de in enumerate(edges):
             if de[0] != fix.index:
                 continue
             s = path.cum[k] + self.net.dist_of(de, fix.offset)
@@ -529,7 +538,7 @@ class Player:
             a = min(max(a, -et.amax), et.amax) if et.accel else 0.0
             start_s = s - et.length - self.margin
             k0 = path.index(start_s)
-            sub = Path(self.net, path.edges[k0:])
+            sub = path.suffix(k0)
             s_sub = s - path.cum[k0]
             # an accelerating vehicle is expected to reach its usual cruising speed, not the type's maximum
             vmax = et.vmax
