@@ -1,0 +1,524 @@
+"""Precomputed visibility (PVS): for every view cell, the visibility cells a camera inside it may see.
+
+Algorithm: radial horizon sweeps through a rasterised height field (2.5D), from a lattice of viewpoints on
+the *top face* of every view cell, with eroded occluders.
+
+Why this one:
+- The city is a height field (buildings are prisms standing on the ground), so visibility is 2.5D. For a
+  height field a higher eye sees everything a lower eye at the same (x, y) sees: the segment from the higher
+  eye to a target lies above the lower one at every (x, y). So from-region visibility of a view cell reduces
+  to visibility from its top face, and the targets (footprint x [0, entity height]) to their top, the entity
+  height. This is exact, not a heuristic, and it is why one sweep serves all view-cell layers of a column.
+- From one eye point, rays fan out over the raster (R directions x S steps, one (R, S) gather). Along a ray
+  the horizon is the running maximum of the occluder elevation slope (H - z) / s; a target pixel is visible
+  iff its own slope (T - z) / s reaches the horizon. `np.maximum.accumulate` does that for all rays at once,
+  and the gathered heights are reused for every layer height z, so the inner loop is a handful of
+  whole-array numpy operations per eye point: no Python loop over rays or steps.
+- From-region visibility by point sampling is approximate (the reference system sampled corners and centre).
+  To make the samples stand for the whole face we erode the occluders by `shrink` metres (occluder shrinking,
+  Wonka et al. 2000): with occluders eroded by e, an eye point sees every target that any eye within e of it
+  sees in the original scene. With samples `samples` x `samples` on a face of side a, every face point lies
+  within a / (samples - 1) / sqrt(2) of a sample, so shrink >= that distance (plus the raster's half-pixel
+  diagonal) makes the sampling conservative; the default shrinks a little less (trading a measured, small
+  false-negative rate for fewer false positives), see docs/pvs.md.
+- What remains approximate: the raster (nearest pixel) and the angular spacing of the rays (a target gap
+  narrower than the ray spacing at that distance may be missed). Both are measured against the dense,
+  exact reference in `topology.pvs_reference`.
+
+Range: a visibility cell is in range of a view cell when the horizontal distance between the view cell's
+square and the cell footprint is at most `view_distance` (exact, shapely). The PVS is a subset of that set.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import shapely
+
+from topology.polygons import Polygons
+from topology.viewcells import ViewGrid, build_view_grid, column_squares
+
+ALGORITHM = "2.5D radial horizon sweeps from top-face viewpoint lattices over an eroded height raster"
+
+#: quality presets: (raster metres, samples per side of the top face, shrink metres, ray spacing factor)
+QUALITY: dict[str, dict[str, float]] = {
+    "fast": {"raster": 4.0, "samples": 2, "shrink": 4.0, "ray_spacing": 2.0},
+    "default": {"raster": 2.0, "samples": 3, "shrink": 3.0, "ray_spacing": 1.5},
+    "high": {"raster": 1.5, "samples": 5, "shrink": 2.0, "ray_spacing": 1.0},
+}
+
+
+@dataclass(frozen=True)
+class PvsConfig:
+    cell_size: float = 20.0  # view-cell cube side (m)
+    max_height: float = 100.0  # top of the view-cell stack (m)
+    view_distance: float = 500.0  # horizontal range (m)
+    raster: float = 2.0  # height-field pixel (m)
+    samples: int = 3  # eye points per side of each view cell's top face (lattice shared by neighbours)
+    shrink: float = 3.0  # occluder erosion (m), see module docstring
+    ray_spacing: float = 1.5  # ray spacing at the far end, in raster pixels (sets the number of rays)
+    workers: int = 2  # processes (fork); 1 = in-process
+    quality: str = "default"
+
+    @classmethod
+    def from_quality(cls, quality: str = "default", **overrides: Any) -> PvsConfig:
+        if quality not in QUALITY:
+            raise ValueError(f"unknown PVS quality {quality!r}; choose one of {sorted(QUALITY)}")
+        preset = dict(QUALITY[quality])
+        preset["samples"] = int(preset["samples"])
+        preset.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(quality=quality, **preset)
+
+    def validate(self) -> None:
+        for name in ("cell_size", "max_height", "view_distance", "raster", "ray_spacing"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"PVS {name} must be a positive finite number, got {v!r}")
+        if not (math.isfinite(self.shrink) and self.shrink >= 0):
+            raise ValueError(f"PVS shrink must be >= 0, got {self.shrink!r}")
+        if int(self.samples) < 1 or int(self.workers) < 1:
+            raise ValueError("PVS samples and workers must be >= 1")
+
+    @property
+    def n_rays(self) -> int:
+        reach = self.view_distance + self.cell_size * math.sqrt(2.0)
+        n = int(math.ceil(2.0 * math.pi * reach / (self.ray_spacing * self.raster)))
+        return max(64, n)
+
+
+@dataclass
+class PvsResult:
+    """The PVS as CSR lists (`offsets`, sorted `ids` per view cell) plus the grid and statistics."""
+
+    grid: ViewGrid
+    config: PvsConfig
+    offsets: np.ndarray  # (V+1,) int64
+    ids: np.ndarray  # int32
+    range_count: np.ndarray  # (V,) int32: cells within the view distance (the pure distance cut)
+    n_cells: int
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    def pvs_of(self, view_cell: int) -> np.ndarray:
+        return self.ids[self.offsets[view_cell] : self.offsets[view_cell + 1]]
+
+    def to_extra(self) -> dict[str, np.ndarray]:
+        """Named arrays for `Topology.extra` (prefixed `pvs_`): the grid index and the compressed lists."""
+        from topology.pvs_codec import encode
+
+        arrays = {"pvs_grid": self.grid.index}
+        arrays.update(encode(self.offsets, self.ids, self.grid.index, self.n_cells).arrays())
+        return arrays
+
+    def meta(self) -> dict[str, Any]:
+        """Small JSON-able description for `meta["pvs"]`."""
+        return {
+            **self.grid.meta(),
+            "view_distance": float(self.config.view_distance),
+            "n_cells": int(self.n_cells),
+            "view_cells": int(self.grid.n_view_cells),
+            "algorithm": ALGORITHM,
+            "conservative": False,
+            "config": asdict(self.config),
+            "stats": self.stats,
+        }
+
+
+# ------------------------------------------------------------------------------------------------------------
+# rasters
+
+
+@dataclass
+class _Raster:
+    """A padded raster: pixel (r, c) has its centre at (gx0 + (c + 0.5) * px, gy0 + (r + 0.5) * px)."""
+
+    gx0: float
+    gy0: float
+    px: float
+    shape: tuple[int, int]
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        rows, cols = self.shape
+        xs = self.gx0 + (np.arange(cols) + 0.5) * self.px
+        ys = self.gy0 + (np.arange(rows) + 0.5) * self.px
+        return xs, ys
+
+    def window(self, bounds: tuple[float, float, float, float]) -> tuple[slice, slice]:
+        xmin, ymin, xmax, ymax = bounds
+        c0 = max(0, int(math.floor((xmin - self.gx0) / self.px)))
+        c1 = min(self.shape[1], int(math.ceil((xmax - self.gx0) / self.px)) + 1)
+        r0 = max(0, int(math.floor((ymin - self.gy0) / self.px)))
+        r1 = min(self.shape[0], int(math.ceil((ymax - self.gy0) / self.px)) + 1)
+        return slice(r0, r1), slice(c0, c1)
+
+    def pixel_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        c = np.clip(np.floor((np.asarray(x) - self.gx0) / self.px).astype(np.int64), 0, self.shape[1] - 1)
+        r = np.clip(np.floor((np.asarray(y) - self.gy0) / self.px).astype(np.int64), 0, self.shape[0] - 1)
+        return r * self.shape[1] + c
+
+
+def _points_within(polys: np.ndarray, raster: _Raster, bounds) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel, polygon) pairs for pixel centres strictly inside polygons, only inside `bounds`."""
+    if len(polys) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rs, cs = raster.window(bounds)
+    xs, ys = raster.centres()
+    gx, gy = np.meshgrid(xs[cs], ys[rs])
+    pts = shapely.points(gx.ravel(), gy.ravel())
+    tree = shapely.STRtree(polys)
+    ip, jp = tree.query(pts, predicate="within")
+    rr, cc = np.divmod(ip, gx.shape[1])
+    flat = (rr + rs.start) * raster.shape[1] + (cc + cs.start)
+    return flat.astype(np.int64), jp.astype(np.int64)
+
+
+def _erode(h: np.ndarray, radius_px: float) -> np.ndarray:
+    """Grey-scale erosion (minimum over a disk) with the outside counted as open ground (0)."""
+    r = int(math.floor(radius_px + 1e-9))
+    if r <= 0:
+        return h.copy()
+    pad = np.pad(h, r, constant_values=0.0)
+    out = h.copy()
+    rows, cols = h.shape
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            if dx * dx + dy * dy <= radius_px * radius_px + 1e-9 and (dx or dy):
+                np.minimum(out, pad[r + dy : r + dy + rows, r + dx : r + dx + cols], out=out)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the sweep kernel (runs in worker processes; module globals are inherited through fork)
+
+_K: dict[str, Any] = {}
+
+
+def _sweep_chunk(args: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Sweep eye points `base` (flat pixel) for the layer heights `levels_mask` (n, nz) bool.
+
+    Returns (the indices, packed visible-group bits (n, nz, nbytes))."""
+    idx, base_and_mask = args
+    k = _K
+    base, levels_mask = base_and_mask
+    hocc, tgt, grp = k["hocc"], k["tgt"], k["grp"]
+    off, inv = k["off"], k["inv"]
+    tops = k["tops"]
+    n_groups = k["n_groups"]
+    nz = len(tops)
+    out = np.zeros((len(base), nz, k["nbytes_groups"]), dtype=np.uint8)
+    mark = np.zeros(n_groups + 1, dtype=bool)
+    for i in range(len(base)):
+        pix = off + base[i]
+        gs = grp[pix]
+        tpos = np.flatnonzero(gs.ravel() != n_groups)
+        if len(tpos) == 0:
+            continue
+        hs = hocc[pix]
+        ts = tgt.take(pix.ravel()[tpos])
+        invt = inv.take(tpos)
+        gt = gs.ravel()[tpos]
+        a = np.empty_like(hs)
+        for iz in range(nz):
+            if not levels_mask[i, iz]:
+                continue
+            z = tops[iz]
+            np.subtract(hs, z, out=a)
+            a *= inv
+            np.maximum.accumulate(a, axis=1, out=a)
+            vis = (ts - z) * invt >= a.ravel()[tpos]
+            mark[:] = False
+            mark[gt[vis]] = True
+            out[i, iz] = np.packbits(mark[:n_groups])
+    return idx, out
+
+
+# ------------------------------------------------------------------------------------------------------------
+
+
+def compute_pvs(
+    building_footprints: Polygons,
+    building_height: np.ndarray,
+    cell_footprints: Polygons,
+    cell_height: np.ndarray,
+    bounds: tuple[float, float, float, float],
+    config: PvsConfig | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> PvsResult:
+    """View cells and their PVS for the map. `progress(msg)` gets a line now and then (to stderr, say)."""
+    cfg = config or PvsConfig()
+    cfg.validate()
+    say = progress or (lambda msg: None)
+    t0 = time.perf_counter()
+    bh = np.asarray(building_height, dtype=np.float64)
+    ch = np.asarray(cell_height, dtype=np.float64)
+    if len(bh) != len(building_footprints) or len(ch) != len(cell_footprints):
+        raise ValueError("one height per footprint expected")
+    if (len(bh) and not np.all(np.isfinite(bh))) or (len(ch) and not np.all(np.isfinite(ch))):
+        raise ValueError("heights must be finite")
+    bounds = tuple(float(v) for v in bounds)
+    grid = build_view_grid(building_footprints, bh, bounds, cfg.cell_size, cfg.max_height)
+    n_cells = len(cell_footprints)
+    V = grid.n_view_cells
+    say(f"pvs: {V} view cells ({grid.nx}x{grid.ny}x{grid.nz}), {n_cells} visibility cells")
+
+    bpolys = shapely.make_valid(building_footprints.to_shapely()) if len(bh) else np.empty(0, object)
+    cpolys = cell_footprints.to_shapely() if n_cells else np.empty(0, object)
+    reach = cfg.view_distance + cfg.cell_size * math.sqrt(2.0)
+    px = cfg.raster
+    pad_px = int(math.ceil(reach / px)) + 2
+    xmin, ymin, xmax, ymax = bounds
+    xmax_g = xmin + grid.nx * grid.size
+    ymax_g = ymin + grid.ny * grid.size
+    cols = int(math.ceil((xmax_g - xmin) / px)) + 2 * pad_px
+    rows = int(math.ceil((ymax_g - ymin) / px)) + 2 * pad_px
+    raster = _Raster(xmin - pad_px * px, ymin - pad_px * px, px, (rows, cols))
+    map_box = (xmin - px, ymin - px, xmax_g + px, ymax_g + px)
+
+    # occluder heights (pixel centre strictly inside a footprint), then eroded
+    hmap = np.zeros(rows * cols, dtype=np.float32)
+    if len(bpolys):
+        fp, fb = _points_within(bpolys, raster, map_box)
+        np.maximum.at(hmap, fp, bh[fb].astype(np.float32))
+    hmap = hmap.reshape(rows, cols)
+    hocc = _erode(hmap, cfg.shrink / px).ravel()
+
+    # target groups: pixel -> the set of cells covering it; singletons are the cell ids themselves
+    if n_cells:
+        tp, tc = _points_within(cpolys, raster, map_box)
+        rep = shapely.point_on_surface(cpolys)
+        tp = np.concatenate([tp, raster.pixel_of(shapely.get_x(rep), shapely.get_y(rep))])
+        tc = np.concatenate([tc, np.arange(n_cells)])
+        pairs = np.unique(np.column_stack([tp, tc]), axis=0)
+        tp, tc = pairs[:, 0], pairs[:, 1]
+    else:
+        tp = tc = np.zeros(0, np.int64)
+    group_cells: list[np.ndarray] = [np.array([c]) for c in range(n_cells)]
+    grp = np.full(rows * cols + 0, -1, dtype=np.int32)
+    if len(tp):
+        upix, start, count = np.unique(tp, return_index=True, return_counts=True)
+        single = count == 1
+        grp[upix[single]] = tc[start[single]]
+        combos: dict[tuple[int, ...], int] = {}
+        for p, s, c in zip(upix[~single], start[~single], count[~single], strict=True):
+            key = tuple(int(v) for v in tc[s : s + c])
+            g = combos.get(key)
+            if g is None:
+                g = combos[key] = len(group_cells)
+                group_cells.append(np.array(key))
+            grp[p] = g
+    n_groups = len(group_cells)
+    grp[grp < 0] = n_groups  # the "no target" group
+    tgt = np.zeros(rows * cols, dtype=np.float32)
+    if n_groups:
+        gh = np.array([ch[g].max() for g in group_cells], dtype=np.float32)
+        has = grp < n_groups
+        tgt[has] = gh[grp[has]]
+
+    # ray fan: offsets in flat pixels and 1/s per (ray, step)
+    R = cfg.n_rays
+    S = int(math.ceil(reach / px))
+    ang = (np.arange(R) + 0.5) * (2.0 * np.pi / R)
+    s = (np.arange(S) + 0.5) * px
+    dc = np.floor(np.outer(np.cos(ang), s) / px + 0.5).astype(np.int64)
+    dr = np.floor(np.outer(np.sin(ang), s) / px + 0.5).astype(np.int64)
+    off = (dr * cols + dc).astype(np.int64)
+    inv = np.broadcast_to((1.0 / s).astype(np.float32), (R, S)).copy()
+
+    # eye lattice on the top faces, shared between neighbouring columns
+    m = int(cfg.samples)
+    if m >= 2:
+        lx = xmin + np.arange(grid.nx * (m - 1) + 1) * (grid.size / (m - 1))
+        ly = ymin + np.arange(grid.ny * (m - 1) + 1) * (grid.size / (m - 1))
+        col_step, face = m - 1, np.arange(m)
+    else:
+        lx = xmin + (np.arange(grid.nx) + 0.5) * grid.size
+        ly = ymin + (np.arange(grid.ny) + 0.5) * grid.size
+        col_step, face = 1, np.array([0])
+    LX, LY = np.meshgrid(lx, ly)
+    lat_x, lat_y = LX.ravel(), LY.ravel()
+    n_lat = len(lat_x)
+    tops = grid.layer_top(np.arange(grid.nz)).astype(np.float64)
+    # exact eye validity: not strictly inside a building taller than the layer top
+    lat_h = np.zeros(n_lat)
+    if len(bpolys):
+        ip, jp = shapely.STRtree(bpolys).query(shapely.points(lat_x, lat_y), predicate="within")
+        np.maximum.at(lat_h, ip, bh[jp])
+    lat_valid = lat_h[:, None] <= tops[None, :]  # (n_lat, nz)
+
+    # which lattice points each view cell uses, and which view cells have none valid
+    iz, iy, ix = grid.coords()
+    uses = np.zeros((n_lat, grid.nz), dtype=bool)
+    vc_samples = []
+    for a in face:
+        for b in face:
+            li = (iy * col_step + a) * len(lx) + (ix * col_step + b)
+            vc_samples.append(li)
+    vc_samples = np.stack(vc_samples, axis=1) if V else np.zeros((0, len(face) ** 2), np.int64)
+    vc_valid = lat_valid[vc_samples, iz[:, None]] if V else np.zeros((0, 1), bool)
+    for j in range(vc_samples.shape[1]):
+        uses[vc_samples[vc_valid[:, j], j], iz[vc_valid[:, j]]] = True
+    # fallback eyes for view cells whose lattice points all lie inside buildings
+    lonely = np.flatnonzero(~vc_valid.any(axis=1)) if V else np.zeros(0, np.int64)
+    extra_x, extra_y, extra_vc = [], [], []
+    for v in lonely:
+        top = tops[iz[v]]
+        x0, y0 = xmin + ix[v] * grid.size, ymin + iy[v] * grid.size
+        sq = shapely.box(x0, y0, x0 + grid.size, y0 + grid.size)
+        free = sq.difference(shapely.union_all(bpolys[bh > top])) if len(bpolys) else sq
+        if free.is_empty:
+            continue
+        pt = shapely.point_on_surface(free)
+        extra_x.append(pt.x)
+        extra_y.append(pt.y)
+        extra_vc.append(v)
+    eye_x = np.concatenate([lat_x, np.array(extra_x)])
+    eye_y = np.concatenate([lat_y, np.array(extra_y)])
+    eye_levels = np.concatenate([uses, np.zeros((len(extra_vc), grid.nz), bool)])
+    for k, v in enumerate(extra_vc):
+        eye_levels[n_lat + k, iz[v]] = True
+    todo = np.flatnonzero(eye_levels.any(axis=1))
+    base = raster.pixel_of(eye_x, eye_y)
+    say(f"pvs: {len(todo)} eye points x {R} rays x {S} steps, raster {rows}x{cols} @ {px} m")
+
+    # sweep, in worker processes
+    nbytes_groups = (n_groups + 7) // 8
+    _K.clear()
+    _K.update(
+        hocc=hocc, tgt=tgt, grp=grp, off=off, inv=inv, tops=tops.astype(np.float32),
+        n_groups=n_groups, nbytes_groups=nbytes_groups,
+    )  # fmt: skip
+    eye_bits = np.zeros((len(eye_x), grid.nz, nbytes_groups), dtype=np.uint8)
+    chunk = 64
+    jobs = [
+        (todo[i : i + chunk], (base[todo[i : i + chunk]], eye_levels[todo[i : i + chunk]]))
+        for i in range(0, len(todo), chunk)
+    ]
+    t_sweep = time.perf_counter()
+    done = 0
+    last = 0.0
+    workers = min(int(cfg.workers), os.cpu_count() or 1, max(1, len(jobs)))
+    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+        ctx = multiprocessing.get_context("fork")
+        with ctx.Pool(workers) as pool:
+            for idx, bits in pool.imap_unordered(_sweep_chunk, jobs):
+                eye_bits[idx] = bits
+                done += len(idx)
+                if time.perf_counter() - last > 2.0:
+                    last = time.perf_counter()
+                    say(f"pvs: {done}/{len(todo)} eye points ({100 * done / max(1, len(todo)):.0f}%)")
+    else:
+        for job in jobs:
+            idx, bits = _sweep_chunk(job)
+            eye_bits[idx] = bits
+            done += len(idx)
+            if time.perf_counter() - last > 2.0:
+                last = time.perf_counter()
+                say(f"pvs: {done}/{len(todo)} eye points ({100 * done / max(1, len(todo)):.0f}%)")
+    _K.clear()
+    sweep_s = time.perf_counter() - t_sweep
+
+    # groups -> cells, per eye and layer
+    g2c = np.zeros((max(n_groups, 1), (n_cells + 7) // 8), dtype=np.uint8)
+    for g, cells in enumerate(group_cells):
+        row = np.zeros(n_cells, bool)
+        row[cells] = True
+        g2c[g] = np.packbits(row)
+
+    # per view cell: OR over its valid eyes, then AND with the exact distance cut
+    in_range = _range_bits(grid, cpolys, cfg.view_distance, n_cells)
+    seen_groups = np.zeros((V, nbytes_groups), dtype=np.uint8)
+    for j in range(vc_samples.shape[1]):
+        ok = vc_valid[:, j]
+        seen_groups[ok] |= eye_bits[vc_samples[ok, j], iz[ok]]
+    for k, v in enumerate(extra_vc):
+        seen_groups[v] |= eye_bits[n_lat + k, iz[v]]
+    offsets = np.zeros(V + 1, dtype=np.int64)
+    id_chunks = []
+    col_of = iy * grid.nx + ix
+    range_count = np.zeros(V, dtype=np.int32)
+    for v in range(V):
+        gbits = np.unpackbits(seen_groups[v], count=n_groups).astype(bool) if n_groups else np.zeros(0, bool)
+        gs = np.flatnonzero(gbits)
+        singles = gs[gs < n_cells]
+        multi = gs[gs >= n_cells]
+        cells = singles if len(multi) == 0 else np.concatenate([singles] + [group_cells[g] for g in multi])
+        rng = in_range[col_of[v]]
+        row = np.zeros(n_cells, bool)
+        row[cells] = True
+        row &= rng
+        ids = np.flatnonzero(row).astype(np.int32)
+        id_chunks.append(ids)
+        offsets[v + 1] = offsets[v] + len(ids)
+        range_count[v] = int(rng.sum())
+    ids = np.concatenate(id_chunks) if id_chunks else np.zeros(0, np.int32)
+    build_s = time.perf_counter() - t0
+    sizes = np.diff(offsets)
+    stats = {
+        "build_s": round(build_s, 3),
+        "sweep_s": round(sweep_s, 3),
+        "eye_points": int(len(todo)),
+        "rays": R,
+        "steps": S,
+        "mean_pvs_cells": float(sizes.mean()) if V else 0.0,
+        "mean_range_cells": float(range_count.mean()) if V else 0.0,
+        "culled_by_layer": _culled_by_layer(sizes, range_count, iz, grid.nz),
+    }
+    say(f"pvs: done in {build_s:.1f} s, mean PVS {stats['mean_pvs_cells']:.0f} of {n_cells} cells")
+    return PvsResult(grid, cfg, offsets, ids, range_count, n_cells, stats)
+
+
+def _culled_by_layer(sizes: np.ndarray, range_count: np.ndarray, iz: np.ndarray, nz: int) -> list[dict]:
+    """Fraction of the in-range cells culled by visibility, per layer (mean and quantiles)."""
+    out = []
+    frac = np.where(range_count > 0, 1.0 - sizes / np.maximum(range_count, 1), 0.0)
+    for k in range(nz):
+        f = frac[iz == k]
+        if len(f) == 0:
+            continue
+        q = np.quantile(f, [0.1, 0.5, 0.9])
+        row = {"layer": k, "view_cells": int(len(f)), "mean": round(float(f.mean()), 4)}
+        row.update({name: round(float(v), 4) for name, v in zip(("p10", "p50", "p90"), q, strict=True)})
+        out.append(row)
+    return out
+
+
+def _range_bits(grid: ViewGrid, cpolys: np.ndarray, d: float, n_cells: int) -> np.ndarray:
+    """(columns, n_cells) bool: horizontal distance from the column square to the footprint <= d (exact)."""
+    ncol = grid.nx * grid.ny
+    out = np.zeros((ncol, n_cells), dtype=bool)
+    if n_cells == 0:
+        return out
+    cb = shapely.bounds(cpolys)
+    diag = np.hypot(cb[:, 2] - cb[:, 0], cb[:, 3] - cb[:, 1])
+    iy, ix = np.divmod(np.arange(ncol), grid.nx)
+    sx0 = grid.x0 + ix * grid.size
+    sy0 = grid.y0 + iy * grid.size
+    squares = column_squares(grid.x0, grid.y0, grid.size, grid.nx, grid.ny)
+    for c0 in range(0, ncol, 256):
+        sl = slice(c0, min(ncol, c0 + 256))
+        gx = np.maximum(
+            0.0, np.maximum(cb[None, :, 0] - (sx0[sl, None] + grid.size), sx0[sl, None] - cb[None, :, 2])
+        )
+        gy = np.maximum(
+            0.0, np.maximum(cb[None, :, 1] - (sy0[sl, None] + grid.size), sy0[sl, None] - cb[None, :, 3])
+        )
+        bd = np.hypot(gx, gy)
+        sure = bd + diag[None, :] <= d
+        maybe = (bd <= d) & ~sure
+        blk = sure
+        ii, jj = np.nonzero(maybe)
+        if len(ii):
+            exact = shapely.distance(squares[sl][ii], cpolys[jj]) <= d
+            blk[ii[exact], jj[exact]] = True
+        out[sl] = blk
+    return out
+
+
+def with_overrides(config: PvsConfig, **kw: Any) -> PvsConfig:
+    return replace(config, **{k: v for k, v in kw.items() if v is not None})
