@@ -108,6 +108,7 @@ class Player:
         self.filter_q = self.etype.jerk_q if filter_q is None else float(filter_q)
         self.filter_accel = self.etype.accel if filter_accel is None else bool(filter_accel)
         self.reverse_count = 0
+        self.reposition = False
         self.lateral = 2.0 * accuracy if lateral is None else float(lateral)
         self.confirm = max(int(confirm), 1)
         self.over = 0
@@ -325,7 +326,7 @@ class Player:
             self.vpeak, self.vpeak_t = kf.v, t
         backwards = not self.route and kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0
         self.reverse_count = self.reverse_count + 1 if backwards else 0
-        if self.reverse_count >= 2:
+        if self.reverse_count >= 3:
             self.reverse_count = 0
             self.path = self.path.reversed()
             kf.flip(self.path.length)
@@ -486,7 +487,10 @@ class Player:
                 my = sum(p[1] for p in pts) / len(pts)
                 moved = moved or math.hypot(mx - gx, my - gy) > limit
             if moved:
-                return "start" if v_est > et.v_start else "drift"
+                if v_est > et.v_start:
+                    return "start"
+                self.reposition = True  # still standing, just somewhere else: publish standing there
+                return "drift"
             return self._expiry_or_heartbeat(t)
         ex, ey = self.estimate_xy()
         drift = math.hypot(gx - ex, gy - ey)
@@ -508,6 +512,7 @@ class Player:
         self.stats[reason] = self.stats.get(reason, 0) + 1
         self.over = 0
         model = self._build_model(t, from_ghost)
+        self.reposition = False
         payload = encode(model)
         ghost = decode(payload, self.net)
         self.ghost = ghost
@@ -529,6 +534,8 @@ class Player:
             else:
                 s, v, a = self.kf.s, self.kf.v, self.kf.a
                 path = self.path
+                if self.reposition:
+                    v = a = 0.0
                 if v < et.v_stop and len(self.recent_s) >= 2:
                     # standing: the mean of the last fixes is a better position than the lagging filter
                     near = self.recent_s[-3:]
