@@ -88,7 +88,8 @@ class Player:
         self.model = model
         self.accuracy = accuracy
         self.threshold = float(threshold) if threshold is not None else max(accuracy, 1.0)
-        self.margin = self.threshold if margin is None else float(margin)
+        # the truth may be `threshold` from the ghost *and* the estimate off by about the GPS accuracy
+        self.margin = max(self.threshold, accuracy) if margin is None else float(margin)
         self.route: list[DirEdge] = [(int(e), 1 if d > 0 else -1) for e, d in (route or [])]
         self.route_pairs = set(zip(self.route, self.route[1:], strict=False))
         self.route_first: dict[DirEdge, int] = {}
