@@ -368,3 +368,65 @@ def run(args, progress) -> dict:
               "entity_minutes": {k: round(sum(e.minutes for e in v), 1) for k, v in datasets.items()},
               "quick": quick}
     return {"params": params, "results": results, "notes": notes}
+
+
+# ---- report helpers: `python -m sims.bench.dr_bench REPORT.json [--png docs/dr.png] [--md]` ------------------
+def plot(report: dict, png: str) -> None:
+    """Updates per entity-minute against receiver p95 error, one line per model, one panel per dataset."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    table = report["results"]["table"]
+    datasets = list(dict.fromkeys(r["dataset"] for r in table))
+    fig, axes = plt.subplots(1, len(datasets), figsize=(5.2 * len(datasets), 4.2), squeeze=False)
+    for ax, ds in zip(axes[0], datasets, strict=True):
+        for model, style in (("periodic", "s"), ("fpw", "o-"), ("fvw", "^-"), ("network", "D-")):
+            rows = sorted((r for r in table if r["dataset"] == ds and r["model"] == model),
+                          key=lambda r: r["threshold_m"] or 0)
+            if not rows:
+                continue
+            xs = [r["error_p95_m"] for r in rows]
+            ys = [r["updates_per_entity_min"] for r in rows]
+            ax.plot(xs, ys, style, label=model)
+            for r, x, y in zip(rows, xs, ys, strict=True):
+                if r["threshold_m"]:
+                    ax.annotate(f"{r['threshold_m']:g}", (x, y), fontsize=7, xytext=(3, 3),
+                                textcoords="offset points")
+        ax.set_title(ds)
+        ax.set_xlabel("receiver position error, p95 (m)")
+        ax.set_ylabel("updates per entity-minute")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("dead reckoning: updates against error (labels: threshold in m)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+
+
+def markdown(report: dict) -> str:
+    lines = ["| dataset | model | threshold (m) | updates / entity-min | error mean (m) | p95 (m) | max (m) | "
+             "occupation error | published / true cells |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in report["results"]["table"]:
+        occ = "-" if r["occupation_error"] is None else f"{100 * r['occupation_error']:.3f}%"
+        cells = "-" if r["cells_published_per_true_cell"] is None else f"{r['cells_published_per_true_cell']:.2f}"
+        th = "-" if r["threshold_m"] is None else f"{r['threshold_m']:g}"
+        lines.append(f"| {r['dataset']} | {r['model']} | {th} | {r['updates_per_entity_min']:.2f} | "
+                     f"{r['error_mean_m']:.2f} | {r['error_p95_m']:.2f} | {r['error_max_m']:.1f} | {occ} | {cells} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # pragma: no cover - a small report tool
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("report")
+    ap.add_argument("--png")
+    ap.add_argument("--md", action="store_true")
+    ns = ap.parse_args()
+    rep = json.loads(FsPath(ns.report).read_text())
+    if ns.png:
+        plot(rep, ns.png)
+    if ns.md:
+        print(markdown(rep))
