@@ -17,6 +17,7 @@ import json
 import math
 import random
 import time
+import zlib
 from collections import Counter
 from datetime import datetime
 from pathlib import Path as FsPath
@@ -178,7 +179,8 @@ def run_entity(topo, ent: Entity, model: str, threshold: float, np_rng: np.rando
                stops=getattr(ent, "stops", ()) if model == "network" else (), threshold=threshold)
     if noisy:
         fix_idx = np.arange(0, len(ent.t), int(round(1.0 / SAMPLE)))
-        fixes = gps(ent.xy[fix_idx], np_rng)
+        # the same noise for every model and threshold: differences are the models', not the dice's
+        fixes = gps(ent.xy[fix_idx], np.random.default_rng(zlib.crc32(ent.name.encode())))
         is_fix = np.zeros(len(ent.t), bool)
         is_fix[fix_idx] = True
         fix_of = {int(i): k for k, i in enumerate(fix_idx)}
