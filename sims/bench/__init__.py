@@ -7,4 +7,5 @@ Each suite module `sims.bench.<suite>` defines `add_arguments(parser)` (optional
 SUITES = {
     "topology": "sims.bench.topology_bench",
     "dr": "sims.bench.dr_bench",
+    "switch": "sims.bench.switch_bench",
 }
