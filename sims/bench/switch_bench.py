@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import math
 import os
 import random
 import re
@@ -153,7 +154,7 @@ class Tally:
         self.count = 0
         self.dups = 0
         self.hist = np.zeros(LAT_BINS, dtype=np.int64)
-        self.measuring = False
+        self.window = (math.inf, math.inf)  # deliveries received in [start, end) are counted
         self.pending: list[tuple[int, list[bytes], float]] = []
 
     def add(self, v: int, heads: list[bytes], t_recv: float) -> None:
@@ -178,7 +179,9 @@ class Tally:
         np.maximum.at(self.last, (v, e), s.astype(np.uint32))
         n_new = int(new.sum())
         self.dups += dups + len(s) - n_new
-        if self.measuring and n_new:
+        new &= (t_recv >= self.window[0]) & (t_recv < self.window[1])
+        n_new = int(new.sum())
+        if n_new:
             self.count += n_new
             b = ((t_recv[new] - t_sent[new]) / LAT_BIN).astype(np.int64)
             np.clip(b, 0, LAT_BINS - 1, out=b)
@@ -279,18 +282,16 @@ class RedisDriver:
 
 
 # ---------------------------------------------------------------------------------------------- one run
-class ReaderLoop(threading.Thread):
-    """All viewer (and publisher-reply) sockets in one epoll loop: a read costs one syscall, not a task."""
+class ReaderLoop:
+    """Sockets in one epoll loop: a read costs one syscall and a regex scan, not a task switch."""
 
-    def __init__(self, tally: Tally):
-        super().__init__(daemon=True)
+    def __init__(self, tally: Tally | None):
         self.ep = select.epoll()
         self.handlers: dict[int, Any] = {}
         self.socks: list[socket.socket] = []
         self.tally = tally
         self.ready = 0
         self.stop = False
-        self.lock = threading.Lock()
 
     def add(self, sock: socket.socket, handler) -> None:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -313,7 +314,7 @@ class ReaderLoop(threading.Thread):
 
         return handle
 
-    def run(self) -> None:
+    def run(self, on_tick=None) -> None:
         next_flush = time.monotonic() + 0.01
         while not self.stop:
             events = self.ep.poll(0.005)
@@ -330,43 +331,79 @@ class ReaderLoop(threading.Thread):
                     continue
                 self.handlers[fd](data, t)
             if time.monotonic() >= next_flush:
-                with self.lock:
+                if self.tally is not None:
                     self.tally.flush()
+                if on_tick is not None:
+                    on_tick(self)
                 next_flush = time.monotonic() + 0.01
         for s in self.socks:
             s.close()
 
 
+def _reader_process(driver, viewers, n_entities: int, shared, pipe) -> None:
+    """One load-generator reader process: connects its share of the viewers and tallies what they get."""
+    ready_v, w0, w1, stop = shared
+    tally = Tally(len(viewers), n_entities)
+    loop = ReaderLoop(tally)
+    for k, cells in enumerate(viewers):
+        s = socket.create_connection(("127.0.0.1", driver.port))
+        hello, ready = driver.viewer_hello(cells)
+        s.sendall(hello)
+        loop.add(s, loop.viewer(k, driver.pattern, ready))
+    reported = 0
+
+    def tick(lp: ReaderLoop) -> None:
+        nonlocal reported
+        if lp.ready > reported:
+            with ready_v.get_lock():
+                ready_v.value += lp.ready - reported
+            reported = lp.ready
+        tally.window = (w0.value, w1.value)
+        lp.stop = bool(stop.value)
+
+    loop.run(tick)
+    tally.flush()
+    pipe.send((tally.count, tally.dups, tally.hist, time.process_time()))
+    pipe.close()
+
+
 def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=None) -> dict[str, Any]:
+    import multiprocessing as mp
+
     import psutil
 
     ps = psutil.Process(proc.pid)
     rss_empty = ps.memory_info().rss
-    tally = Tally(len(view_cells), p["entities"])
-    loop = ReaderLoop(tally)
-    for v, cells in enumerate(view_cells):
-        s = socket.create_connection(("127.0.0.1", driver.port))
-        hello, ready = driver.viewer_hello(cells)
-        s.sendall(hello)
-        loop.add(s, loop.viewer(v, driver.pattern, ready))
-    loop.start()
+    ctx = mp.get_context("fork")
+    ready_v, w0, w1, stop = ctx.Value("i", 0), ctx.Value("d", math.inf), ctx.Value("d", math.inf), ctx.Value("b", 0)
+    n_readers = p["reader_processes"]
+    readers = []
+    for r in range(n_readers):
+        a, b = ctx.Pipe(duplex=False)
+        share = view_cells[r::n_readers]
+        pr = ctx.Process(target=_reader_process, args=(driver, share, p["entities"], (ready_v, w0, w1, stop), b),
+                         daemon=True)
+        pr.start()
+        readers.append((pr, a))
+    replies = ReaderLoop(None)  # publishers' replies (WELCOME, Redis integer replies) are read and dropped
+    rthread = threading.Thread(target=replies.run, daemon=True)
+    pubs: list[socket.socket] = []
     try:
-        deadline = time.time() + 120
-        while loop.ready < len(view_cells):
-            if time.time() > deadline:
-                raise RuntimeError(f"{driver.name}: only {loop.ready}/{len(view_cells)} viewers subscribed")
+        deadline = time.time() + 180
+        while ready_v.value < len(view_cells):
+            if time.time() > deadline or any(not pr.is_alive() for pr, _ in readers):
+                raise RuntimeError(f"{driver.name}: only {ready_v.value}/{len(view_cells)} viewers subscribed")
             time.sleep(0.05)
         time.sleep(0.5)
         rss_viewers = ps.memory_info().rss
         progress(f"{driver.name}: {len(view_cells)} viewers subscribed")
-        pubs = []
         for _ in range(p["publisher_connections"]):
             s = socket.create_connection(("127.0.0.1", driver.port))
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # no Nagle delay on small batches
             s.sendall(driver.publisher_hello())
-            r = socket.socket(fileno=os.dup(s.fileno()))  # replies are read (and dropped) by the loop
-            loop.add(r, lambda data, t: None)
+            replies.add(socket.socket(fileno=os.dup(s.fileno())), lambda data, t: None)
             pubs.append(s)
+        rthread.start()
         walkers = walkers_factory()
         sent = msgs_out = 0
 
@@ -385,9 +422,11 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
         send(walkers.start(t0), t0)
         warm_end = t0 + p["warmup_s"]
         end = warm_end + p["window_s"]
+        w0.value, w1.value = warm_end, end
         measured = False
         next_tick = time.monotonic()
         late = 0.0
+        cpu_gen0 = time.process_time()
         while True:
             now = time.time()
             if not measured and now >= warm_end:
@@ -396,14 +435,8 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
                 cpu0 = sum(ps.cpu_times()[:2])
                 sent0, msgs0, wall0 = sent, msgs_out, now
                 srv0 = scrape() if scrape else None
-                with loop.lock:
-                    tally.flush()
-                    tally.measuring = True
                 progress(f"{driver.name}: measuring for {p['window_s']} s")
             if now >= end:
-                with loop.lock:
-                    tally.flush()
-                    tally.measuring = False
                 wall = now - wall0
                 cpu = sum(ps.cpu_times()[:2]) - cpu0
                 srv1 = scrape() if scrape else None
@@ -415,24 +448,37 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
                 time.sleep(delay)
             else:
                 late = max(late, -delay)
+        time.sleep(0.5)  # let the last deliveries of the window arrive
+        cpu_gen = time.process_time() - cpu_gen0
     finally:
-        loop.stop = True
-        loop.join(5)
-        for s in locals().get("pubs", []):
+        stop.value = 1
+        replies.stop = True
+        for s in pubs:
             s.close()
+    count = dups = 0
+    hist = np.zeros(LAT_BINS, dtype=np.int64)
+    reader_cpu = 0.0
+    for pr, pipe in readers:
+        c, d, h, cpu_r = pipe.recv()
+        count, dups, hist, reader_cpu = count + c, dups + d, hist + h, reader_cpu + cpu_r
+        pr.join(10)
+    tally = Tally(1, 1)
+    tally.hist = hist
     res = {
         "updates_in_per_s": (sent - sent0) / wall,
         "publish_messages_per_s": (msgs_out - msgs0) / wall,
-        "deliveries_per_s": tally.count / wall,
-        "duplicates_per_s": tally.dups / wall,
+        "deliveries_per_s": count / wall,
+        "duplicates_per_s": dups / wall,
         "latency_p50_ms": tally.quantile(0.5),
         "latency_p99_ms": tally.quantile(0.99),
         "server_cpu_s": cpu,
-        "cpu_s_per_million_deliveries": cpu / max(tally.count / 1e6, 1e-9),
+        "cpu_s_per_million_deliveries": cpu / max(count / 1e6, 1e-9),
         "rss_bytes_per_entity": (rss_loaded - rss_viewers) / len(walkers.seq),
         "rss_empty_bytes": rss_empty,
         "rss_loaded_bytes": rss_loaded,
         "loadgen_max_tick_lateness_ms": late * 1000.0,
+        "loadgen_publisher_cpu_s": cpu_gen,
+        "loadgen_reader_cpu_s_total": reader_cpu,
     }
     if srv0 and srv1:
         for key, name in (("entitynet_updates_in_total", "server_updates_in_per_s"),
@@ -511,6 +557,7 @@ def run(args, progress) -> dict[str, Any]:
         "entities": 2000 if quick else 5000,
         "viewers": 300 if quick else 1000,
         "publisher_connections": 4,
+        "reader_processes": 2,
         "radius_m": 500.0,
         "warmup_s": 3.0 if quick else 5.0,
         "window_s": 8.0 if quick else 20.0,
