@@ -13,8 +13,10 @@ the published extrapolation, the true body stays inside the published cells. `lo
 occupation along the known path (a-priori route, or up to the next real choice of way), so fewer periods
 expire, at the price of deliveries to viewers who see those cells before the entity gets there.
 
-Where the path ahead is not known (no route) the occupation may only reach past the next choice node as far as
-every branch stays in the junction cell: the front period is then the minimum over the branches.
+Where the path ahead is not known (no route), the reference's tight occupation may only reach past the next
+choice node as far as every branch stays in the junction cell (the front period is the minimum over the
+branches). With a lookahead the occupation becomes a tree: every branch at that node is covered to its first
+cell boundary beyond the lookahead, and the front period ends when the shortest branch cover runs out.
 """
 
 from __future__ import annotations
@@ -59,6 +61,41 @@ def certain_end(path: Path, s_front: float, networks: int, known_until: float) -
     return path.length
 
 
+def choice_node(path: Path, s_front: float, networks: int, known_until: float) -> tuple[int, float] | None:
+    """(index of the path edge ending at it, its path coordinate) of the first real choice of way ahead of
+    the front that the a-priori route does not decide; None when the path ends first."""
+    net = path.net
+    k = path.index(max(s_front, known_until))
+    while k < len(path.edges):
+        s_node = path.cum[k + 1]
+        if s_node >= known_until and s_node >= s_front and net.is_choice(path.edges[k], networks):
+            return k, s_node
+        k += 1
+    return None
+
+
+def branch_cover(path: Path, k: int, depth: float, networks: int) -> tuple[list[int], float]:
+    """Cells of every way on from the end node of path edge k, each down to the first cell boundary beyond
+    `depth` metres (or its end node), and the shortest such covered length."""
+    net = path.net
+    de = path.edges[k]
+    cells: list[int] = []
+    shortest = INF
+    node = net.end_node(de)
+    if net.node_area[node] >= 0:
+        cells.append(net.area_cell[net.node_area[node]])
+    for cand in net.choices(de, networks):
+        end = net.edge_len[cand[0]]
+        for a0, _b0, c in net.pieces(*cand):
+            if a0 > depth:
+                end = a0
+                break
+            if c not in cells:
+                cells.append(c)
+        shortest = min(shortest, end)
+    return cells, (0.0 if shortest == INF else shortest)
+
+
 def occupy(
     path: Path,
     s_front: float,
@@ -97,14 +134,29 @@ def occupy(
     start = min(max(s_aft - margin, 0.0), path.length)
     reach = min(max(s_front + margin, start), path.length)
     end_known = max(certain_end(path, s_front, networks, known_until), reach)
-    target = reach if tight else min(reach + max(lookahead, 0.0), end_known)
-    ahead = path.boundaries_after(target, end_known)
-    cover_end = ahead[0][0] if ahead else end_known
-    # cells of [start, cover_end): the cell starting exactly at cover_end is not covered
-    cells = path.cells_between(start, reach)
-    for sa, c in path.starts_in(reach, cover_end):
-        if sa < cover_end and c not in cells:
-            cells.append(c)
+    choice = None if tight else choice_node(path, s_front, networks, known_until)
+    want = reach + max(lookahead, 0.0)
+    if choice is not None and want > end_known:
+        # the way on is not known: cover every branch at the next choice node (a tree, not a line)
+        k, s_node = choice
+        cells = path.cells_between(start, min(reach, s_node))
+        for _sa, c in path.starts_in(min(reach, s_node), s_node):
+            if c not in cells:
+                cells.append(c)
+        extra, shortest = branch_cover(path, k, want - s_node, networks)
+        for c in extra:
+            if c not in cells:
+                cells.append(c)
+        cover_end = s_node + shortest
+    else:
+        target = reach if tight else min(want, end_known)
+        ahead = path.boundaries_after(target, end_known)
+        cover_end = ahead[0][0] if ahead else end_known
+        # cells of [start, cover_end): the cell starting exactly at cover_end is not covered
+        cells = path.cells_between(start, reach)
+        for sa, c in path.starts_in(reach, cover_end):
+            if sa < cover_end and c not in cells:
+                cells.append(c)
     if cover_end >= path.length and dead_end_at_path_end:
         front = INF
     else:

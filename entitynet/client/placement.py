@@ -80,6 +80,7 @@ class Placer:
         self.reacquire = reacquire
         self._tables: dict[int, _SegTable] = {}
         self._rings: dict[int, np.ndarray] = {}
+        self._area_bounds: tuple[np.ndarray, np.ndarray] | None = None
 
     # ---- first fix -----------------------------------------------------------------------------------------
     def first(self, x: float, y: float) -> Fix | None:
@@ -115,6 +116,32 @@ class Placer:
         k = int(np.argmin(d))
         return Fix("edge", int(t.edge[k]), float(t.cum0[k] + u[k] * t.slen[k]), float(t.ax[k] + u[k] * t.dx[k]),
                    float(t.ay[k] + u[k] * t.dy[k]), float(d[k]))
+
+    def edges_near(self, x: float, y: float, r: float) -> list[int]:
+        """Edges of this placer's networks passing within a box of half-size r around (x, y): the placement
+        index's STRtree (used at publish time in areas, not per fix)."""
+        import shapely
+
+        index = self.topo.placement_index()
+        box = shapely.box(x - r, y - r, x + r, y + r)
+        out: set[int] = set()
+        for bit, (tree, idx) in index.trees.items():
+            if bit & self.networks and len(idx):
+                out.update(int(e) for e in idx[tree.query(box)])
+        return sorted(out)
+
+    def areas_near(self, x: float, y: float, r: float) -> list[int]:
+        """Areas of this placer's networks whose boundary box is within r of (x, y) (bounding-box test)."""
+        b = self._area_bounds
+        if b is None:
+            b = self.topo.area_polygons.bounds()
+            ok = (self.topo.area_networks & self.networks) != 0 if len(b) else np.zeros(0, bool)
+            b = self._area_bounds = (b, ok)
+        bounds, ok = b
+        if not len(bounds):
+            return []
+        hit = ok & (bounds[:, 0] - r <= x) & (x <= bounds[:, 2] + r) & (bounds[:, 1] - r <= y) & (y <= bounds[:, 3] + r)
+        return np.flatnonzero(hit).tolist()
 
     def ring(self, area: int) -> np.ndarray:
         r = self._rings.get(area)

@@ -109,6 +109,7 @@ class Player:
         self.filter_q = self.etype.jerk_q if filter_q is None else float(filter_q)
         self.filter_accel = self.etype.accel if filter_accel is None else bool(filter_accel)
         self.reverse_count = 0
+        self.dist_ema = 0.0
         self.reposition = False
         self.lateral = 2.0 * accuracy if lateral is None else float(lateral)
         self.confirm = max(int(confirm), 1)
@@ -315,6 +316,16 @@ class Player:
         else:
             self.pending = (-1, 0)
         self.last_fix = fix
+        # consistency: fixes that stay far from the edge we hold mean we hold the wrong one (a first fix on
+        # the wrong street, or the hysteresis kept us there): ask the placement index again
+        self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
+        if self.dist_ema > 1.5 * math.sqrt(r) and reason is None:
+            g = self._first(x, y)
+            if g is not None and g.kind == "edge" and g.index != fix.index and g.distance + margin < fix.distance:
+                self._init_at(g, t, r)
+                self.last_fix = g
+                self.dist_ema = g.distance
+                return "jump"
         s_meas = self._s_of(fix, s_pred, k_cur)
         if reason is not None:
             self.recent_s.clear()
@@ -579,8 +590,19 @@ class Player:
         if self.mode == "area":
             x, y = ghost.xy_at(t) if isinstance(ghost, AreaModel) else self.estimate_xy()
             vx, vy = (ghost.vx, ghost.vy) if isinstance(ghost, AreaModel) else (0.0, 0.0)
-            return occupy_area(x, y, vx, vy, self.placer.ring(self.area), self.net.area_cell[self.area],
-                               margin=self.margin, max_validity=self.max_validity)
+            occ = occupy_area(x, y, vx, vy, self.placer.ring(self.area), self.net.area_cell[self.area],
+                              margin=self.margin, max_validity=self.max_validity)
+            if self.lateral > 0.0:
+                # ways crossing or skirting the area: under GPS noise the entity may be on one of them
+                cells = list(occ.cells)
+                for e in self.placer.edges_near(x, y, self.lateral):
+                    f = self.placer.project_on(x, y, e)
+                    if f.distance <= self.lateral:
+                        for a0, b0, c in self.net.pieces(e, 1):
+                            if b0 >= f.offset - self.lateral and a0 <= f.offset + self.lateral and c not in cells:
+                                cells.append(c)
+                occ = replace(occ, cells=tuple(cells[:MAX_PUBLISH_CELLS]))
+            return occ
         if isinstance(ghost, NetworkModel):
             path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a
             known = self._known_until(path, s)
@@ -611,28 +633,26 @@ class Player:
         bx, by = path.xy(max(s - 1.0, 0.0))
         dx, dy = hx - bx, hy - by
         e_cur = path.locate(s)[0]
-        t = self.placer.table(e_cur)
-        rx, ry = x - t.ax, y - t.ay
-        u = np.clip((rx * t.dx + ry * t.dy) * t.inv_l2, 0.0, 1.0)
-        d = np.hypot(rx - u * t.dx, ry - u * t.dy)
-        near = np.flatnonzero(d <= self.lateral)
+        on_path = {e for e, _d in path.edges}
         out: list[int] = []
-        done: set[int] = {e_cur}
-        for k in near[np.argsort(d[near], kind="stable")].tolist():
-            e = int(t.edge[k])
-            if e in done:
+        # every way near the position, connected or not (footways drawn twice, a few metres apart)
+        for e in self.placer.edges_near(x, y, self.lateral):
+            if e == e_cur or e in on_path:
                 continue
-            done.add(e)
-            off = float(t.cum0[k] + u[k] * t.slen[k])
-            fwd = (t.dx[k] * dx + t.dy[k] * dy) >= 0.0
+            f = self.placer.project_on(x, y, e)
+            if f.distance > self.lateral:
+                continue
+            hx0, hy0 = net.point(e, min(f.offset + 1.0, net.edge_len[e]))
+            bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
+            fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
             length = net.edge_len[e]
-            lo, hi = (off - self.margin - self.etype.length, off + ahead) if fwd else (off - ahead,
-                                                                                        off + self.margin)
+            lo, hi = ((f.offset - self.margin - self.etype.length, f.offset + ahead) if fwd
+                      else (f.offset - ahead, f.offset + self.margin + self.etype.length))
             lo, hi = max(lo, 0.0), min(hi, length)
             for a0, b0, c in net.pieces(e, 1):
                 if b0 >= lo and a0 <= hi and c not in out:
                     out.append(c)
-        for area in t.areas:  # an area next to the way: the entity may already be inside it
+        for area in self.placer.areas_near(x, y, self.lateral):  # an area next to the way: maybe inside it
             ring = self.placer.ring(area)
             p0, p1 = ring[:-1], ring[1:]
             sd = p1 - p0
