@@ -30,7 +30,7 @@ class EntityType:
         return sum(self.parts)
 
 
-PEDESTRIAN_T = EntityType(0, "pedestrian", PEDESTRIAN, (), 3.0, 1.0, 0.25, 0.7, 0.4, False)
+PEDESTRIAN_T = EntityType(0, "pedestrian", PEDESTRIAN, (), 3.0, 1.0, 0.25, 0.7, 0.1, False)
 CAR = EntityType(1, "car", VEHICLE, (4.5,), 25.0, 3.0, 0.8, 2.0, 1.0, True)
 BUS = EntityType(2, "bus", VEHICLE, (12.0,), 20.0, 1.5, 0.8, 2.0, 0.3, True, 1.2)
 TRAM_T = EntityType(3, "tram", TRAM, (13.8, 13.8), 14.0, 1.3, 0.8, 2.0, 0.3, True, 1.0)

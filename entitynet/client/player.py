@@ -339,13 +339,17 @@ class Player:
         backwards = not self.route and kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0
         self.reverse_count = self.reverse_count + 1 if backwards else 0
         if self.reverse_count >= 3:
-            self.reverse_count = 0
-            self.path = self.path.reversed()
-            kf.flip(self.path.length)
-            self.recent_s = [self.path.length - x for x in self.recent_s]
+            self._reverse()
             reason = reason or "path"
         self._maintain_path()
         return reason
+
+    def _reverse(self) -> None:
+        """Turn the path around (the entity walks the other way): s -> length - s, v -> -v."""
+        self.reverse_count = 0
+        self.path = self.path.reversed()
+        self.kf.flip(self.path.length)
+        self.recent_s = [self.path.length - x for x in self.recent_s]
 
     def _first(self, x: float, y: float) -> Fix | None:
         """First placement: on the a-priori route when it is near (its edges win over a closer other
@@ -523,6 +527,10 @@ class Player:
     def _publish(self, t: float, reason: str, from_ghost: bool = False) -> Publish:
         self.stats[reason] = self.stats.get(reason, 0) + 1
         self.over = 0
+        if (not from_ghost and self.mode == "edge" and not self.route and self.kf is not None
+                and self.kf.v < -self.etype.v_stop):
+            self._reverse()  # publish in the direction of travel, whatever the filter's hysteresis says
+            self._maintain_path()
         model = self._build_model(t, from_ghost)
         self.reposition = False
         payload = encode(model)
@@ -554,6 +562,7 @@ class Player:
                     s = sum(near) / len(near)
             if v < et.v_stop:
                 v, a = 0.0, 0.0
+            v = min(v, et.vmax)  # a noisy filter must not publish a walker at 6 m/s
             a = min(max(a, -et.amax), et.amax) if et.accel else 0.0
             start_s = s - et.length - self.margin
             k0 = path.index(start_s)
