@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import socket
 import ssl
 import time
 from dataclasses import dataclass
@@ -29,7 +30,7 @@ from entitynet import protocol as P
 from entitynet.server import logs
 from entitynet.server.config import ServerConfig
 from entitynet.server.metrics import Metrics
-from entitynet.switchboard import Switchboard, SwitchConfig
+from entitynet.switchboard import Outbox, Switchboard, SwitchConfig
 
 
 class ConfigError(ValueError):
@@ -43,6 +44,7 @@ class _Conn:
     peer: str
     stream: object
     wake: trio.Event
+    outbox: Outbox
     fd: int | None = None  # plain TCP socket: writes are first tried synchronously on it
     scope: trio.CancelScope | None = None
     rest: bytes | None = None  # what the writer task still has to send
@@ -171,6 +173,10 @@ class Server:
         conn = self._open(stream, "tcp", peer)
         if isinstance(stream, trio.SocketStream):
             conn.fd = stream.socket.fileno()
+            if self.config.sndbuf:
+                # a small kernel queue keeps the backlog of a slow reader in the outbox, where a newer state
+                # replaces an older one, instead of megabytes of stale states in the socket buffer
+                stream.socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.config.sndbuf)
         try:
             async with trio.open_nursery() as n:
                 conn.scope = n.cancel_scope
@@ -199,7 +205,7 @@ class Server:
 
     def _open(self, stream, kind: str, peer: str) -> _Conn:
         cid = self.sb.connect(self.clock())
-        conn = _Conn(cid, kind, peer, stream, trio.Event())
+        conn = _Conn(cid, kind, peer, stream, trio.Event(), self.sb.outbox(cid))
         self.conns[cid] = conn
         self.metrics.connections.inc()
         logs.event("connect", logging.DEBUG, cid=cid, kind=kind, peer=peer)
@@ -285,9 +291,9 @@ class Server:
         """Drain the outbox into one frame and write what the socket takes now; the writer task gets the rest."""
         if conn.busy or conn.closed:
             return
-        ob = self.sb.outbox(conn.cid)
-        if ob is None:
-            return
+        ob = conn.outbox
+        if len(ob.states) > ob.max_states or ob.overflow or len(ob.control) > ob.max_control:
+            self.sb.check_outbox(conn.cid, ob)  # drops it: SLOW_CONSUMER is now the only thing queued
         msgs = ob.drain(self.config.max_batch)
         if not msgs:
             if ob.close_after:
@@ -359,7 +365,7 @@ class Server:
     def _wake_dirty(self) -> None:
         conns = self.conns
         t = time.monotonic()
-        for cid in self.sb.take_dirty():
+        for cid in self.sb.take_dirty(check=False):
             conn = conns.get(cid)
             if conn is not None:
                 if conn.dirty_since is None:

@@ -31,6 +31,7 @@ class ServerConfig:
     stall_timeout: float = 5.0  # a write blocked this long (client not reading) drops the client
     max_batch: int = 20_000  # messages per written frame
     read_size: int = 65_536
+    sndbuf: int | None = 131_072  # cap the kernel send buffer: backlog then waits in the coalescing outbox
     shutdown_grace: float = 1.0  # time to flush SHUTTING_DOWN to everyone before closing
     switch: dict[str, Any] = field(default_factory=dict)  # SwitchConfig overrides (limits)
     clock: Callable[[], float] = time.time  # the server clock reported in WELCOME/PONG and used for expiry

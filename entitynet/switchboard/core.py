@@ -116,10 +116,13 @@ class Switchboard:
         c = self.clients.get(cid)
         return c.outbox if c else None
 
-    def take_dirty(self) -> set[int]:
-        """Clients with something new to write since the last call. Also enforces the outbox bounds."""
+    def take_dirty(self, check: bool = True) -> set[int]:
+        """Clients with something new to write since the last call. With `check`, also enforces the outbox
+        bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
         dirty = self._dirty
         self._dirty = set()
+        if not check:
+            return dirty
         for cid in dirty:
             c = self.clients.get(cid)
             if c is None:
@@ -128,6 +131,13 @@ class Switchboard:
             if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
                 self.slow_consumer(cid, "outbound queue limit")
         return dirty
+
+    def check_outbox(self, cid: int, ob: Outbox) -> bool:
+        """False (and the client is being dropped as a slow consumer) when its outbox is beyond its bounds."""
+        if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
+            self.slow_consumer(cid, "outbound queue limit")
+            return False
+        return True
 
     def slow_consumer(self, cid: int, why: str) -> None:
         """Drop what is pending for a client that does not keep up, tell it, and close it."""

@@ -39,10 +39,15 @@ class Outbox:
     def drain(self, max_messages: int | None = None) -> list[bytes]:
         """Take queued messages (control first, then entity states in first-queued order)."""
         out = self.control
-        self.control = []
-        if max_messages is None or len(out) + len(self.states) <= max_messages:
-            out.extend(self.states.values())
-            self.states.clear()  # in place: the core holds a reference to this dict
+        states = self.states
+        if out:
+            self.control = []
+        if max_messages is None or len(out) + len(states) <= max_messages:
+            if out:
+                out.extend(states.values())
+            else:
+                out = list(states.values())
+            states.clear()  # in place: the core holds a reference to this dict
             return out
         room = max(0, max_messages - len(out))
         keys = list(self.states)[:room]
