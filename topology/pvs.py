@@ -45,13 +45,15 @@ import shapely
 from topology.polygons import Polygons
 from topology.viewcells import ViewGrid, build_view_grid, column_squares
 
+MAX_LABEL_LAYERS = 8  # how many overlapping visibility cells one target pixel can stand for
+
 ALGORITHM = "2.5D radial horizon sweeps from top-face viewpoint lattices over an eroded height raster"
 
 #: quality presets: (raster metres, samples per side of the top face, shrink metres, ray spacing factor)
 QUALITY: dict[str, dict[str, float]] = {
-    "fast": {"raster": 4.0, "samples": 2, "shrink": 4.0, "ray_spacing": 2.0},
-    "default": {"raster": 2.0, "samples": 3, "shrink": 3.0, "ray_spacing": 1.5},
-    "high": {"raster": 1.5, "samples": 5, "shrink": 2.0, "ray_spacing": 1.0},
+    "fast": {"raster": 3.0, "samples": 2, "shrink": 3.0, "ray_spacing": 2.0},
+    "default": {"raster": 2.0, "samples": 2, "shrink": 3.0, "ray_spacing": 1.5},
+    "high": {"raster": 2.0, "samples": 3, "shrink": 2.0, "ray_spacing": 1.5},
 }
 
 
@@ -61,7 +63,7 @@ class PvsConfig:
     max_height: float = 100.0  # top of the view-cell stack (m)
     view_distance: float = 500.0  # horizontal range (m)
     raster: float = 2.0  # height-field pixel (m)
-    samples: int = 3  # eye points per side of each view cell's top face (lattice shared by neighbours)
+    samples: int = 2  # eye points per side of each view cell's top face (lattice shared by neighbours)
     shrink: float = 3.0  # occluder erosion (m), see module docstring
     ray_spacing: float = 1.5  # ray spacing at the far end, in raster pixels (sets the number of rays)
     workers: int = 2  # processes (fork); 1 = in-process
@@ -163,19 +165,27 @@ class _Raster:
         return r * self.shape[1] + c
 
 
-def _points_within(polys: np.ndarray, raster: _Raster, bounds) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel, polygon) pairs for pixel centres strictly inside polygons, only inside `bounds`."""
-    if len(polys) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    rs, cs = raster.window(bounds)
+def _rasterise(polys: np.ndarray, raster: _Raster, bounds) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel, polygon) pairs for pixel centres strictly inside each polygon, within `bounds`."""
     xs, ys = raster.centres()
-    gx, gy = np.meshgrid(xs[cs], ys[rs])
-    pts = shapely.points(gx.ravel(), gy.ravel())
-    tree = shapely.STRtree(polys)
-    ip, jp = tree.query(pts, predicate="within")
-    rr, cc = np.divmod(ip, gx.shape[1])
-    flat = (rr + rs.start) * raster.shape[1] + (cc + cs.start)
-    return flat.astype(np.int64), jp.astype(np.int64)
+    pix, owner = [], []
+    shapely.prepare(polys)
+    bb = shapely.bounds(polys)
+    for j, poly in enumerate(polys):
+        if poly is None or poly.is_empty:
+            continue
+        x0, y0, x1, y1 = bb[j]
+        rs, cs = raster.window((max(x0, bounds[0]), max(y0, bounds[1]), min(x1, bounds[2]), min(y1, bounds[3])))
+        if rs.stop <= rs.start or cs.stop <= cs.start:
+            continue
+        gx, gy = np.meshgrid(xs[cs], ys[rs])
+        inside = shapely.contains_xy(poly, gx, gy)
+        rr, cc = np.nonzero(inside)
+        pix.append((rr + rs.start) * raster.shape[1] + (cc + cs.start))
+        owner.append(np.full(len(rr), j))
+    if not pix:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(pix).astype(np.int64), np.concatenate(owner).astype(np.int64)
 
 
 def _erode(h: np.ndarray, radius_px: float) -> np.ndarray:
@@ -199,31 +209,37 @@ def _erode(h: np.ndarray, radius_px: float) -> np.ndarray:
 _K: dict[str, Any] = {}
 
 
-def _sweep_chunk(args: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Sweep eye points `base` (flat pixel) for the layer heights `levels_mask` (n, nz) bool.
+def _sweep_chunk(args: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Sweep the eye points at flat pixels `base` for the layer heights in `levels_mask` (n, nz) bool.
 
-    Returns (the indices, packed visible-group bits (n, nz, nbytes))."""
-    idx, base_and_mask = args
+    Returns (the eye indices, packed visible-cell bits (n, nz, nbytes))."""
+    idx, (base, levels_mask) = args
     k = _K
-    base, levels_mask = base_and_mask
-    hocc, tgt, grp = k["hocc"], k["tgt"], k["grp"]
+    hocc, tgt, labels = k["hocc"], k["tgt"], k["labels"]
     off, inv = k["off"], k["inv"]
     tops = k["tops"]
-    n_groups = k["n_groups"]
+    n_cells = k["n_cells"]
     nz = len(tops)
-    out = np.zeros((len(base), nz, k["nbytes_groups"]), dtype=np.uint8)
-    mark = np.zeros(n_groups + 1, dtype=bool)
+    out = np.zeros((len(base), nz, k["nbytes"]), dtype=np.uint8)
+    mark = np.zeros(n_cells + 1, dtype=bool)
+    a = np.empty(off.shape, dtype=np.float32)
     for i in range(len(base)):
         pix = off + base[i]
-        gs = grp[pix]
-        tpos = np.flatnonzero(gs.ravel() != n_groups)
+        lab0 = labels[0].take(pix).ravel()
+        tpos = np.flatnonzero(lab0 != n_cells)
         if len(tpos) == 0:
             continue
-        hs = hocc[pix]
-        ts = tgt.take(pix.ravel()[tpos])
-        invt = inv.take(tpos)
-        gt = gs.ravel()[tpos]
-        a = np.empty_like(hs)
+        hs = hocc.take(pix)
+        pix_t = pix.ravel()[tpos]
+        ts = tgt.take(pix_t)
+        invt = inv.ravel().take(tpos)
+        lab0 = lab0[tpos]
+        more = []  # overlapping cells: (positions in tpos-space, their labels)
+        for lay in labels[1:]:
+            lab = lay.take(pix_t)
+            sub = np.flatnonzero(lab != n_cells)
+            if len(sub):
+                more.append((sub, lab[sub]))
         for iz in range(nz):
             if not levels_mask[i, iz]:
                 continue
@@ -231,10 +247,12 @@ def _sweep_chunk(args: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.nd
             np.subtract(hs, z, out=a)
             a *= inv
             np.maximum.accumulate(a, axis=1, out=a)
-            vis = (ts - z) * invt >= a.ravel()[tpos]
+            vis = (ts - z) * invt >= a.ravel().take(tpos)
             mark[:] = False
-            mark[gt[vis]] = True
-            out[i, iz] = np.packbits(mark[:n_groups])
+            mark[lab0[vis]] = True
+            for sub, lab in more:
+                mark[lab[vis[sub]]] = True
+            out[i, iz] = np.packbits(mark[:n_cells])
     return idx, out
 
 
@@ -283,42 +301,34 @@ def compute_pvs(
     # occluder heights (pixel centre strictly inside a footprint), then eroded
     hmap = np.zeros(rows * cols, dtype=np.float32)
     if len(bpolys):
-        fp, fb = _points_within(bpolys, raster, map_box)
+        fp, fb = _rasterise(bpolys, raster, map_box)
         np.maximum.at(hmap, fp, bh[fb].astype(np.float32))
     hmap = hmap.reshape(rows, cols)
     hocc = _erode(hmap, cfg.shrink / px).ravel()
+    phase = {"grid_s": time.perf_counter() - t0}
+    say(f"pvs: occluder raster done ({phase['grid_s']:.1f} s)")
 
-    # target groups: pixel -> the set of cells covering it; singletons are the cell ids themselves
+    # target labels: pixel -> the cells covering it, in up to MAX_LABEL_LAYERS layers (cells overlap at
+    # junctions); every cell also gets the pixel of a point on its surface, so thin cells are never lost
     if n_cells:
-        tp, tc = _points_within(cpolys, raster, map_box)
+        tp, tc = _rasterise(cpolys, raster, map_box)
         rep = shapely.point_on_surface(cpolys)
         tp = np.concatenate([tp, raster.pixel_of(shapely.get_x(rep), shapely.get_y(rep))])
         tc = np.concatenate([tc, np.arange(n_cells)])
-        pairs = np.unique(np.column_stack([tp, tc]), axis=0)
-        tp, tc = pairs[:, 0], pairs[:, 1]
+        key = np.unique(tp * n_cells + tc)
+        tp, tc = key // n_cells, key % n_cells
     else:
         tp = tc = np.zeros(0, np.int64)
-    group_cells: list[np.ndarray] = [np.array([c]) for c in range(n_cells)]
-    grp = np.full(rows * cols + 0, -1, dtype=np.int32)
-    if len(tp):
-        upix, start, count = np.unique(tp, return_index=True, return_counts=True)
-        single = count == 1
-        grp[upix[single]] = tc[start[single]]
-        combos: dict[tuple[int, ...], int] = {}
-        for p, s, c in zip(upix[~single], start[~single], count[~single], strict=True):
-            key = tuple(int(v) for v in tc[s : s + c])
-            g = combos.get(key)
-            if g is None:
-                g = combos[key] = len(group_cells)
-                group_cells.append(np.array(key))
-            grp[p] = g
-    n_groups = len(group_cells)
-    grp[grp < 0] = n_groups  # the "no target" group
+    first = np.searchsorted(tp, tp, "left")
+    rank = np.arange(len(tp)) - first
+    n_layers = max(1, min(MAX_LABEL_LAYERS, int(rank.max()) + 1 if len(rank) else 1))
+    labels = np.full((n_layers, rows * cols), n_cells, dtype=np.int32)
+    kept = rank < n_layers
+    labels[rank[kept], tp[kept]] = tc[kept]
     tgt = np.zeros(rows * cols, dtype=np.float32)
-    if n_groups:
-        gh = np.array([ch[g].max() for g in group_cells], dtype=np.float32)
-        has = grp < n_groups
-        tgt[has] = gh[grp[has]]
+    if len(tp):
+        np.maximum.at(tgt, tp, ch[tc].astype(np.float32))
+    dropped_labels = int((~kept).sum())
 
     # ray fan: offsets in flat pixels and 1/s per (ray, step)
     R = cfg.n_rays
@@ -366,11 +376,15 @@ def compute_pvs(
     # fallback eyes for view cells whose lattice points all lie inside buildings
     lonely = np.flatnonzero(~vc_valid.any(axis=1)) if V else np.zeros(0, np.int64)
     extra_x, extra_y, extra_vc = [], [], []
+    unions: dict[int, Any] = {}
     for v in lonely:
         top = tops[iz[v]]
         x0, y0 = xmin + ix[v] * grid.size, ymin + iy[v] * grid.size
         sq = shapely.box(x0, y0, x0 + grid.size, y0 + grid.size)
-        free = sq.difference(shapely.union_all(bpolys[bh > top])) if len(bpolys) else sq
+        if int(iz[v]) not in unions:
+            unions[int(iz[v])] = shapely.union_all(bpolys[bh > top]) if len(bpolys) else None
+        u = unions[int(iz[v])]
+        free = sq.difference(u) if u is not None else sq
         if free.is_empty:
             continue
         pt = shapely.point_on_surface(free)
@@ -384,16 +398,17 @@ def compute_pvs(
         eye_levels[n_lat + k, iz[v]] = True
     todo = np.flatnonzero(eye_levels.any(axis=1))
     base = raster.pixel_of(eye_x, eye_y)
+    phase["targets_s"] = time.perf_counter() - t0 - phase["grid_s"]
     say(f"pvs: {len(todo)} eye points x {R} rays x {S} steps, raster {rows}x{cols} @ {px} m")
 
     # sweep, in worker processes
-    nbytes_groups = (n_groups + 7) // 8
+    nbytes = (n_cells + 7) // 8
     _K.clear()
     _K.update(
-        hocc=hocc, tgt=tgt, grp=grp, off=off, inv=inv, tops=tops.astype(np.float32),
-        n_groups=n_groups, nbytes_groups=nbytes_groups,
+        hocc=hocc, tgt=tgt, labels=labels, off=off, inv=inv, tops=tops.astype(np.float32),
+        n_cells=n_cells, nbytes=nbytes,
     )  # fmt: skip
-    eye_bits = np.zeros((len(eye_x), grid.nz, nbytes_groups), dtype=np.uint8)
+    eye_bits = np.zeros((len(eye_x), grid.nz, nbytes), dtype=np.uint8)
     chunk = 64
     jobs = [
         (todo[i : i + chunk], (base[todo[i : i + chunk]], eye_levels[todo[i : i + chunk]]))
@@ -423,46 +438,38 @@ def compute_pvs(
     _K.clear()
     sweep_s = time.perf_counter() - t_sweep
 
-    # groups -> cells, per eye and layer
-    g2c = np.zeros((max(n_groups, 1), (n_cells + 7) // 8), dtype=np.uint8)
-    for g, cells in enumerate(group_cells):
-        row = np.zeros(n_cells, bool)
-        row[cells] = True
-        g2c[g] = np.packbits(row)
-
     # per view cell: OR over its valid eyes, then AND with the exact distance cut
+    t_range = time.perf_counter()
     in_range = _range_bits(grid, cpolys, cfg.view_distance, n_cells)
-    seen_groups = np.zeros((V, nbytes_groups), dtype=np.uint8)
+    phase["range_s"] = time.perf_counter() - t_range
+    seen = np.zeros((V, nbytes), dtype=np.uint8)
     for j in range(vc_samples.shape[1]):
         ok = vc_valid[:, j]
-        seen_groups[ok] |= eye_bits[vc_samples[ok, j], iz[ok]]
+        seen[ok] |= eye_bits[vc_samples[ok, j], iz[ok]]
     for k, v in enumerate(extra_vc):
-        seen_groups[v] |= eye_bits[n_lat + k, iz[v]]
+        seen[v] |= eye_bits[n_lat + k, iz[v]]
     offsets = np.zeros(V + 1, dtype=np.int64)
     id_chunks = []
     col_of = iy * grid.nx + ix
-    range_count = np.zeros(V, dtype=np.int32)
-    for v in range(V):
-        gbits = np.unpackbits(seen_groups[v], count=n_groups).astype(bool) if n_groups else np.zeros(0, bool)
-        gs = np.flatnonzero(gbits)
-        singles = gs[gs < n_cells]
-        multi = gs[gs >= n_cells]
-        cells = singles if len(multi) == 0 else np.concatenate([singles] + [group_cells[g] for g in multi])
-        rng = in_range[col_of[v]]
-        row = np.zeros(n_cells, bool)
-        row[cells] = True
-        row &= rng
-        ids = np.flatnonzero(row).astype(np.int32)
-        id_chunks.append(ids)
-        offsets[v + 1] = offsets[v] + len(ids)
-        range_count[v] = int(rng.sum())
+    range_count = in_range.sum(axis=1).astype(np.int32)[col_of] if V else np.zeros(0, np.int32)
+    for c0 in range(0, V, 2048):  # vectorised in blocks to bound memory
+        sl = slice(c0, min(V, c0 + 2048))
+        row = np.unpackbits(seen[sl], axis=1, count=n_cells).astype(bool)
+        row &= in_range[col_of[sl]]
+        offsets[sl.start + 1 : sl.stop + 1] = row.sum(axis=1)
+        id_chunks.append(np.nonzero(row)[1].astype(np.int32))
+    np.cumsum(offsets, out=offsets)
     ids = np.concatenate(id_chunks) if id_chunks else np.zeros(0, np.int32)
+    phase["combine_s"] = time.perf_counter() - t_range - phase["range_s"]
     build_s = time.perf_counter() - t0
     sizes = np.diff(offsets)
     stats = {
         "build_s": round(build_s, 3),
         "sweep_s": round(sweep_s, 3),
+        **{k: round(v, 3) for k, v in phase.items()},
         "eye_points": int(len(todo)),
+        "label_layers": n_layers,
+        "dropped_labels": dropped_labels,
         "rays": R,
         "steps": S,
         "mean_pvs_cells": float(sizes.mean()) if V else 0.0,
@@ -522,3 +529,206 @@ def _range_bits(grid: ViewGrid, cpolys: np.ndarray, d: float, n_cells: int) -> n
 
 def with_overrides(config: PvsConfig, **kw: Any) -> PvsConfig:
     return replace(config, **{k: v for k, v in kw.items() if v is not None})
+
+
+# ------------------------------------------------------------------------------------------------------------
+# run-time lookup
+
+
+class PvsIndex:
+    """Position -> view cell -> PVS, in microseconds (pure arithmetic plus one cached decode).
+
+    Positions outside the grid are *clamped* to the nearest grid cell: x and y to the edge columns, z below
+    the ground to the lowest layer and z above `max_height` to the top layer (whose PVS then
+    under-approximates a higher camera's view). A position inside a view cell that was left out (wholly
+    inside a building) answers with the nearest kept cell above it in the same column, or, when the whole
+    column is inside a building taller than the stack, the nearest kept top-layer cell. NaN or infinite
+    coordinates raise ValueError.
+    """
+
+    def __init__(self, grid: ViewGrid, codec: Any, n_cells: int, view_distance: float, cache_size: int = 8192):
+        self.grid = grid
+        self.codec = codec
+        self.n_cells = int(n_cells)
+        self.view_distance = float(view_distance)
+        self._cache: dict[int, np.ndarray] = {}
+        self._cache_size = int(cache_size)
+        self._resolve = _resolve_grid(grid.index)
+        self._x0, self._y0, self._size = float(grid.x0), float(grid.y0), float(grid.size)
+        self._nx, self._ny, self._nz = grid.nx, grid.ny, grid.nz
+
+    @classmethod
+    def from_topology(cls, topo: Any) -> PvsIndex:
+        from topology.pvs_codec import EncodedPvs
+
+        meta = topo.meta.get("pvs")
+        if meta is None or "pvs_grid" not in topo.extra:
+            raise ValueError("the topology has no PVS (built with --no-pvs?)")
+        grid = ViewGrid(meta["origin"][0], meta["origin"][1], meta["cell_size"], meta["max_height"],
+                        topo.extra["pvs_grid"])  # fmt: skip
+        return cls(grid, EncodedPvs.from_arrays(topo.extra), meta["n_cells"], meta["view_distance"])
+
+    @classmethod
+    def from_result(cls, result: PvsResult) -> PvsIndex:
+        from topology.pvs_codec import EncodedPvs
+
+        codec = EncodedPvs.from_arrays(result.to_extra())
+        return cls(result.grid, codec, result.n_cells, result.config.view_distance)
+
+    def _grid_cell(self, x: float, y: float, z: float) -> tuple[int, int, int]:
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            raise ValueError(f"position must be finite, got ({x}, {y}, {z})")
+        ix = min(max(int(math.floor((x - self._x0) / self._size)), 0), self._nx - 1)
+        iy = min(max(int(math.floor((y - self._y0) / self._size)), 0), self._ny - 1)
+        iz = min(max(int(math.floor(z / self._size)), 0), self._nz - 1)
+        return iz, iy, ix
+
+    def view_cell_of(self, x: float, y: float, z: float) -> int:
+        """The view cell holding the (clamped) position, or -1 if that grid cell is inside a building."""
+        iz, iy, ix = self._grid_cell(x, y, z)
+        return int(self.grid.index[iz, iy, ix])
+
+    def lookup_cell(self, x: float, y: float, z: float) -> int:
+        """The view cell whose PVS answers for the position (see the class docstring); -1 only without any."""
+        iz, iy, ix = self._grid_cell(x, y, z)
+        return int(self._resolve[iz, iy, ix])
+
+    def pvs(self, view_cell: int) -> np.ndarray:
+        """Sorted int32 ids of the visibility cells visible from the view cell (read-only, cached)."""
+        hit = self._cache.get(view_cell)
+        if hit is not None:
+            return hit
+        if view_cell < 0:
+            return np.zeros(0, np.int32)
+        ids = self.codec.decode(view_cell).astype(np.int32)
+        ids.flags.writeable = False
+        if len(self._cache) >= self._cache_size:
+            self._cache.clear()
+        self._cache[view_cell] = ids
+        return ids
+
+    def cells_at(self, x: float, y: float, z: float) -> np.ndarray:
+        """The PVS for a camera at (x, y, z), local metres."""
+        return self.pvs(self.lookup_cell(x, y, z))
+
+
+def _resolve_grid(index: np.ndarray) -> np.ndarray:
+    """Every grid cell -> the view cell answering for it: itself, else the first kept cell above, else the
+    nearest kept top-layer cell (columns wholly inside a building taller than the stack)."""
+    nz, ny, nx = index.shape
+    out = index.copy()
+    for iz in range(nz - 2, -1, -1):  # fill from above: the first kept cell above
+        hole = out[iz] < 0
+        out[iz][hole] = out[iz + 1][hole]
+    top = out[nz - 1]
+    if (top < 0).any() and (top >= 0).any():
+        ky, kx = np.nonzero(top >= 0)
+        hy, hx = np.nonzero(top < 0)
+        for y, x in zip(hy, hx, strict=True):
+            k = int(np.argmin((ky - y) ** 2 + (kx - x) ** 2))
+            out[:, y, x] = np.where(out[:, y, x] < 0, top[ky[k], kx[k]], out[:, y, x])
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------------
+# CLI glue (called by entitynet/commands/topology_cmd.py; topology imports nothing of entitynet at load)
+
+
+def _positive(text: str) -> float:
+    import argparse
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
+
+
+def add_pvs_arguments(parser: Any) -> None:
+    """Options of `entitynet topology build` for the view cells and the PVS (`--no-pvs` is the builder's)."""
+    g = parser.add_argument_group("visibility (view cells and PVS)")
+    g.add_argument("--pvs-quality", choices=sorted(QUALITY), default="default",
+                   help="speed/accuracy preset of the PVS (default: default; see docs/pvs.md)")  # fmt: skip
+    g.add_argument("--view-cell-size", type=_positive, metavar="M", help="view-cell cube side (default 20 m)")
+    g.add_argument("--view-max-height", type=_positive, metavar="M", help="top of the view cells (default 100 m)")
+    g.add_argument("--view-distance", type=_positive, metavar="M", help="PVS range (default 500 m)")
+    g.add_argument("--pvs-workers", type=int, metavar="N", help="worker processes (default 2)")
+
+
+def pvs_config_from_args(args: Any) -> PvsConfig:
+    workers = getattr(args, "pvs_workers", None)
+    if workers is not None and workers < 1:
+        workers = 1
+    return PvsConfig.from_quality(
+        getattr(args, "pvs_quality", "default") or "default",
+        cell_size=getattr(args, "view_cell_size", None),
+        max_height=getattr(args, "view_max_height", None),
+        view_distance=getattr(args, "view_distance", None),
+        workers=workers,
+    )
+
+
+def register_pvs_command(tsub: Any, load_artifact: Callable[[str], Any]) -> None:
+    """`entitynet topology pvs FILE --at X Y Z [--json]`: the view cell and PVS of a local position."""
+    p = tsub.add_parser("pvs", help="print the PVS (visible cells) of the view cell holding a position")
+    p.add_argument("file")
+    p.add_argument("--at", nargs=3, type=float, metavar=("X", "Y", "Z"), required=True,
+                   help="local position in metres (relative to the artifact's origin)")  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+    def run(args: Any) -> int:
+        import json
+
+        topo = load_artifact(args.file)
+        try:
+            index = PvsIndex.from_topology(topo)
+            x, y, z = args.at
+            own = index.view_cell_of(x, y, z)
+            used = index.lookup_cell(x, y, z)
+            cells = index.cells_at(x, y, z)
+        except ValueError as exc:
+            try:
+                from entitynet.cli import CommandError
+            except ImportError:  # pragma: no cover - topology used without entitynet
+                raise SystemExit(f"error: {exc}") from None
+            raise CommandError(f"{args.file}: {exc}") from None
+        info = {"position": [x, y, z], "view_cell": own, "answered_by": used, "n_cells": int(len(cells)),
+                "in_grid": bool(_in_grid(index, x, y, z)), "cells": cells.tolist()}  # fmt: skip
+        if args.json:
+            print(json.dumps(info))
+        else:
+            note = "" if info["in_grid"] else " (outside the grid: clamped)"
+            inside = "" if own == used else f" (inside a building: answered by view cell {used})"
+            print(f"view cell {own}{inside}{note}: {len(cells)} visible cells")
+            print(" ".join(str(c) for c in cells))
+        return 0
+
+    p.set_defaults(func=run)
+
+
+def _in_grid(index: PvsIndex, x: float, y: float, z: float) -> bool:
+    g = index.grid
+    return (g.x0 <= x <= g.x0 + g.nx * g.size) and (g.y0 <= y <= g.y0 + g.ny * g.size) and 0 <= z <= g.max_height
+
+
+def pvs_geojson_features(topo: Any, x: float, y: float, z: float) -> list[dict]:
+    """WGS84 GeoJSON features for one view cell's PVS: the view cell's square (layer "pvs_view_cell") and
+    every visible cell's footprint (layer "pvs_cell"), for `topology.export.write_geojson(extra_features=)`."""
+    from topology.export import _features, _to_wgs84
+    from topology.projection import LocalProjection
+
+    index = PvsIndex.from_topology(topo)
+    v = index.lookup_cell(x, y, z)
+    cells = index.cells_at(x, y, z)
+    proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
+    iz, iy, ix = (int(a[0]) for a in np.nonzero(index.grid.index == v)) if v >= 0 else (0, 0, 0)
+    g = index.grid
+    sq = shapely.box(g.x0 + ix * g.size, g.y0 + iy * g.size, g.x0 + (ix + 1) * g.size, g.y0 + (iy + 1) * g.size)
+    head = {"layer": "pvs_view_cell", "view_cell": v, "position": [x, y, z], "visible_cells": int(len(cells)),
+            "z_min": float(g.layer_bottom(iz)), "z_max": float(g.layer_top(iz))}  # fmt: skip
+    feats = _features(_to_wgs84(np.array([sq], dtype=object), proj), [head])
+    polys = topo.cell_footprints.to_shapely()[cells] if len(cells) else np.empty(0, object)
+    props = [{"layer": "pvs_cell", "cell": int(c), "view_cell": v} for c in cells]
+    return feats + _features(_to_wgs84(polys, proj), props)
