@@ -82,6 +82,12 @@ class NetworkModel:
     def xy_at(self, t: float) -> tuple[float, float]:
         return self.path.xy(self.s_at(t))
 
+    def xy_speed_at(self, t: float) -> tuple[float, float, float]:
+        """(x, y, speed) at t in one evaluation (the player's per-fix check)."""
+        s, v = self._state(t - self.t0)
+        x, y = self.path.xy(min(s, self.path.length))
+        return x, y, v
+
     def parts_xy_at(self, t: float) -> list[tuple[float, float]]:
         """Front, articulation(s) and aft points, following the path (for drawing a two-part tram)."""
         s = self.s_at(t)
@@ -108,6 +114,10 @@ class AreaModel:
         dt = max(t - self.t0, 0.0)
         return self.x + self.vx * dt, self.y + self.vy * dt
 
+    def xy_speed_at(self, t: float) -> tuple[float, float, float]:
+        x, y = self.xy_at(t)
+        return x, y, math.hypot(self.vx, self.vy)
+
 
 @dataclass(frozen=True, slots=True)
 class WorldModel:
@@ -126,6 +136,11 @@ class WorldModel:
         dt = max(t - self.t0, 0.0)
         h = 0.5 * dt * dt
         return self.x + self.vx * dt + self.ax * h, self.y + self.vy * dt + self.ay * h
+
+    def xy_speed_at(self, t: float) -> tuple[float, float, float]:
+        dt = max(t - self.t0, 0.0)
+        x, y = self.xy_at(t)
+        return x, y, math.hypot(self.vx + self.ax * dt, self.vy + self.ay * dt)
 
 
 Model = NetworkModel | AreaModel | WorldModel

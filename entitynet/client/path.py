@@ -99,7 +99,17 @@ class Path:
         return Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
 
     def extended(self, ahead: Sequence[DirEdge]) -> Path:
-        return Path(self.net, self.edges + list(ahead))
+        """This path plus `ahead`; only the new joints are checked."""
+        net = self.net
+        ahead = [(int(e), 1 if d > 0 else -1) for e, d in ahead]
+        cum = list(self.cum)
+        prev = self.edges[-1]
+        for de in ahead:
+            if not 0 <= de[0] < net.n_edges or net.end_node(prev) != net.start_node(de):
+                raise ValueError(f"path edges {prev} and {de} do not meet at a node")
+            cum.append(cum[-1] + net.edge_len[de[0]])
+            prev = de
+        return Path(net, self.edges + ahead, _cum=cum)
 
     def reversed(self) -> Path:
         return Path(self.net, [(e, -d) for e, d in reversed(self.edges)])

@@ -29,7 +29,7 @@ from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
 from entitynet.client.occupation import Occupation, occupy, occupy_area
 from entitynet.client.path import Path, follow
-from entitynet.client.payload import decode, encode
+from entitynet.client.payload import encode, quantized
 from entitynet.client.placement import Fix, Placer
 from entitynet.protocol import Publish, Unpublish
 
@@ -488,11 +488,10 @@ class Player:
             return self._expiry_or_heartbeat(t)
         g = self.ghost
         v_est = self._est_speed()
-        gv = g.speed_at(t) if isinstance(g, NetworkModel) else math.hypot(g.vx, g.vy)
+        gx, gy, gv = g.xy_speed_at(t)
         et = self.etype
         if gv > et.v_stop and v_est < et.v_stop:
             return "stop"
-        gx, gy = g.xy_at(t)
         if gv <= et.v_stop:
             # the published model stands still: judge by the mean of the last fixes, not by the filter,
             # whose speed wanders with the noise of a standing GPS (a start is speed *and* displacement)
@@ -534,7 +533,7 @@ class Player:
         model = self._build_model(t, from_ghost)
         self.reposition = False
         payload = encode(model)
-        ghost = decode(payload, self.net)
+        ghost = quantized(model)  # == decode(payload, net), without the round trip
         self.ghost = ghost
         self.occupation = self._occupation(t, ghost)
         self.pub_t = t

@@ -73,3 +73,18 @@ def test_network_payload_with_unknown_edge_is_rejected():
     data = msgpack.packb([1, 1, 0, 3, 0, 0, 0, 0, [], [99], -1, 1000])
     with pytest.raises(PayloadError):
         decode(data, netview(cross()))
+
+
+def test_quantized_equals_the_decoded_payload():
+    from entitynet.client.payload import quantized
+
+    net = netview(cross())
+    models = [
+        NetworkModel(100.0004, Path(net, [(0, 1), (1, 1)]), 55.555, 9.8765, -0.5004, 14.0, 3, (13.8, 13.8),
+                     150.004, 1.2),
+        NetworkModel(1.5, Path(net, [(2, 1)]), 0.0, 0.0, 0.0, 3.0, 0, ()),
+        WorldModel(12.3456, 100.011, -200.026, 1.2344, -0.5, 0.0105, 0.02, 1),
+        AreaModel(3.0007, 0, 1.254, -2.5, 0.7003, 0.1, 0),
+    ]
+    for m in models:
+        assert quantized(m) == decode(encode(m), net)
