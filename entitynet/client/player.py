@@ -42,15 +42,12 @@ class FixRejected(ValueError):
     """A fix that cannot be used: NaN/inf, time not after the previous fix, or a bad accuracy."""
 
 
-_PLACERS: dict[tuple[int, int], Placer] = {}
-
-
 def placer_for(net: NetView, networks: int) -> Placer:
-    key = (id(net), networks)
-    p = _PLACERS.get(key)
-    if p is None or p.net is not net:
-        p = Placer(net, networks)
-        _PLACERS[key] = p
+    """One Placer (and its segment-table cache) per topology view and network mask, shared by players."""
+    cache = net.__dict__.setdefault("_placers", {})
+    p = cache.get(networks)
+    if p is None:
+        p = cache[networks] = Placer(net, networks)
     return p
 
 

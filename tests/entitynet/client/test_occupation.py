@@ -121,3 +121,18 @@ def test_junction_cells_back_to_back():
     o = occupy(path, 105.0, 0.0, V, 0.0, 14.0, 7, known_until=path.length)
     assert o.cells == (ja,)
     assert o.front_period == pytest.approx(0.25)
+
+
+def test_without_route_the_lookahead_covers_every_branch_of_the_next_junction():
+    from client_fixtures import tee
+
+    topo = tee(arm=100.0, junction_radius=10.0)  # edges 0: W->C, 1: C->E, 2: C->S
+    net = netview(topo)
+    path = Path(net, [(0, 1), (1, 1)])  # the junction rule predicts straight on
+    o = occupy(path, 50.0, 0.0, V, 0.0, 14.0, 7, known_until=0.0, margin=5.0, lookahead=150.0)
+    east, south = net.cell_at(1, 50.0), net.cell_at(2, 50.0)
+    assert east in o.cells and south in o.cells  # a tree: both ways on are covered
+    assert o.cover_end == pytest.approx(200.0)  # both branches covered to their (dead) ends
+    assert o.front_period == pytest.approx((200.0 - 55.0) / V)
+    tight = occupy(path, 50.0, 0.0, V, 0.0, 14.0, 7, known_until=0.0, margin=5.0)
+    assert south not in tight.cells and east not in tight.cells
