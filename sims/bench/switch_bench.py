@@ -617,8 +617,10 @@ def run(args, progress) -> dict[str, Any]:
                 out = subprocess.run([exe, "--version"], capture_output=True, text=True).stdout.strip()
                 p["redis_version"] = out
                 peer = _run_load(RedisDriver(rport), rproc, walkers_factory, view_cells, p, progress)
+            except (RuntimeError, OSError) as exc:
+                notes.append(f"redis run failed: {exc}")
             finally:
-                rproc.terminate()
+                rproc.kill()  # no graceful stop needed (no persistence); it may be busy flushing backlogs
                 rproc.wait(10)
     results = {k: ours[k] for k in ("updates_in_per_s", "deliveries_per_s", "latency_p50_ms", "latency_p99_ms",
                                     "cpu_s_per_million_deliveries", "rss_bytes_per_entity")}
