@@ -324,6 +324,10 @@ class Player:
                 self.dist_ema = g.distance
                 return "jump"
         s_meas = self._s_of(fix, s_pred, k_cur)
+        if abs(s_meas - s_pred) > placer.reacquire:
+            self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
+            self.last_fix = fix
+            return "jump"
         if reason is not None:
             self.recent_s.clear()
         self.recent_s.append(s_meas)
@@ -396,6 +400,8 @@ class Player:
         for k in order[:8]:
             de = path.edges[k]
             for node, keep in ((net.end_node(de), k + 1), (net.start_node(de), k)):
+                if abs(path.cum[keep] - s_pred) > 30.0 + self.etype.length:
+                    continue  # a joint far along the path (a loop): not where the entity is
                 if node in ends:
                     d = 1 if net.edge_from[fix.index] == node else -1
                     if keep > 0 and path.edges[keep - 1] == (fix.index, -d):
@@ -406,6 +412,8 @@ class Player:
                     self.path = Path(net, new)
                     self.pending = (-1, 0)
                     return True
+            if abs(path.cum[k + 1] - s_pred) > 30.0 + self.etype.length:
+                continue
             for mid in net.choices(de, self.etype.networks):
                 if net.end_node(mid) in ends:
                     node = net.end_node(mid)
