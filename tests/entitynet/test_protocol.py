@@ -65,7 +65,7 @@ def test_payload_from_encoded_matches_encode_payload():
     assert P.decode_payload(P.payload_from_encoded(enc), lim) == msgs
 
 
-@settings(max_examples=2000, deadline=None)
+@settings(max_examples=1000, deadline=None)
 @given(st.binary(max_size=200))
 def test_fuzz_payload_raises_only_protocol_error(data):
     try:
@@ -78,11 +78,11 @@ structured = st.recursive(
     st.none() | st.booleans() | st.integers(-(2**63), 2**64 - 1) | st.floats() | st.text(max_size=5)
     | st.binary(max_size=5),
     lambda ch: st.lists(ch, max_size=6) | st.dictionaries(st.text(max_size=3), ch, max_size=3),
-    max_leaves=20,
+    max_leaves=8,
 )
 
 
-@settings(max_examples=1500, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(st.lists(st.integers(1, 16) | st.integers(-2, 20), min_size=1, max_size=1).flatmap(
     lambda t: st.lists(structured, max_size=7).map(lambda rest: [t[0], *rest])), st.integers(1, 3))
 def test_fuzz_well_formed_msgpack_with_wrong_fields(msg, n):
