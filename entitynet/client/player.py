@@ -509,8 +509,9 @@ class Player:
             if moved:
                 if v_est > et.v_start:
                     return "start"
-                self.reposition = True  # still standing, just somewhere else: publish standing there
-                return "drift"
+                if v_est <= et.v_stop:
+                    self.reposition = True  # still standing, just somewhere else: publish standing there
+                return "drift"  # (creeping between v_stop and v_start: publish the slow motion)
             return self._expiry_or_heartbeat(t)
         ex, ey = self.estimate_xy()
         drift = math.hypot(gx - ex, gy - ey)
