@@ -15,8 +15,9 @@ expire, at the price of deliveries to viewers who see those cells before the ent
 
 Where the path ahead is not known (no route), the reference's tight occupation may only reach past the next
 choice node as far as every branch stays in the junction cell (the front period is the minimum over the
-branches). With a lookahead the occupation becomes a tree: every branch at that node is covered to its first
-cell boundary beyond the lookahead, and the front period ends when the shortest branch cover runs out.
+branches). With a lookahead the occupation becomes a tree: every way on from that node, through further
+junctions, is covered to its first cell boundary beyond `branch_depth` metres (default 40), and the front
+period ends when the shortest branch of the tree runs out.
 """
 
 from __future__ import annotations
@@ -74,26 +75,49 @@ def choice_node(path: Path, s_front: float, networks: int, known_until: float) -
     return None
 
 
-def branch_cover(path: Path, k: int, depth: float, networks: int) -> tuple[list[int], float]:
-    """Cells of every way on from the end node of path edge k, each down to the first cell boundary beyond
-    `depth` metres (or its end node), and the shortest such covered length."""
+def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int = 48,
+                 max_edges: int = 64) -> tuple[list[int], float]:
+    """Cells of every way on from the end node of path edge k, through further junctions, each way down to
+    its first cell boundary beyond `depth` metres from the node (a tree; dead ends bound nothing). Returns the
+    cells and the shortest covered distance (where the first uncovered cell could be entered)."""
     net = path.net
     de = path.edges[k]
     cells: list[int] = []
-    shortest = INF
     node = net.end_node(de)
     if net.node_area[node] >= 0:
         cells.append(net.area_cell[net.node_area[node]])
-    for cand in net.choices(de, networks):
-        end = net.edge_len[cand[0]]
+    shortest = INF
+    queue = [(cand, 0.0) for cand in net.choices(de, networks)]
+    seen = {de}
+    edges = 0
+    while queue:
+        cand, d0 = queue.pop(0)
+        if cand in seen:
+            continue
+        seen.add(cand)
+        edges += 1
+        if edges > max_edges or len(cells) >= max_cells:
+            shortest = min(shortest, d0)  # budget spent: nothing beyond here is covered
+            continue
+        leaf = None
         for a0, _b0, c in net.pieces(*cand):
-            if a0 > depth:
-                end = a0
+            if d0 + a0 > depth:
+                leaf = d0 + a0
                 break
             if c not in cells:
                 cells.append(c)
-        shortest = min(shortest, end)
-    return cells, (0.0 if shortest == INF else shortest)
+        if leaf is not None:
+            shortest = min(shortest, leaf)
+            continue
+        d1 = d0 + net.edge_len[cand[0]]
+        if net.node_area[net.end_node(cand)] >= 0:
+            c = net.area_cell[net.node_area[net.end_node(cand)]]
+            if c not in cells:
+                cells.append(c)
+            shortest = min(shortest, d1)  # into an area: the area cell is covered, not beyond
+            continue
+        queue.extend((nxt, d1) for nxt in net.choices(cand, networks))
+    return cells, (0.0 if shortest == INF and not cells else shortest)
 
 
 def occupy(
@@ -113,6 +137,7 @@ def occupy(
     min_validity: float = 0.5,
     dead_end_at_path_end: bool = False,
     travel: Callable[[float], float] | None = None,
+    branch_depth: float = 40.0,
 ) -> Occupation:
     """Occupation of an entity moving along `path` with front at `s_front`, modelled by (v, a, vmax).
 
@@ -143,7 +168,7 @@ def occupy(
         for _sa, c in path.starts_in(min(reach, s_node), s_node):
             if c not in cells:
                 cells.append(c)
-        extra, shortest = branch_cover(path, k, want - s_node, networks)
+        extra, shortest = branch_cover(path, k, min(want - s_node, max(branch_depth, reach - s_node)), networks)
         for c in extra:
             if c not in cells:
                 cells.append(c)

@@ -132,7 +132,11 @@ def test_without_route_the_lookahead_covers_every_branch_of_the_next_junction():
     o = occupy(path, 50.0, 0.0, V, 0.0, 14.0, 7, known_until=0.0, margin=5.0, lookahead=150.0)
     east, south = net.cell_at(1, 50.0), net.cell_at(2, 50.0)
     assert east in o.cells and south in o.cells  # a tree: both ways on are covered
-    assert o.cover_end == pytest.approx(200.0)  # both branches covered to their (dead) ends
-    assert o.front_period == pytest.approx((200.0 - 55.0) / V)
+    assert math.isinf(o.front_period)  # both branches covered to their dead ends: it cannot leave them
+    shallow = occupy(path, 50.0, 0.0, V, 0.0, 14.0, 7, known_until=0.0, margin=5.0, lookahead=150.0,
+                     branch_depth=5.0)
+    assert east not in shallow.cells and south not in shallow.cells  # only the junction cell past the node
+    assert shallow.cover_end == pytest.approx(110.0)  # where both branches leave the junction cell
+    assert shallow.front_period == pytest.approx((110.0 - 55.0) / V)
     tight = occupy(path, 50.0, 0.0, V, 0.0, 14.0, 7, known_until=0.0, margin=5.0)
     assert south not in tight.cells and east not in tight.cells
