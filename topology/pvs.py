@@ -235,11 +235,13 @@ def _sweep_chunk(args: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]) -> tupl
         invt = inv.ravel().take(tpos)
         lab0 = lab0[tpos]
         more = []  # overlapping cells: (positions in tpos-space, their labels)
-        for lay in labels[1:]:
-            lab = lay.take(pix_t)
-            sub = np.flatnonzero(lab != n_cells)
-            if len(sub):
-                more.append((sub, lab[sub]))
+        if len(labels) > 1:
+            sub0 = np.flatnonzero(labels[1].take(pix_t) != n_cells)
+            for lay in labels[1:]:
+                lab = lay.take(pix_t[sub0])
+                keep = lab != n_cells
+                if keep.any():
+                    more.append((sub0[keep], lab[keep]))
         for iz in range(nz):
             if not levels_mask[i, iz]:
                 continue
@@ -554,6 +556,9 @@ class PvsIndex:
         self._cache: dict[int, np.ndarray] = {}
         self._cache_size = int(cache_size)
         self._resolve = _resolve_grid(grid.index)
+        # flat Python lists: scalar indexing of a list is several times faster than of a numpy array
+        self._own_flat = grid.index.ravel().tolist()
+        self._resolve_flat = self._resolve.ravel().tolist()
         self._x0, self._y0, self._size = float(grid.x0), float(grid.y0), float(grid.size)
         self._nx, self._ny, self._nz = grid.nx, grid.ny, grid.nz
 
@@ -586,12 +591,12 @@ class PvsIndex:
     def view_cell_of(self, x: float, y: float, z: float) -> int:
         """The view cell holding the (clamped) position, or -1 if that grid cell is inside a building."""
         iz, iy, ix = self._grid_cell(x, y, z)
-        return int(self.grid.index[iz, iy, ix])
+        return self._own_flat[(iz * self._ny + iy) * self._nx + ix]
 
     def lookup_cell(self, x: float, y: float, z: float) -> int:
         """The view cell whose PVS answers for the position (see the class docstring); -1 only without any."""
         iz, iy, ix = self._grid_cell(x, y, z)
-        return int(self._resolve[iz, iy, ix])
+        return self._resolve_flat[(iz * self._ny + iy) * self._nx + ix]
 
     def pvs(self, view_cell: int) -> np.ndarray:
         """Sorted int32 ids of the visibility cells visible from the view cell (read-only, cached)."""

@@ -30,9 +30,9 @@ EPS = 1e-9
 
 @dataclass(frozen=True)
 class ReferenceConfig:
-    eyes_xy: int = 4  # eye lattice points per side of the cube
-    eyes_z: int = 3  # eye lattice levels (bottom, ..., top of the cube)
-    target_spacing: float = 3.0  # metres between target points over a footprint
+    eyes_xy: int = 3  # eye lattice points per side of the cube
+    eyes_z: int = 2  # eye lattice levels (bottom, ..., top of the cube)
+    target_spacing: float = 4.0  # metres between target points over a footprint
     target_levels: tuple[float, ...] = (0.5, 1.0)  # target heights as fractions of the cell height
 
 
@@ -70,7 +70,7 @@ class Scene:
         out[ip[below]] = True
         return out
 
-    def blocked_from(self, eye: np.ndarray, targets: np.ndarray, max_pairs: int = 4_000_000) -> np.ndarray:
+    def blocked_from(self, eye: np.ndarray, targets: np.ndarray, max_pairs: int = 400_000) -> np.ndarray:
         """For the segments eye -> targets[i]: does the segment pass through the interior of a prism?
 
         A segment enters a prism's interior either through a wall below the roof (a proper crossing of a
@@ -94,9 +94,23 @@ class Scene:
         wl = np.hypot(w[:, 0], w[:, 1])
         cross_pw = p[:, 0] * w[:, 1] - p[:, 1] * w[:, 0]  # 0 when the edge line passes through the eye
         ok = (np.abs(cross_pw) > 1e-9 * np.maximum(wl, 1.0)) & (self.h > min(ez, float(targets[:, 2].min())))
+        on_line = ~(np.abs(cross_pw) > 1e-9 * np.maximum(wl, 1.0))
+        if on_line.any():
+            # the eye lies on a footprint's boundary: a sight line may leave it straight into the interior
+            # (then it enters through no edge); test a point just past the eye
+            tpar = -(p[on_line] * w[on_line]).sum(1) / np.maximum(wl[on_line] ** 2, 1e-300)
+            if ((tpar >= -1e-9) & (tpar <= 1 + 1e-9)).any():
+                delta = 1e-5 / np.maximum(length, 1e-300)
+                probe = np.column_stack([ex + delta * d[:, 0], ey + delta * d[:, 1], ez + delta * (targets[:, 2] - ez)])
+                out |= self.inside(probe[:, 0], probe[:, 1], probe[:, 2]) & (length > 1e-9)
         edges = np.flatnonzero(ok)
         if len(edges) == 0:
             return out
+        # nearest edges first: most blocked targets are blocked near the eye and then drop out of later pairs
+        pe = p[edges]
+        we = w[edges]
+        tt = np.clip(-(pe * we).sum(1) / np.maximum(wl[edges] ** 2, 1e-300), 0.0, 1.0)
+        edges = edges[np.argsort(np.hypot(pe[:, 0] + tt * we[:, 0], pe[:, 1] + tt * we[:, 1]))]
         fa = np.arctan2(p[edges, 1], p[edges, 0])
         fb = np.arctan2(q[edges, 1], q[edges, 0])
         span = (fb - fa + np.pi) % (2 * np.pi) - np.pi
@@ -110,10 +124,10 @@ class Scene:
         wrap = a1 > np.pi  # the part of the span past +pi continues from -pi
         lo2 = np.zeros_like(lo)
         hi2 = np.where(wrap, np.searchsorted(phis, a1 - 2 * np.pi, "right"), 0)
-        e_all = np.concatenate([edges, edges])
-        lo_all = np.concatenate([lo, lo2])
-        cnt = np.concatenate([hi - lo, hi2 - lo2])
-        dmin_all = np.concatenate([dmin, dmin])
+        e_all = np.stack([edges, edges], axis=1).ravel()
+        lo_all = np.stack([lo, lo2], axis=1).ravel()
+        cnt = np.stack([hi - lo, hi2 - lo2], axis=1).ravel()
+        dmin_all = np.stack([dmin, dmin], axis=1).ravel()
         blocked = out.copy()
         # chunk the pair expansion to bound memory
         csum = np.cumsum(cnt)

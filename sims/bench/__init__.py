@@ -8,4 +8,5 @@ SUITES = {
     "topology": "sims.bench.topology_bench",
     "dr": "sims.bench.dr_bench",
     "switch": "sims.bench.switch_bench",
+    "pvs": "sims.bench.pvs_bench",
 }
