@@ -581,11 +581,12 @@ class PvsIndex:
         return cls(result.grid, codec, result.n_cells, result.config.view_distance)
 
     def _grid_cell(self, x: float, y: float, z: float) -> tuple[int, int, int]:
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            raise ValueError(f"position must be finite, got ({x}, {y}, {z})")
-        ix = min(max(int(math.floor((x - self._x0) / self._size)), 0), self._nx - 1)
-        iy = min(max(int(math.floor((y - self._y0) / self._size)), 0), self._ny - 1)
-        iz = min(max(int(math.floor(z / self._size)), 0), self._nz - 1)
+        try:  # math.floor raises for NaN (ValueError) and infinities (OverflowError): no extra checks
+            ix = min(max(math.floor((x - self._x0) / self._size), 0), self._nx - 1)
+            iy = min(max(math.floor((y - self._y0) / self._size), 0), self._ny - 1)
+            iz = min(max(math.floor(z / self._size), 0), self._nz - 1)
+        except (ValueError, OverflowError, TypeError):
+            raise ValueError(f"position must be finite numbers, got ({x!r}, {y!r}, {z!r})") from None
         return iz, iy, ix
 
     def view_cell_of(self, x: float, y: float, z: float) -> int:

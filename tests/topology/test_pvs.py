@@ -129,8 +129,9 @@ def test_cell_at_the_edge_of_the_map_and_clamping():
     assert idx.view_cell_of(-500, -500, -20) == corner  # clamped into the grid
     assert idx.cells_at(-500, -500, -20).tolist() == [0]
     assert idx.view_cell_of(1, 1, 1e6) == idx.view_cell_of(1, 1, 99)
-    with pytest.raises(ValueError):
-        idx.cells_at(float("nan"), 0, 0)
+    for bad in [(float("nan"), 0, 0), (0, float("inf"), 0), (0, 0, -float("inf"))]:
+        with pytest.raises(ValueError):
+            idx.cells_at(*bad)
 
 
 def test_agrees_with_the_exact_reference_on_a_synthetic_city():
