@@ -16,12 +16,14 @@ expire, at the price of deliveries to viewers who see those cells before the ent
 Where the path ahead is not known (no route), the reference's tight occupation may only reach past the next
 choice node as far as every branch stays in the junction cell (the front period is the minimum over the
 branches). With a lookahead the occupation becomes a tree: every way on from that node, through further
-junctions, is covered to its first cell boundary beyond `branch_depth` metres (default 40), and the front
+junctions, is covered to its first cell boundary `branch_depth` metres (default 40) beyond the body and its
+margin, and the front
 period ends when the shortest branch of the tree runs out.
 """
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -87,11 +89,13 @@ def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int
     if net.node_area[node] >= 0:
         cells.append(net.area_cell[net.node_area[node]])
     shortest = INF
-    queue = [(cand, 0.0) for cand in net.choices(de, networks)]
+    # nearest first (Dijkstra order), so that when the cell budget runs out the tree is cut at its far end
+    queue = [(0.0, cand) for cand in net.choices(de, networks)]
+    heapq.heapify(queue)
     seen = {de}
     edges = 0
     while queue:
-        cand, d0 = queue.pop(0)
+        d0, cand = heapq.heappop(queue)
         if cand in seen:
             continue
         seen.add(cand)
@@ -116,7 +120,8 @@ def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int
                 cells.append(c)
             shortest = min(shortest, d1)  # into an area: the area cell is covered, not beyond
             continue
-        queue.extend((nxt, d1) for nxt in net.choices(cand, networks))
+        for nxt in net.choices(cand, networks):
+            heapq.heappush(queue, (d1, nxt))
     return cells, (0.0 if shortest == INF and not cells else shortest)
 
 
@@ -168,7 +173,8 @@ def occupy(
         for _sa, c in path.starts_in(min(reach, s_node), s_node):
             if c not in cells:
                 cells.append(c)
-        extra, shortest = branch_cover(path, k, min(want - s_node, max(branch_depth, reach - s_node)), networks)
+        depth = min(want - s_node, max(reach - s_node, 0.0) + branch_depth)
+        extra, shortest = branch_cover(path, k, depth, networks)
         for c in extra:
             if c not in cells:
                 cells.append(c)

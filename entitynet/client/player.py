@@ -604,8 +604,10 @@ class Player:
         if self.mode == "area":
             x, y = ghost.xy_at(t) if isinstance(ghost, AreaModel) else self.estimate_xy()
             vx, vy = (ghost.vx, ghost.vy) if isinstance(ghost, AreaModel) else (0.0, 0.0)
+            # the strip outside the area is covered by the lateral cells below, so the period only keeps
+            # the GPS accuracy as its margin (a large drift threshold would otherwise make it vanish)
             occ = occupy_area(x, y, vx, vy, self.placer.ring(self.area), self.net.area_cell[self.area],
-                              margin=self.margin, max_validity=self.max_validity)
+                              margin=min(self.margin, self.accuracy), max_validity=self.max_validity)
             if self.lateral > 0.0:
                 # ways crossing or skirting the area: under GPS noise the entity may be on one of them
                 cells = list(occ.cells)
