@@ -49,11 +49,11 @@ MAX_LABEL_LAYERS = 8  # how many overlapping visibility cells one target pixel c
 
 ALGORITHM = "2.5D radial horizon sweeps from top-face viewpoint lattices over an eroded height raster"
 
-#: quality presets: (raster metres, samples per side of the top face, shrink metres, ray spacing factor)
+#: quality presets (see PvsConfig for the fields)
 QUALITY: dict[str, dict[str, float]] = {
-    "fast": {"raster": 3.0, "samples": 2, "shrink": 3.0, "ray_spacing": 2.0},
-    "default": {"raster": 2.0, "samples": 2, "shrink": 3.0, "ray_spacing": 1.5},
-    "high": {"raster": 2.0, "samples": 3, "shrink": 2.0, "ray_spacing": 1.5},
+    "fast": {"raster": 3.0, "samples": 2, "shrink": 3.0, "ray_spacing": 2.0, "far_step_from": 150.0},
+    "default": {"raster": 2.0, "samples": 2, "shrink": 3.0, "ray_spacing": 2.0, "far_step_from": 200.0},
+    "high": {"raster": 2.0, "samples": 3, "shrink": 2.0, "ray_spacing": 1.5, "far_step_from": 1e9},
 }
 
 
@@ -65,7 +65,8 @@ class PvsConfig:
     raster: float = 2.0  # height-field pixel (m)
     samples: int = 2  # eye points per side of each view cell's top face (lattice shared by neighbours)
     shrink: float = 3.0  # occluder erosion (m), see module docstring
-    ray_spacing: float = 1.5  # ray spacing at the far end, in raster pixels (sets the number of rays)
+    ray_spacing: float = 2.0  # ray spacing at the far end, in raster pixels (sets the number of rays)
+    far_step_from: float = 200.0  # beyond this distance (m) rays step two pixels at a time
     workers: int = 2  # processes (fork); 1 = in-process
     quality: str = "default"
 
@@ -79,7 +80,7 @@ class PvsConfig:
         return cls(quality=quality, **preset)
 
     def validate(self) -> None:
-        for name in ("cell_size", "max_height", "view_distance", "raster", "ray_spacing"):
+        for name in ("cell_size", "max_height", "view_distance", "raster", "ray_spacing", "far_step_from"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"PVS {name} must be a positive finite number, got {v!r}")
@@ -334,9 +335,14 @@ def compute_pvs(
 
     # ray fan: offsets in flat pixels and 1/s per (ray, step)
     R = cfg.n_rays
-    S = int(math.ceil(reach / px))
+    # steps of one pixel near the eye, two pixels beyond `far_step_from` (targets are cells many metres wide;
+    # a thin occluder skipped far away costs a false positive, not a false negative)
+    near = min(reach, cfg.far_step_from)
+    s = (np.arange(int(math.ceil(near / px))) + 0.5) * px
+    if reach > near:
+        s = np.concatenate([s, s[-1] + 2 * px * (np.arange(int(math.ceil((reach - s[-1]) / (2 * px)))) + 1)])
+    S = len(s)
     ang = (np.arange(R) + 0.5) * (2.0 * np.pi / R)
-    s = (np.arange(S) + 0.5) * px
     dc = np.floor(np.outer(np.cos(ang), s) / px + 0.5).astype(np.int64)
     dr = np.floor(np.outer(np.sin(ang), s) / px + 0.5).astype(np.int64)
     off = (dr * cols + dc).astype(np.int64)
