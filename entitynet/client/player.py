@@ -106,6 +106,7 @@ class Player:
         self.filter_q = self.etype.jerk_q if filter_q is None else float(filter_q)
         self.filter_accel = self.etype.accel if filter_accel is None else bool(filter_accel)
         self.reverse_count = 0
+        self.dead_end: DirEdge | None = None
         self.dist_ema = 0.0
         self.reposition = False
         self.lateral = 2.0 * accuracy if lateral is None else float(lateral)
@@ -434,13 +435,15 @@ class Player:
                 kf.shift(shift)
                 self.recent_s = [x - shift for x in self.recent_s]
         need = kf.s + self.lookahead + self.margin + 80.0 + 15.0 * max(kf.v, 0.0)
-        if path.length < need and len(path.edges) < MAX_PATH_EDGES:
+        if path.length < need and len(path.edges) < MAX_PATH_EDGES and path.edges[-1] != self.dead_end:
             last = path.edges[-1]
             ri = self._route_index(last)
             ahead = follow(self.net, last, self.etype.networks, need - path.length, self.route, ri,
                            max_edges=MAX_PATH_EDGES - len(path.edges))
             if ahead:
                 self.path = path.extended(ahead)
+            else:
+                self.dead_end = last  # nothing follows this edge: do not ask again every fix
 
     def _next_stop(self, path: Path, s: float, v: float) -> float:
         """Path coordinate of the next known stop on the a-priori route ahead (inf if none known)."""
