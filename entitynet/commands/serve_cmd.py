@@ -50,4 +50,12 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(str(exc)) from None
     except OSError as exc:
         raise CommandError(f"cannot listen: {exc}") from None
+    except BaseExceptionGroup as group:
+        bind = group.subgroup(lambda e: isinstance(e, OSError))
+        if bind is None:
+            raise
+        first = bind
+        while isinstance(first, BaseExceptionGroup):
+            first = first.exceptions[0]
+        raise CommandError(f"cannot listen: {first}") from None
     return 0

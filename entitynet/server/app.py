@@ -424,8 +424,9 @@ async def serve(config: ServerConfig, *, task_status=trio.TASK_STATUS_IGNORED) -
 
 async def serve_until_signal(config: ServerConfig) -> None:
     """`entitynet serve`: run until SIGINT/SIGTERM, then shut down gracefully."""
+    server = Server(config)  # configuration errors surface here, outside any nursery
     async with trio.open_nursery() as nursery:
-        server: Server = await nursery.start(serve, config)
+        await nursery.start(server.run)
         with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
             async for signum in signals:
                 logs.event("signal", signal=signal.Signals(signum).name)
