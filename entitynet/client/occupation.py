@@ -181,8 +181,8 @@ def occupy(
         cover_end = s_node + shortest
     else:
         target = reach if tight else min(want, end_known)
-        ahead = path.boundaries_after(target, end_known)
-        cover_end = ahead[0][0] if ahead else end_known
+        nxt = path.first_boundary_after(target, end_known)
+        cover_end = nxt if nxt is not None else end_known
         # cells of [start, cover_end): the cell starting exactly at cover_end is not covered
         cells = path.cells_between(start, reach)
         for sa, c in path.starts_in(reach, cover_end):
@@ -194,9 +194,9 @@ def occupy(
         front = travel(cover_end - reach)
     aft = INF
     if tight:
-        behind = path.boundaries_after(start, end_known)
-        if behind:
-            aft = travel(behind[0][0] - start)
+        behind = path.first_boundary_after(start, end_known)
+        if behind is not None:
+            aft = travel(behind - start)
     validity = max(min(front, aft, max_validity), min_validity)
     return Occupation(tuple(cells), validity, front, aft, start, cover_end)
 

@@ -98,6 +98,22 @@ class Path:
         c0 = self.cum[k]
         return Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
 
+    def first_boundary_after(self, s: float, limit: float) -> float | None:
+        """The first cell change in (s, min(limit, length)], or None (stops at the first one found)."""
+        prev = self.cell(s)
+        limit = min(limit, self.length)
+        k = self.index(s)
+        while k < len(self.edges) and self.cum[k] <= limit:
+            base = self.cum[k]
+            for a, _b, c in self.net.pieces(*self.edges[k]):
+                sa = base + a
+                if sa > limit:
+                    return None
+                if sa > s and c != prev:
+                    return sa
+            k += 1
+        return None
+
     def extended(self, ahead: Sequence[DirEdge]) -> Path:
         """This path plus `ahead`; only the new joints are checked."""
         net = self.net
