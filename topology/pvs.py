@@ -554,7 +554,7 @@ class PvsIndex:
     coordinates raise ValueError.
     """
 
-    def __init__(self, grid: ViewGrid, codec: Any, n_cells: int, view_distance: float, cache_size: int = 8192):
+    def __init__(self, grid: ViewGrid, codec: Any, n_cells: int, view_distance: float, cache_size: int = 1 << 16):
         self.grid = grid
         self.codec = codec
         self.n_cells = int(n_cells)
@@ -612,7 +612,7 @@ class PvsIndex:
             return hit
         if view_cell < 0:
             return np.zeros(0, np.int32)
-        ids = self.codec.decode(view_cell).astype(np.int32)
+        ids = self.codec.decode(view_cell, self.n_cells).astype(np.int32)
         ids.flags.writeable = False
         if len(self._cache) >= self._cache_size:
             self._cache.clear()

@@ -48,14 +48,21 @@ class EncodedPvs:
     def nbytes(self) -> int:
         return sum(int(a.nbytes) for a in self.arrays().values())
 
-    def decode(self, view_cell: int) -> np.ndarray:
-        """The sorted cell ids of one view cell."""
+    def decode(self, view_cell: int, n_cells: int | None = None) -> np.ndarray:
+        """The sorted cell ids of one view cell: the root's list with the difference toggled.
+
+        With `n_cells` the toggling runs on a boolean mask (a few microseconds); without it, a sorted xor."""
         r = int(self.ref[view_cell])
         root = self.root_ids[self.root_offsets[r] : self.root_offsets[r + 1]]
         d = self.delta_ids[self.delta_offsets[view_cell] : self.delta_offsets[view_cell + 1]]
         if len(d) == 0:
             return root
-        return np.setxor1d(root, d, assume_unique=True)
+        if n_cells is None:
+            return np.setxor1d(root, d, assume_unique=True)
+        mask = np.zeros(n_cells, dtype=bool)
+        mask[root] = True
+        mask[d] ^= True
+        return np.flatnonzero(mask)
 
 
 def id_dtype(n_cells: int) -> type:
