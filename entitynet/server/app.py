@@ -303,8 +303,8 @@ class Server:
         payload = P.payload_from_encoded(msgs)
         self.written += len(msgs)  # pushed to the Prometheus counters by the housekeeping task
         self.frames += 1
-        if conn.fd is None:
-            data = payload  # WebSocket/TLS: the writer task frames and sends
+        if conn.fd is None:  # WebSocket (one message per payload) or TLS (framed): the writer task sends
+            data = payload if conn.kind == "ws" else P.frame(payload)
         else:
             data = P.frame(payload)
             try:

@@ -91,3 +91,39 @@ def test_config_errors(tmp_path):
         Server(ServerConfig(port=0, topology=str(tmp_path / "missing.enttopo"), open_mode=True))
     with pytest.raises(ConfigError):
         Server(ServerConfig(port=0, digest="d", n_cells=1, open_mode=True, tls_cert="x.pem"))
+
+
+def test_serve_command_reports_bad_topology_cleanly(tmp_path):
+    from entitynet.cli import main
+
+    assert main(["serve", "--topology", str(tmp_path / "missing.enttopo"), "--open"]) == 2
+
+
+async def test_tls_listener(tmp_path):
+    import shutil
+    import ssl
+    import subprocess
+
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not available to make a test certificate")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out",
+                    str(cert), "-days", "1", "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost"],
+                   check=True, capture_output=True)
+    from entitynet.connection import Connection
+
+    ctx = ssl.create_default_context(cafile=str(cert))
+    async with running(tls_cert=str(cert), tls_key=str(key)) as server, trio.open_nursery() as n:
+        seen = []
+        view = Connection(("localhost", server.port), DIGEST, ssl_context=ctx,
+                          on_message=lambda m: isinstance(m, P.Update) and seen.append(m))
+        await view.subscribe((1,))
+        await n.start(view.run)
+        pub = Connection(("localhost", server.port), DIGEST, ssl_context=ctx)
+        await n.start(pub.run)
+        await pub.publish(P.Publish(1, 1, (1,), 1000, b"tls"))
+        with trio.fail_after(5):
+            while not seen:
+                await trio.sleep(0.01)
+        assert seen[0].payload == b"tls"
+        n.cancel_scope.cancel()
