@@ -41,14 +41,24 @@ class Path:
     def index(self, s: float) -> int:
         """Index of the edge holding s (clamped to the path)."""
         k = bisect_right(self.cum, s) - 1
-        return min(max(k, 0), len(self.edges) - 1)
+        if k < 0:
+            return 0
+        n = len(self.edges)
+        return k if k < n else n - 1
 
     def locate(self, s: float) -> tuple[int, float]:
         """(edge, offset on that edge) at path coordinate s, clamped to the path."""
-        k = self.index(s)
-        de = self.edges[k]
-        d = min(max(s - self.cum[k], 0.0), self.net.edge_len[de[0]])
-        return de[0], (d if de[1] > 0 else self.net.edge_len[de[0]] - d)
+        cum = self.cum
+        k = bisect_right(cum, s) - 1
+        if k < 0:
+            k = 0
+        elif k >= len(self.edges):
+            k = len(self.edges) - 1
+        e, d_ = self.edges[k]
+        length = self.net.edge_len[e]
+        d = s - cum[k]
+        d = 0.0 if d < 0.0 else (length if d > length else d)
+        return e, (d if d_ > 0 else length - d)
 
     def xy(self, s: float) -> tuple[float, float]:
         e, off = self.locate(s)

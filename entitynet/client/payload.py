@@ -41,6 +41,12 @@ def _q(x: float, scale: float) -> int:
     return int(round(x * scale))
 
 
+def encode_quantized(model: Model) -> tuple[bytes, Model]:
+    """The payload and the model it decodes to, quantising once (the player's hot path)."""
+    q = quantized(model)
+    return encode(q), q
+
+
 def encode(model: Model) -> bytes:
     t0 = _q(model.t0, 1000.0)
     if isinstance(model, NetworkModel):

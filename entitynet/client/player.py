@@ -29,7 +29,7 @@ from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
 from entitynet.client.occupation import Occupation, occupy, occupy_area
 from entitynet.client.path import Path, follow
-from entitynet.client.payload import encode, quantized
+from entitynet.client.payload import encode_quantized
 from entitynet.client.placement import Fix, Placer
 from entitynet.protocol import Publish, Unpublish
 
@@ -106,6 +106,7 @@ class Player:
         self.filter_q = self.etype.jerk_q if filter_q is None else float(filter_q)
         self.filter_accel = self.etype.accel if filter_accel is None else bool(filter_accel)
         self.reverse_count = 0
+        self._ku_memo: tuple[Path, int, float] | None = None
         self.dead_end: DirEdge | None = None
         self.dist_ema = 0.0
         self.reposition = False
@@ -267,7 +268,8 @@ class Player:
             return "path"
         # on an edge
         path, kf = self.path, self.kf
-        s_pred = kf.state_at(t)[0]
+        dt = t - kf.t if t > kf.t else 0.0
+        s_pred = kf.s + kf.v * dt + 0.5 * kf.a * dt * dt
         k_cur = path.index(s_pred)
         e_cur = path.edges[k_cur][0]
         net = self.net
@@ -464,14 +466,22 @@ class Player:
         return self.route_first.get(de)
 
     def _known_until(self, path: Path, s: float) -> float:
+        """Path coordinate up to which the path follows the a-priori route from the edge holding s."""
         if not self.route:
             return 0.0
-        k = path.index(s)
+        k0 = path.index(s)
+        memo = self._ku_memo
+        if memo is not None and memo[0] is path and memo[1] == k0:
+            return memo[2]
+        k = k0
         if path.edges[k] not in self.route_first:
-            return 0.0
-        while k + 1 < len(path.edges) and (path.edges[k], path.edges[k + 1]) in self.route_pairs:
-            k += 1
-        return path.cum[k + 1]
+            out = 0.0
+        else:
+            while k + 1 < len(path.edges) and (path.edges[k], path.edges[k + 1]) in self.route_pairs:
+                k += 1
+            out = path.cum[k + 1]
+        self._ku_memo = (path, k0, out)
+        return out
 
     def _area_update(self, x: float, y: float, t: float, r: float) -> None:
         if self.model == "network":
@@ -506,9 +516,12 @@ class Player:
             moved = False
             for n, limit in ((5, self.threshold), (2, 1.6 * self.threshold)):
                 pts = self.recent[-n:]
-                mx = sum(p[0] for p in pts) / len(pts)
-                my = sum(p[1] for p in pts) / len(pts)
-                moved = moved or math.hypot(mx - gx, my - gy) > limit
+                mx = my = 0.0
+                for px, py in pts:
+                    mx += px
+                    my += py
+                m = len(pts)
+                moved = moved or math.hypot(mx / m - gx, my / m - gy) > limit
             if moved:
                 if v_est > et.v_start:
                     return "start"
@@ -541,8 +554,7 @@ class Player:
             self._maintain_path()
         model = self._build_model(t, from_ghost)
         self.reposition = False
-        payload = encode(model)
-        ghost = quantized(model)  # == decode(payload, net), without the round trip
+        payload, ghost = encode_quantized(model)  # ghost == decode(payload, net), without the round trip
         self.ghost = ghost
         self.occupation = self._occupation(t, ghost)
         self.pub_t = t

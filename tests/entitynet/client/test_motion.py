@@ -88,3 +88,4 @@ def test_quantized_equals_the_decoded_payload():
     ]
     for m in models:
         assert quantized(m) == decode(encode(m), net)
+        assert encode(quantized(m)) == encode(m)  # quantising is idempotent: the payload of the ghost
