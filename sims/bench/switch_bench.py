@@ -44,8 +44,10 @@ from entitynet import protocol as P
 PAYLOAD = struct.Struct("<dII")  # send time, loadgen entity id, seq  (+ padding: a dead-reckoning model)
 PAD = b"\x00" * 32
 TICK = 0.005
-LAT_BIN = 1e-4  # latency histogram bin: 0.1 ms
-LAT_BINS = 50_001  # up to 5 s; the last bin holds everything slower
+LAT_BIN = 1e-4  # latency histogram: 0.1 ms bins up to 5 s ...
+LAT_FINE = 50_000
+LAT_COARSE = 0.01  # ... then 10 ms bins up to 120 s; the last bin holds everything slower
+LAT_BINS = LAT_FINE + 11_501
 
 
 # ---------------------------------------------------------------------------------------------- workload
@@ -183,7 +185,9 @@ class Tally:
         n_new = int(new.sum())
         if n_new:
             self.count += n_new
-            b = ((t_recv[new] - t_sent[new]) / LAT_BIN).astype(np.int64)
+            lat = np.maximum(t_recv[new] - t_sent[new], 0.0)
+            b = np.where(lat < LAT_FINE * LAT_BIN, lat / LAT_BIN,
+                         LAT_FINE + (lat - LAT_FINE * LAT_BIN) / LAT_COARSE).astype(np.int64)
             np.clip(b, 0, LAT_BINS - 1, out=b)
             self.hist += np.bincount(b, minlength=LAT_BINS)
 
@@ -192,7 +196,9 @@ class Tally:
         if not total:
             return None
         b = int(np.searchsorted(np.cumsum(self.hist), q * total))
-        return (b + 0.5) * LAT_BIN * 1000.0
+        if b < LAT_FINE:
+            return (b + 0.5) * LAT_BIN * 1000.0
+        return (LAT_FINE * LAT_BIN + (b - LAT_FINE + 0.5) * LAT_COARSE) * 1000.0
 
 
 class Scanner:
