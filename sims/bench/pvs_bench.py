@@ -260,6 +260,8 @@ def plot(report: dict, out: str) -> None:
         ax1.scatter(row["build_s"], 100 * row["fn_rate"], s=40)
         ax1.annotate(f"{row['setting']} (FP {100 * row['fp_rate']:.0f}%)", (row["build_s"], 100 * row["fn_rate"]),
                      textcoords="offset points", xytext=(5, 5))  # fmt: skip
+    ax1.axhline(1.0, ls="--", color="grey")
+    ax1.annotate("target: 1%", (0, 1.0), xycoords=("axes fraction", "data"), xytext=(5, 3), textcoords="offset points")
     ax1.set_xlabel(f"build time (s), {report['params']['table_window_m']:.0f} m window")
     ax1.set_ylabel("false negatives (% of visible pairs)")
     ax1.set_title("speed against error")

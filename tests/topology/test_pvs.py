@@ -188,6 +188,6 @@ def test_cli_options():
     add_pvs_arguments(p)
     cfg = pvs_config_from_args(p.parse_args(["--pvs-quality", "fast", "--view-distance", "300"]))
     assert cfg.quality == "fast" and cfg.view_distance == 300.0 and cfg.samples == 2
-    assert pvs_config_from_args(p.parse_args([])) == PvsConfig.from_quality("default")
+    assert pvs_config_from_args(p.parse_args([])) == PvsConfig.from_quality("default") == PvsConfig()
     with pytest.raises(SystemExit):
         p.parse_args(["--view-cell-size", "-3"])
