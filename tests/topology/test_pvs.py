@@ -8,6 +8,8 @@ import types
 import numpy as np
 import pytest
 import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from topology.polygons import Polygons
 from topology.pvs import PvsConfig, PvsIndex, add_pvs_arguments, compute_pvs, pvs_config_from_args
@@ -191,3 +193,28 @@ def test_cli_options():
     assert pvs_config_from_args(p.parse_args([])) == PvsConfig.from_quality("default") == PvsConfig()
     with pytest.raises(SystemExit):
         p.parse_args(["--view-cell-size", "-3"])
+
+
+@pytest.fixture(scope="module")
+def tower_city():
+    # a synthetic city plus a 150 m tower covering whole columns (a hole through the whole stack)
+    bf, bh, cf, ch, bounds = synthetic_city(2, 2, seed=9)
+    polys = list(bf.to_shapely()) + [shapely.box(100, 20, 140, 60)]
+    heights = np.concatenate([bh, [150.0]])
+    r = compute_pvs(Polygons.from_shapely(polys), heights, cf, ch, bounds, PvsConfig(**FAST, view_distance=120.0))
+    assert (r.grid.index < 0).all(axis=0).any()
+    return r, PvsIndex.from_result(r)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-100, 300), st.floats(-100, 300), st.floats(-50, 200))
+def test_lookup_anywhere_answers_a_kept_view_cell(tower_city, x, y, z):
+    r, idx = tower_city
+    own = idx.view_cell_of(x, y, z)
+    used = idx.lookup_cell(x, y, z)
+    assert -1 <= own < r.grid.n_view_cells and 0 <= used < r.grid.n_view_cells
+    if own >= 0:
+        assert used == own
+    cells = idx.cells_at(x, y, z)
+    assert cells.tolist() == r.pvs_of(used).tolist()
+    assert np.all(np.diff(cells) > 0) and (len(cells) == 0 or (cells[0] >= 0 and cells[-1] < r.n_cells))
