@@ -87,6 +87,7 @@ class Switchboard:
         self._dirty: set[int] = set()
         self._next_cid = 1
         self._rng = random.Random(config.seed)
+        self._shut = False
         self.stats: Counter[str] = Counter()
         self.errors: Counter[int] = Counter()
         self._start = now
@@ -107,6 +108,9 @@ class Switchboard:
         """The connection is gone: its entities leave at once (a reconnecting client re-publishes)."""
         c = self.clients.pop(cid, None)
         if c is None:
+            return
+        if self._shut:
+            self._states.pop(cid, None)
             return
         self._detach(c)
         self._states.pop(cid, None)
@@ -157,8 +161,19 @@ class Switchboard:
             self._error(c, err.code, err.text)
 
     def shutdown(self) -> None:
-        for c in list(self.clients.values()):
-            self._error(c, ErrorCode.SHUTTING_DOWN, "server shutting down")
+        """Tell every client SHUTTING_DOWN and stop forwarding. Tables are left as they are (not detached
+        client by client, which costs time proportional to all subscriptions): the switchboard is done."""
+        enc = P.encode_message(P.Error(int(ErrorCode.SHUTTING_DOWN), "server shutting down"))
+        for c in self.clients.values():
+            c.outbox.states.clear()
+            c.outbox.control.append(enc)
+            c.outbox.close_after = True
+            c.closing = True
+            self._dirty.add(c.cid)
+        self.errors[int(ErrorCode.SHUTTING_DOWN)] += len(self.clients)
+        self.subscribers.clear()
+        self.by_identity.clear()
+        self._shut = True
 
     # ------------------------------------------------------------------------------------------ messages in
     def receive(self, cid: int, msgs: list[P.Message], now: float) -> None:
