@@ -605,7 +605,7 @@ def run(args, progress) -> dict[str, Any]:
         finally:
             proc.send_signal(2)  # SIGINT: graceful shutdown (and a written profile)
             try:
-                proc.wait(10)
+                proc.wait(60 if prof else 10)
             except subprocess.TimeoutExpired:
                 proc.kill()
             log.close()
