@@ -209,12 +209,10 @@ def occupy_area(x: float, y: float, vx: float, vy: float, ring_xy, area_cell: in
     """
     import numpy as np
 
-    ring = np.asarray(ring_xy, dtype=np.float64)
-    p0, p1 = ring[:-1], ring[1:]
-    d = p1 - p0
-    l2 = np.einsum("ij,ij->i", d, d)
-    t = np.clip(((x - p0[:, 0]) * d[:, 0] + (y - p0[:, 1]) * d[:, 1]) / np.where(l2 > 0, l2, 1.0), 0.0, 1.0)
-    dist = float(np.min(np.hypot(p0[:, 0] + t * d[:, 0] - x, p0[:, 1] + t * d[:, 1] - y))) if len(d) else 0.0
+    from entitynet.client.placement import ring_distance
+
+    dist = ring_distance(np.asarray(ring_xy, dtype=np.float64), x, y)
+    dist = 0.0 if math.isinf(dist) else dist
     speed = math.hypot(vx, vy)
     period = time_to_travel(dist - margin, speed, 0.0, speed)
     validity = max(min(period, max_validity), min_validity)

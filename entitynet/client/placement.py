@@ -13,23 +13,26 @@ exactly on a vertex or equidistant to two edges always gets the same answer.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from entitynet.client.network import NetView
+from topology.placement_index import Placement
+
+# a placement result is the placement index's own record: kind "edge" (index = edge, offset along it) or
+# kind "area" (index = area); x, y the inferred point; distance from the fix
+Fix = Placement
 
 
-@dataclass(frozen=True, slots=True)
-class Fix:
-    """A placement result. kind "edge": (edge, offset); kind "area": (area, x, y). xy is the inferred point."""
-
-    kind: str
-    index: int
-    offset: float
-    x: float
-    y: float
-    distance: float
+def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
+    """Distance from (x, y) to a closed ring's boundary (vectorised over its segments)."""
+    p0, p1 = ring[:-1], ring[1:]
+    d = p1 - p0
+    if not len(d):
+        return math.inf
+    l2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
+    t = np.clip(((x - p0[:, 0]) * d[:, 0] + (y - p0[:, 1]) * d[:, 1]) / np.where(l2 > 0, l2, 1.0), 0.0, 1.0)
+    return float(np.min(np.hypot(p0[:, 0] + t * d[:, 0] - x, p0[:, 1] + t * d[:, 1] - y)))
 
 
 class _SegTable:
@@ -87,7 +90,7 @@ class Placer:
         p = self.topo.placement_index().place(x, y, self.networks)
         if p is None:
             return None
-        return Fix(p.kind, int(p.index), float(p.offset), float(p.x), float(p.y), float(p.distance))
+        return p
 
     # ---- continuity ----------------------------------------------------------------------------------------
     def table(self, edge: int) -> _SegTable:

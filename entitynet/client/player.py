@@ -21,8 +21,6 @@ import math
 from collections.abc import Sequence
 from dataclasses import replace
 
-import numpy as np
-
 from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
 from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
@@ -30,7 +28,7 @@ from entitynet.client.network import DirEdge, NetView, netview
 from entitynet.client.occupation import Occupation, occupy, occupy_area
 from entitynet.client.path import Path, follow
 from entitynet.client.payload import encode_quantized
-from entitynet.client.placement import Fix, Placer
+from entitynet.client.placement import Fix, Placer, ring_distance
 from entitynet.protocol import Publish, Unpublish
 
 MODELS = ("network", "fpw", "fvw", "periodic")
@@ -684,13 +682,7 @@ class Player:
                 if b0 >= lo and a0 <= hi and c not in out:
                     out.append(c)
         for area in self.placer.areas_near(x, y, self.lateral):  # an area next to the way: maybe inside it
-            ring = self.placer.ring(area)
-            p0, p1 = ring[:-1], ring[1:]
-            sd = p1 - p0
-            l2 = np.einsum("ij,ij->i", sd, sd)
-            w = np.clip(((x - p0[:, 0]) * sd[:, 0] + (y - p0[:, 1]) * sd[:, 1]) / np.where(l2 > 0, l2, 1.0), 0, 1)
-            if len(sd) and float(np.min(np.hypot(p0[:, 0] + w * sd[:, 0] - x, p0[:, 1] + w * sd[:, 1] - y))) \
-                    <= self.lateral:
+            if ring_distance(self.placer.ring(area), x, y) <= self.lateral:
                 c = net.area_cell[area]
                 if c not in out:
                     out.append(c)
