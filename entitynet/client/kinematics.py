@@ -81,14 +81,14 @@ def brake_plan(v: float, a: float, vmax: float, d: float, b: float) -> tuple[flo
         t_end = (vmax - v) / a if a > 0.0 else v / -a  # end of the accelerating / decelerating phase
         qa, qb, qc = a * (a + b), 2.0 * v * (a + b), v * v - 2.0 * b * d
         roots = []
-        if qa == 0.0:
-            if qb != 0.0:
-                roots.append(-qc / qb)
-        else:
-            disc = qb * qb - 4.0 * qa * qc
-            if disc >= 0.0:
-                sq = math.sqrt(disc)
-                roots += [(-qb - sq) / (2.0 * qa), (-qb + sq) / (2.0 * qa)]
+        disc = qb * qb - 4.0 * qa * qc
+        if disc >= 0.0:
+            # the cancellation-free pair of roots (q / qa and qc / q): exact as qa -> 0 too
+            q = -0.5 * (qb + math.copysign(math.sqrt(disc), qb))
+            if q != 0.0:
+                roots.append(qc / q)
+            if qa != 0.0:
+                roots.append(q / qa)
         ts = [t for t in roots if 0.0 <= t <= t_end]
         if ts:
             return min(ts), b
