@@ -127,6 +127,25 @@ class Walkers:
         return i, tuple(dict.fromkeys(occ)), int(validity * 1000)
 
 
+def pvs_viewer_cells(topo, n: int, rng: random.Random) -> list[tuple[int, ...]] | None:
+    """Cells in the PVS of the view cell of a random street node, half at street level and half above the roofs
+    (None when the artifact has no PVS)."""
+    try:
+        from topology.pvs import PvsIndex
+
+        index = PvsIndex.from_topology(topo)
+    except (ImportError, ValueError):
+        return None
+    top = float(topo.meta["pvs"].get("max_height", 40.0))
+    out = []
+    for k in range(n):
+        x, y = topo.node_xy[rng.randrange(len(topo.node_xy))]
+        z = 1.7 if k % 2 == 0 else min(40.0, max(1.7, top - 1.0))  # street level, or just above the roofs
+        cells = tuple(int(c) for c in index.cells_at(float(x), float(y), z))
+        out.append(cells or (0,))
+    return out
+
+
 def viewer_cells(topo, n: int, radius: float, rng: random.Random) -> list[tuple[int, ...]]:
     """Cells whose footprint is within `radius` of a random street node, per viewer."""
     import shapely
@@ -543,15 +562,15 @@ def _find_redis(progress) -> tuple[str | None, str]:
     return None, f"redis-server not found; apt-get exited {r.returncode}: {r.stderr.strip()[-300:]}"
 
 
-def _topology_path(args, progress, tmp: Path) -> str:
+def _topology_path(args, progress, quick: bool) -> str:
+    """--topology, else the cached bundled artifact (with PVS for the full run; the quick run takes the PVS
+    one only if it is already cached, since building the PVS alone takes about a minute)."""
     if getattr(args, "topology", None):
         return str(args.topology)
-    from topology.artifact import save
-    from topology.build import build, read_map
+    from entitynet.topology_cache import bundled_artifact_path, bundled_topology
 
-    progress("building the bundled Helsinki topology")
-    path = tmp / "helsinki.enttopo"
-    save(build(read_map(None)), path)
+    with_pvs = not quick or bundled_artifact_path(True).exists()
+    _, path = bundled_topology(progress, with_pvs=with_pvs)
     return str(path)
 
 
@@ -576,15 +595,21 @@ def run(args, progress) -> dict[str, Any]:
     notes = []
     with tempfile.TemporaryDirectory(prefix="switch-bench-") as tmpd:
         tmp = Path(tmpd)
-        topo_path = _topology_path(args, progress, tmp)
+        topo_path = _topology_path(args, progress, quick)
         topo = load(topo_path)
         p["topology_digest"] = topo.digest[:16]
         p["n_cells"] = int(topo.n_cells)
-        progress(f"viewer subscriptions: cells within {p['radius_m']:.0f} m of {p['viewers']} street nodes")
-        view_cells = viewer_cells(topo, p["viewers"], p["radius_m"], random.Random(p["seed"]))
+        view_cells = pvs_viewer_cells(topo, p["viewers"], random.Random(p["seed"]))
+        if view_cells is not None:
+            p["subscription"] = "pvs"
+            progress(f"viewer subscriptions: PVS of {p['viewers']} street-node view cells (half above the roofs)")
+        else:
+            p["subscription"] = f"radius {p['radius_m']:.0f} m"
+            progress(f"viewer subscriptions: cells within {p['radius_m']:.0f} m of {p['viewers']} street nodes")
+            view_cells = viewer_cells(topo, p["viewers"], p["radius_m"], random.Random(p["seed"]))
+            notes.append("the artifact has no PVS: viewers subscribe to the cells within 500 m of a random street "
+                         "node, which is denser than PVS subscriptions")
         p["mean_cells_per_viewer"] = float(np.mean([len(c) for c in view_cells]))
-        notes.append("viewers subscribe to the cells within 500 m of a random street node, not by PVS (no PVS "
-                     "lookup was available to the bench); this is denser than a PVS would be")
 
         def walkers_factory():
             return Walkers(topo, p["entities"], random.Random(p["seed"] + 1))
