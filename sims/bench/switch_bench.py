@@ -134,7 +134,8 @@ def pvs_viewer_cells(topo, n: int, rng: random.Random) -> list[tuple[int, ...]] 
         from topology.pvs import PvsIndex
 
         index = PvsIndex.from_topology(topo)
-    except (ImportError, ValueError):
+    except Exception as exc:  # no PVS, or one this version of topology.pvs cannot read: fall back, say so
+        print(f"[bench] no usable PVS in the artifact ({type(exc).__name__}: {exc})", file=sys.stderr)
         return None
     top = float(topo.meta["pvs"].get("max_height", 40.0))
     out = []
