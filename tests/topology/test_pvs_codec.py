@@ -38,6 +38,7 @@ def test_round_trip_any_lists(nz, ny, nx, n_cells, rnd):
     again = EncodedPvs.from_arrays(enc.arrays())
     for v in range(V):
         assert again.decode(v).tolist() == lists[v]
+        assert again.decode(v, n_cells).tolist() == lists[v]
 
 
 def test_coherent_neighbours_compress_and_holes_are_fine():
@@ -57,15 +58,30 @@ def test_coherent_neighbours_compress_and_holes_are_fine():
     for v in range(V):
         assert enc.decode(v).tolist() == lists[v].tolist()
     assert enc.nbytes < raw_nbytes(offsets, n_cells) / 4
-    assert enc.root_ids.dtype == np.uint16
+    assert enc.delta_ids.dtype == np.uint16
+    assert enc.n_roots < V / 4
 
 
 def test_large_maps_use_wide_ids():
     index = grid_index(1, 1, 2)
     offsets, ids = csr([[0, 70000], [70000]])
     enc = encode(offsets, ids, index, 70001)
-    assert enc.root_ids.dtype == np.uint32
+    assert enc.delta_ids.dtype == np.uint32
     assert enc.decode(0).tolist() == [0, 70000] and enc.decode(1).tolist() == [70000]
+
+
+def test_depth_is_bounded():
+    index = grid_index(1, 1, 50)
+    lists = [list(range(100 + k)) for k in range(50)]  # each differs from its west neighbour by one id
+    offsets, ids = csr(lists)
+    enc = encode(offsets, ids, index, 200, max_depth=3)
+    for v in range(50):
+        d, u = 0, v
+        while enc.parent[u] >= 0:
+            u, d = int(enc.parent[u]), d + 1
+        assert d <= 3
+        assert enc.decode(v, 200).tolist() == lists[v]
+    assert enc.n_roots == 13  # a new root every 4 cells
 
 
 def test_empty_lists():
