@@ -127,3 +127,33 @@ def encode(
         delta_offsets[1:] = np.cumsum([len(d) for d in deltas])
     delta_ids = np.concatenate(deltas).astype(dt) if deltas else np.zeros(0, dt)
     return EncodedPvs(parent, delta_offsets, delta_ids)
+
+
+@dataclass
+class StarPvs:
+    """The first layout (artifacts built before the difference trees): each view cell coded against one root
+    list. Read-only, kept so that artifacts already built and cached stay usable."""
+
+    ref: np.ndarray
+    root_offsets: np.ndarray
+    root_ids: np.ndarray
+    delta_offsets: np.ndarray
+    delta_ids: np.ndarray
+
+    def decode(self, view_cell: int, n_cells: int | None = None) -> np.ndarray:
+        r = int(self.ref[view_cell])
+        root = self.root_ids[self.root_offsets[r] : self.root_offsets[r + 1]]
+        d = self.delta_ids[self.delta_offsets[view_cell] : self.delta_offsets[view_cell + 1]]
+        if len(d) == 0:
+            return root
+        return np.setxor1d(root, d, assume_unique=True)
+
+
+def codec_from_arrays(arrays: dict[str, np.ndarray]) -> EncodedPvs | StarPvs:
+    """The codec of an artifact's `extra` arrays, whichever layout it was written with."""
+    if "pvs_parent" in arrays:
+        return EncodedPvs.from_arrays(arrays)
+    if "pvs_root_ids" in arrays:
+        return StarPvs(arrays["pvs_ref"], arrays["pvs_root_offsets"], arrays["pvs_root_ids"],
+                       arrays["pvs_delta_offsets"], arrays["pvs_delta_ids"])  # fmt: skip
+    raise ValueError("the topology's PVS arrays are incomplete (no pvs_parent)")
