@@ -567,14 +567,14 @@ class PvsIndex:
 
     @classmethod
     def from_topology(cls, topo: Any) -> PvsIndex:
-        from topology.pvs_codec import EncodedPvs
+        from topology.pvs_codec import codec_from_arrays
 
         meta = topo.meta.get("pvs")
         if meta is None or "pvs_grid" not in topo.extra:
             raise ValueError("the topology has no PVS (built with --no-pvs?)")
         grid = ViewGrid(meta["origin"][0], meta["origin"][1], meta["cell_size"], meta["max_height"],
                         topo.extra["pvs_grid"])  # fmt: skip
-        return cls(grid, EncodedPvs.from_arrays(topo.extra), meta["n_cells"], meta["view_distance"])
+        return cls(grid, codec_from_arrays(topo.extra), meta["n_cells"], meta["view_distance"])
 
     @classmethod
     def from_result(cls, result: PvsResult) -> PvsIndex:

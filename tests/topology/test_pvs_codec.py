@@ -89,3 +89,20 @@ def test_empty_lists():
     offsets, ids = csr([[], [], [], []])
     enc = encode(offsets, ids, index, 5)
     assert all(enc.decode(v).tolist() == [] for v in range(4))
+
+
+def test_reads_both_layouts():
+    from topology.pvs_codec import StarPvs, codec_from_arrays
+
+    index = grid_index(1, 1, 3)
+    offsets, ids = csr([[1, 2, 3], [1, 2], [5]])
+    enc = codec_from_arrays(encode(offsets, ids, index, 6).arrays())
+    assert [enc.decode(v, 6).tolist() for v in range(3)] == [[1, 2, 3], [1, 2], [5]]
+    star = {  # the first layout: roots [1, 2, 3] and [5]; view cell 1 toggles 3
+        "pvs_ref": np.array([0, 0, 1], np.int32), "pvs_root_offsets": np.array([0, 3, 4], np.uint32),
+        "pvs_root_ids": np.array([1, 2, 3, 5], np.uint16), "pvs_delta_offsets": np.array([0, 0, 1, 1], np.uint32),
+        "pvs_delta_ids": np.array([3], np.uint16),
+    }  # fmt: skip
+    old = codec_from_arrays(star)
+    assert isinstance(old, StarPvs)
+    assert [old.decode(v).tolist() for v in range(3)] == [[1, 2, 3], [1, 2], [5]]
