@@ -60,7 +60,7 @@ LENGTH_PREFIX = struct.Struct(">I")
 class ErrorCode(IntEnum):
     """Numbered errors. 1xx: malformed input (connection closed); 2xx: handshake refused (closed);
     3xx: a request refers to something that is not yours or does not exist (request dropped);
-    4xx: a limit was exceeded (request dropped; 404 closes); 5xx: server side."""
+    4xx: a limit was exceeded (request dropped; 404 and 405 close); 5xx: server side."""
 
     MALFORMED = 100
     FRAME_TOO_LARGE = 101
@@ -78,6 +78,7 @@ class ErrorCode(IntEnum):
     QUERY_RATE = 402
     LIMIT_ENTITIES = 403
     SLOW_CONSUMER = 404
+    SERVER_FULL = 405
     SHUTTING_DOWN = 500
     INTERNAL = 501
 
@@ -94,6 +95,7 @@ FATAL_ERRORS = frozenset(
         ErrorCode.AUTH_FAILED,
         ErrorCode.HANDSHAKE_REQUIRED,
         ErrorCode.SLOW_CONSUMER,
+        ErrorCode.SERVER_FULL,
         ErrorCode.SHUTTING_DOWN,
         ErrorCode.INTERNAL,
     }

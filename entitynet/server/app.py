@@ -50,6 +50,7 @@ class _Conn:
     rest: bytes | None = None  # what the writer task still has to send
     busy: bool = False  # a write is in progress in the writer task
     write_started: float | None = None
+    opened_at: float = 0.0
     dirty_since: float | None = None
     closed: bool = False
 
@@ -162,8 +163,19 @@ class Server:
         self._nursery.cancel_scope.cancel()
 
     # ------------------------------------------------------------------------------------------ connections
+    async def _refuse_full(self, send) -> bool:
+        if len(self.conns) < self.config.max_clients:
+            return False
+        logs.event("connection refused: server full", logging.WARNING, clients=len(self.conns))
+        with trio.move_on_after(1.0):
+            try:
+                await send(P.encode_payload([P.Error(int(P.ErrorCode.SERVER_FULL), "server full; try later")]))
+            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError, trio_websocket.ConnectionClosed):
+                pass
+        return True
+
     async def _handle_tcp(self, stream) -> None:
-        if self._stopping:
+        if self._stopping or await self._refuse_full(lambda payload: stream.send_all(P.frame(payload))):
             await stream.aclose()
             return
         try:
@@ -192,6 +204,9 @@ class Server:
             await request.reject(503)
             return
         ws = await request.accept()
+        if await self._refuse_full(ws.send_message):
+            await ws.aclose()
+            return
         conn = self._open(ws, "ws", str(ws.remote))
         try:
             async with trio.open_nursery() as n:
@@ -205,7 +220,7 @@ class Server:
 
     def _open(self, stream, kind: str, peer: str) -> _Conn:
         cid = self.sb.connect(self.clock())
-        conn = _Conn(cid, kind, peer, stream, trio.Event(), self.sb.outbox(cid))
+        conn = _Conn(cid, kind, peer, stream, trio.Event(), self.sb.outbox(cid), opened_at=time.monotonic())
         self.conns[cid] = conn
         self.metrics.connections.inc()
         logs.event("connect", logging.DEBUG, cid=cid, kind=kind, peer=peer)
@@ -388,7 +403,14 @@ class Server:
     def _check_stalls(self) -> None:
         t = time.monotonic()
         limit = self.config.stall_timeout
+        hello_by = t - self.config.handshake_timeout
         for conn in list(self.conns.values()):
+            if conn.opened_at < hello_by and not conn.closed:
+                c = self.sb.clients.get(conn.cid)
+                if c is not None and not c.ready and not c.closing:
+                    self.sb.protocol_error(conn.cid, P.ProtocolError(
+                        P.ErrorCode.HANDSHAKE_REQUIRED, f"no HELLO within {self.config.handshake_timeout:g} s"))
+                    self._try_write(conn)
             if conn.write_started is not None and t - conn.write_started > limit and conn.scope is not None:
                 self.metrics.drops.inc()
                 self.sb.slow_consumer(conn.cid, f"write blocked for {limit:g} s")

@@ -32,6 +32,8 @@ class ServerConfig:
     max_batch: int = 20_000  # messages per written frame
     read_size: int = 65_536
     sndbuf: int | None = 131_072  # cap the kernel send buffer: backlog then waits in the coalescing outbox
+    handshake_timeout: float = 10.0  # a connection without HELLO this long is closed (HANDSHAKE_REQUIRED)
+    max_clients: int = 20_000  # connections beyond this are refused with SERVER_FULL
     shutdown_grace: float = 1.0  # time to flush SHUTTING_DOWN to everyone before closing
     switch: dict[str, Any] = field(default_factory=dict)  # SwitchConfig overrides (limits)
     clock: Callable[[], float] = time.time  # the server clock reported in WELCOME/PONG and used for expiry

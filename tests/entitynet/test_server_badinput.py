@@ -146,3 +146,21 @@ async def test_slow_consumer_over_queue_bound_is_told():
         got = await lazy.expect_closed()
         assert [m.code for m in got if isinstance(m, P.Error)] == [ErrorCode.SLOW_CONSUMER]
         await flows(pub, view, 2, cell=2)
+
+
+async def test_silent_connection_is_closed_after_handshake_timeout():
+    async with running(handshake_timeout=0.3) as server:
+        pub, view = await pair(server)
+        silent = await Raw.connect(server, hello=False)
+        got = await silent.expect_closed()
+        assert [m.code for m in got] == [ErrorCode.HANDSHAKE_REQUIRED]
+        await flows(pub, view, 1)
+
+
+async def test_connections_beyond_the_limit_are_refused():
+    async with running(max_clients=2) as server:
+        pub, view = await pair(server)
+        extra = await Raw.connect(server, hello=False)
+        got = await extra.expect_closed()
+        assert [m.code for m in got] == [ErrorCode.SERVER_FULL]
+        await flows(pub, view, 1)
