@@ -194,8 +194,9 @@ class Server:
                 conn.scope = n.cancel_scope
                 n.start_soon(self._writer, conn)
                 await self._read_tcp(conn)
-                if not self.sb.outbox(conn.cid) or not self.sb.outbox(conn.cid).close_after:
+                if not conn.outbox.close_after:
                     n.cancel_scope.cancel()  # peer went away: nothing left to write
+                # else the writer sends the ERROR and then cancels (the stall watchdog bounds the wait)
         finally:
             await self._close(conn)
 
@@ -213,7 +214,7 @@ class Server:
                 conn.scope = n.cancel_scope
                 n.start_soon(self._writer, conn)
                 await self._read_ws(conn)
-                if not self.sb.outbox(conn.cid) or not self.sb.outbox(conn.cid).close_after:
+                if not conn.outbox.close_after:
                     n.cancel_scope.cancel()
         finally:
             await self._close(conn)

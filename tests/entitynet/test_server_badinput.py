@@ -164,3 +164,22 @@ async def test_connections_beyond_the_limit_are_refused():
         got = await extra.expect_closed()
         assert [m.code for m in got] == [ErrorCode.SERVER_FULL]
         await flows(pub, view, 1)
+
+
+async def test_websocket_garbage_and_text_messages_are_refused():
+    import trio_websocket
+
+    async with running(ws_port=0) as server:
+        pub, view = await pair(server)
+        for bad, code in ((b"\xc1garbage", ErrorCode.MALFORMED), ("text", ErrorCode.MALFORMED)):
+            async with trio_websocket.open_websocket_url(f"ws://127.0.0.1:{server.ws_port}/") as ws:
+                await ws.send_message(bad)
+                got = P.decode_payload(await ws.get_message())
+                assert [m.code for m in got] == [code]
+                with trio.fail_after(5):
+                    try:
+                        await ws.get_message()
+                        raise AssertionError("the connection should be closed")
+                    except trio_websocket.ConnectionClosed:
+                        pass
+        await flows(pub, view, 1)
