@@ -60,4 +60,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run the imported module's main, not this __main__ copy: commands raise entitynet.cli.CommandError
+    from entitynet.cli import main as cli_main
+
+    sys.exit(cli_main())
