@@ -81,9 +81,23 @@ def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int
                  max_edges: int = 64) -> tuple[list[int], float]:
     """Cells of every way on from the end node of path edge k, through further junctions, each way down to
     its first cell boundary beyond `depth` metres from the node (a tree; dead ends bound nothing). Returns the
-    cells and the shortest covered distance (where the first uncovered cell could be entered)."""
+    cells and the shortest covered distance (where the first uncovered cell could be entered).
+
+    The tree depends only on the directed edge, the depth and the budgets, so it is computed once per
+    view and key (publishing without a route repeats the same few keys)."""
     net = path.net
     de = path.edges[k]
+    cache = net.__dict__.setdefault("_branch_cover", {})
+    key = (de, depth, networks, max_cells, max_edges)
+    hit = cache.get(key)
+    if hit is None:
+        if len(cache) > 4096:
+            cache.clear()
+        hit = cache[key] = _branch_cover(net, de, depth, networks, max_cells, max_edges)
+    return list(hit[0]), hit[1]
+
+
+def _branch_cover(net, de, depth: float, networks: int, max_cells: int, max_edges: int) -> tuple[list[int], float]:
     cells: list[int] = []
     node = net.end_node(de)
     if net.node_area[node] >= 0:

@@ -83,6 +83,7 @@ class Placer:
         self.reacquire = reacquire
         self._tables: dict[int, _SegTable] = {}
         self._rings: dict[int, np.ndarray] = {}
+        self._segs: dict[int, list[tuple[float, ...]]] = {}
         self._area_bounds: tuple[np.ndarray, np.ndarray] | None = None
 
     # ---- first fix -----------------------------------------------------------------------------------------
@@ -194,16 +195,35 @@ class Placer:
 
     def project_on(self, x: float, y: float, edge: int) -> Fix:
         """Projection onto one given edge (used to follow the current edge inside the hysteresis)."""
+        segs = self._segs.get(edge)
+        if segs is None:
+            segs = self._segs[edge] = self._edge_segs(edge)
+        best_d = math.inf
+        best = None
+        hypot = math.hypot
+        for seg in segs:
+            ax, ay, dx, dy, l2 = seg[0], seg[1], seg[2], seg[3], seg[4]
+            if l2 <= 0.0:
+                u = 0.0
+            else:
+                u = ((x - ax) * dx + (y - ay) * dy) / l2
+                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+            px, py = ax + u * dx, ay + u * dy
+            dd = hypot(x - px, y - py)
+            if dd < best_d:
+                best_d, best = dd, (seg, u, px, py)
+        if best is None:
+            return Fix("edge", edge, 0.0, 0.0, 0.0, math.inf)
+        seg, u, px, py = best
+        return Fix("edge", edge, seg[5] + u * seg[6], px, py, best_d)
+
+    def _edge_segs(self, edge: int) -> list[tuple[float, ...]]:
+        """(ax, ay, dx, dy, l2, cum0, seg_len) of each segment of an edge: the per-fix projection's table,
+        computed once (the same float operations as computing them per fix)."""
         net = self.net
-        lo, hi = net.geom_off[edge], net.geom_off[edge + 1]
-        best = (math.inf, 0.0, 0.0, 0.0)
-        for k in range(lo, hi - 1):
+        out = []
+        for k in range(net.geom_off[edge], net.geom_off[edge + 1] - 1):
             ax, ay = net.gx[k], net.gy[k]
             dx, dy = net.gx[k + 1] - ax, net.gy[k + 1] - ay
-            l2 = dx * dx + dy * dy
-            u = 0.0 if l2 <= 0.0 else min(max(((x - ax) * dx + (y - ay) * dy) / l2, 0.0), 1.0)
-            px, py = ax + u * dx, ay + u * dy
-            dd = math.hypot(x - px, y - py)
-            if dd < best[0]:
-                best = (dd, net.gcum[k] + u * (net.gcum[k + 1] - net.gcum[k]), px, py)
-        return Fix("edge", edge, best[1], best[2], best[3], best[0])
+            out.append((ax, ay, dx, dy, dx * dx + dy * dy, net.gcum[k], net.gcum[k + 1] - net.gcum[k]))
+        return out
