@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+import shapely.affinity
 
 from topology.polygons import Polygons
 from topology.pvs_reference import ReferenceConfig, Scene, eye_points, in_range, reference_visible, target_points
@@ -79,3 +80,45 @@ def test_reference_visible_end_to_end():
     assert reference_visible(sc, low, tp, tc, cand, rc).tolist() == [0]
     assert reference_visible(sc, high, tp, tc, cand, rc).tolist() == [0, 1]
     assert len(eye_points(low, rc)) == 18
+
+
+def _geos_blocked(polys, heights, a, b) -> bool:
+    """An independent check with GEOS: the parts of the segment over a footprint, z at their ends."""
+    line = shapely.LineString([a[:2], b[:2]])
+    d = np.asarray(b[:2]) - np.asarray(a[:2])
+    dd = float(d @ d)
+    for poly, h in zip(polys, heights, strict=True):
+        for part in shapely.get_parts(line.intersection(poly)):
+            if part.geom_type != "LineString" or part.length <= 1e-9:
+                continue
+            if not poly.contains(part.interpolate(0.5, normalized=True)):
+                continue
+            ts = [float((np.asarray(c) - a[:2]) @ d) / dd for c in (part.coords[0], part.coords[-1])]
+            if min(a[2] + t * (b[2] - a[2]) for t in ts) < h - 1e-9:
+                return True
+    return False
+
+
+def test_agrees_with_geos_on_random_segments():
+    rng = np.random.default_rng(4)
+    polys = []
+    for _ in range(12):
+        cx, cy = rng.uniform(0, 200, 2)
+        w, h = rng.uniform(5, 30, 2)
+        polys.append(shapely.affinity.rotate(shapely.box(cx - w, cy - h, cx + w, cy + h), rng.uniform(0, 90)))
+    merged = shapely.get_parts(shapely.union_all(polys[:6]))  # some non-convex footprints
+    polys = list(merged) + polys[6:]
+    heights = rng.uniform(5, 40, len(polys))
+    sc = Scene(Polygons.from_shapely(polys), heights)
+    n_blocked = n_tested = 0
+    for _ in range(6):
+        eye = np.array([*rng.uniform(-20, 220, 2), rng.uniform(0, 60)])
+        if sc.inside(eye[:1], eye[1:2], eye[2:]).any():
+            continue
+        targets = np.column_stack([rng.uniform(-20, 220, (150, 2)), rng.uniform(0, 5, 150)])
+        got = sc.blocked_from(eye, targets)
+        want = [_geos_blocked(polys, heights, eye, t) for t in targets]
+        assert got.tolist() == want
+        n_blocked += sum(want)
+        n_tested += len(want)
+    assert 0.1 * n_tested < n_blocked < 0.9 * n_tested
