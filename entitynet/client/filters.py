@@ -52,23 +52,55 @@ class Kinematic1D:
         self.t = t
 
     def update(self, z: float, t: float, r: float) -> float:
-        """Fold in a measurement z (variance r) taken at t; returns the innovation."""
-        self.predict(t)
-        y = z - self.s
-        p00, p01, p02 = self.p00, self.p01, self.p02
+        """Fold in a measurement z (variance r) taken at t; returns the innovation.
+
+        `predict` is written out here (the same operations in the same order): this runs once per fix."""
+        dt = t - self.t
+        s, v, a = self.s, self.v, self.a
+        if dt > 0.0:
+            h = 0.5 * dt * dt
+            q = self.q
+            p00, p01, p02, p11, p12, p22 = self.p00, self.p01, self.p02, self.p11, self.p12, self.p22
+            if self.accel:
+                s += v * dt + a * h
+                v += a * dt
+                r00 = p00 + dt * p01 + h * p02
+                r01 = p01 + dt * p11 + h * p12
+                r02 = p02 + dt * p12 + h * p22
+                r11 = p11 + dt * p12
+                r12 = p12 + dt * p22
+                dt2 = dt * dt
+                dt3 = dt2 * dt
+                p00 = r00 + dt * r01 + h * r02 + q * dt3 * dt2 / 20.0
+                p01 = r01 + dt * r02 + q * dt2 * dt2 / 8.0
+                p02 = r02 + q * dt3 / 6.0
+                p11 = r11 + dt * r12 + q * dt3 / 3.0
+                p12 = r12 + q * dt2 / 2.0
+                p22 = p22 + q * dt
+            else:
+                s += v * dt
+                p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt * dt * dt / 3.0
+                p01 = p01 + dt * p11 + q * dt * dt / 2.0
+                p11 = p11 + q * dt
+            self.t = t
+        else:
+            p00, p01, p02, p11, p12, p22 = self.p00, self.p01, self.p02, self.p11, self.p12, self.p22
+        y = z - s
         sden = p00 + r
         if not sden > 0.0:
+            self.s, self.v = s, v
+            self.p00, self.p01, self.p02, self.p11, self.p12, self.p22 = p00, p01, p02, p11, p12, p22
             return y
         k0, k1, k2 = p00 / sden, p01 / sden, p02 / sden
-        self.s += k0 * y
-        self.v += k1 * y
-        self.a += k2 * y
-        self.p11 -= k1 * p01
-        self.p12 -= k1 * p02
-        self.p22 -= k2 * p02
-        self.p00 -= k0 * p00
-        self.p01 -= k0 * p01
-        self.p02 -= k0 * p02
+        self.s = s + k0 * y
+        self.v = v + k1 * y
+        self.a = a + k2 * y
+        self.p11 = p11 - k1 * p01
+        self.p12 = p12 - k1 * p02
+        self.p22 = p22 - k2 * p02
+        self.p00 = p00 - k0 * p00
+        self.p01 = p01 - k0 * p01
+        self.p02 = p02 - k0 * p02
         return y
 
     def state_at(self, t: float) -> tuple[float, float, float]:

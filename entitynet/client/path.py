@@ -61,8 +61,19 @@ class Path:
         return e, (d if d_ > 0 else length - d)
 
     def xy(self, s: float) -> tuple[float, float]:
-        e, off = self.locate(s)
-        return self.net.point(e, off)
+        # `locate` written out (called on every fix, twice)
+        cum = self.cum
+        k = bisect_right(cum, s) - 1
+        if k < 0:
+            k = 0
+        elif k >= len(self.edges):
+            k = len(self.edges) - 1
+        e, d_ = self.edges[k]
+        net = self.net
+        length = net.edge_len[e]
+        d = s - cum[k]
+        d = 0.0 if d < 0.0 else (length if d > length else d)
+        return net.point(e, d if d_ > 0 else length - d)
 
     def cell(self, s: float) -> int:
         e, off = self.locate(s)

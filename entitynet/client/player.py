@@ -79,6 +79,7 @@ class Player:
         if topo is None and model == "network":
             raise ValueError("the network model needs a topology")
         self.etype = entity_type(etype)
+        self.body = self.etype.length  # sum of the parts, once (a property on the type)
         self.entity = entity
         self.model = model
         self.accuracy = accuracy
@@ -280,7 +281,7 @@ class Player:
             fix, best_pref = cur, cur.distance
             preferred = None
         else:
-            lo = path.index(s_pred - self.etype.length - 30.0)
+            lo = path.index(s_pred - self.body - 30.0)
             hi = path.index(s_pred + 60.0)
             preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
             fix, best_pref = placer.near(x, y, e_cur, preferred, margin)
@@ -378,10 +379,15 @@ class Player:
         edges = path.edges
         n = len(edges)
         # the usual case: the edge at (or next to) the predicted one, and no other occurrence nearby
+        e = fix.index
         for k in (k_hint, k_hint + 1, k_hint - 1):
-            if 0 <= k < n and edges[k][0] == fix.index:
-                if all(edges[j][0] != fix.index for j in range(max(k - 3, 0), min(k + 4, n)) if j != k):
-                    return path.cum[k] + self.net.dist_of(edges[k], fix.offset)
+            if 0 <= k < n and edges[k][0] == e:
+                for j in range(max(k - 3, 0), min(k + 4, n)):
+                    if j != k and edges[j][0] == e:
+                        break
+                else:
+                    d = edges[k][1]
+                    return path.cum[k] + (fix.offset if d > 0 else self.net.edge_len[e] - fix.offset)
                 break
         best, best_d = None, math.inf
         for k, de in enumerate(edges):
@@ -401,7 +407,7 @@ class Player:
         for k in order[:8]:
             de = path.edges[k]
             for node, keep in ((net.end_node(de), k + 1), (net.start_node(de), k)):
-                if abs(path.cum[keep] - s_pred) > 30.0 + self.etype.length:
+                if abs(path.cum[keep] - s_pred) > 30.0 + self.body:
                     continue  # a joint far along the path (a loop): not where the entity is
                 if node in ends:
                     d = 1 if net.edge_from[fix.index] == node else -1
@@ -413,7 +419,7 @@ class Player:
                     self.path = Path(net, new)
                     self.pending = (-1, 0)
                     return True
-            if abs(path.cum[k + 1] - s_pred) > 30.0 + self.etype.length:
+            if abs(path.cum[k + 1] - s_pred) > 30.0 + self.body:
                 continue
             for mid in net.choices(de, self.etype.networks):
                 if net.end_node(mid) in ends:
@@ -427,15 +433,17 @@ class Player:
     def _maintain_path(self) -> None:
         """Keep enough path behind (the body and margin) and ahead (lookahead and extrapolation)."""
         path, kf = self.path, self.kf
-        behind = self.etype.length + self.margin + 50.0
-        if kf.s - behind > path.cum[1] if len(path.edges) > 1 else False:
+        behind = self.body + self.margin + 50.0
+        cum = path.cum
+        if len(cum) > 2 and kf.s - behind > cum[1]:
             newp, shift = path.trimmed(kf.s - behind)
             if shift > 0.0:
                 self.path = path = newp
                 kf.shift(shift)
                 self.recent_s = [x - shift for x in self.recent_s]
-        need = kf.s + self.lookahead + self.margin + 80.0 + 15.0 * max(kf.v, 0.0)
-        if path.length < need and len(path.edges) < MAX_PATH_EDGES and path.edges[-1] != self.dead_end:
+        v = kf.v
+        need = kf.s + self.lookahead + self.margin + 80.0 + 15.0 * (v if v > 0.0 else 0.0)
+        if path.cum[-1] < need and len(path.edges) < MAX_PATH_EDGES and path.edges[-1] != self.dead_end:
             last = path.edges[-1]
             ri = self._route_index(last)
             ahead = follow(self.net, last, self.etype.networks, need - path.length, self.route, ri,
@@ -675,8 +683,8 @@ class Player:
             bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
             fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
             length = net.edge_len[e]
-            lo, hi = ((f.offset - self.margin - self.etype.length, f.offset + ahead) if fwd
-                      else (f.offset - ahead, f.offset + self.margin + self.etype.length))
+            lo, hi = ((f.offset - self.margin - self.body, f.offset + ahead) if fwd
+                      else (f.offset - ahead, f.offset + self.margin + self.body))
             lo, hi = max(lo, 0.0), min(hi, length)
             for a0, b0, c in net.pieces(e, 1):
                 if b0 >= lo and a0 <= hi and c not in out:

@@ -1,0 +1,108 @@
+"""The client core's fast paths give exactly (bit for bit) what the straightforward code gives.
+
+Each fast path is checked against a reference: the numpy pass it replaces, or the previous plain code kept
+here verbatim. Exact equality, not closeness: players and receivers must take the same decisions.
+"""
+
+import math
+
+import numpy as np
+from client_fixtures import area_square, chain, cross, hairpin, parallel
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from entitynet.client import netview
+from entitynet.client.filters import Kinematic1D
+from entitynet.client.occupation import _branch_cover, branch_cover
+from entitynet.client.path import Path
+from entitynet.client.placement import Fix, Placer
+from topology.raw import PEDESTRIAN, VEHICLE
+
+TOPOS = [cross(arm=100.0), parallel(gap=12.0, length=300.0), chain(), hairpin(), area_square()]
+NETS = [netview(t) for t in TOPOS]
+coord = st.floats(-250.0, 350.0, allow_nan=False)
+
+
+def _project_on_reference(net, x, y, edge):
+    """The projection as it was written before the per-edge segment table."""
+    lo, hi = net.geom_off[edge], net.geom_off[edge + 1]
+    best = (math.inf, 0.0, 0.0, 0.0)
+    for k in range(lo, hi - 1):
+        ax, ay = net.gx[k], net.gy[k]
+        dx, dy = net.gx[k + 1] - ax, net.gy[k + 1] - ay
+        l2 = dx * dx + dy * dy
+        u = 0.0 if l2 <= 0.0 else min(max(((x - ax) * dx + (y - ay) * dy) / l2, 0.0), 1.0)
+        px, py = ax + u * dx, ay + u * dy
+        dd = math.hypot(x - px, y - py)
+        if dd < best[0]:
+            best = (dd, net.gcum[k] + u * (net.gcum[k + 1] - net.gcum[k]), px, py)
+    return Fix("edge", edge, best[1], best[2], best[3], best[0])
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, len(TOPOS) - 1), coord, coord, st.data())
+def test_near_loop_equals_the_numpy_pass(ti, x, y, data):
+    net = NETS[ti]
+    networks = PEDESTRIAN if ti == 4 else VEHICLE
+    pl = Placer(net, networks)
+    edges = [e for e in range(net.n_edges) if net.edge_net[e] & networks]
+    edge = data.draw(st.sampled_from(edges))
+    preferred = set(data.draw(st.lists(st.sampled_from(edges), max_size=3)))
+    margin = data.draw(st.sampled_from([None, 0.0, 3.0, 15.0]))
+    t = pl.table(edge)
+    got = pl._near_py(t, x, y, preferred, pl.switch_margin if margin is None else margin)
+    want = pl._near_np(t, x, y, preferred, margin)
+    assert got == want
+    assert pl.project_on(x, y, edge) == _project_on_reference(net, x, y, edge)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-80.0, 80.0, allow_nan=False), st.floats(-80.0, 80.0, allow_nan=False))
+def test_inside_area_box_test_agrees_with_the_crossing_count(x, y):
+    net = NETS[4]
+    pl = Placer(net, PEDESTRIAN)
+    r = pl.ring(0)
+    x0, y0, x1, y1 = r[:-1, 0], r[:-1, 1], r[1:, 0], r[1:, 1]
+    cond = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xs = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    assert pl.inside_area(0, x, y) == bool(np.count_nonzero(cond & (x < xs)) % 2)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.floats(0.0, 50.0), st.floats(-3.0, 3.0), st.booleans(),
+       st.lists(st.tuples(st.floats(0.01, 3.0), st.floats(-100.0, 100.0)), min_size=1, max_size=8))
+def test_filter_update_equals_predict_then_update(s0, v0, accel, steps):
+    a = Kinematic1D(s0, 0.0, 25.0, q=0.3, accel=accel)
+    b = Kinematic1D(s0, 0.0, 25.0, q=0.3, accel=accel)
+    t = 0.0
+    for dt, z in steps:
+        t += dt
+        ya = a.update(z, t, 25.0)
+        # reference: the prediction step, then the measurement step as written before the inlining
+        b.predict(t)
+        yb = z - b.s
+        p00, p01, p02 = b.p00, b.p01, b.p02
+        sden = p00 + 25.0
+        k0, k1, k2 = p00 / sden, p01 / sden, p02 / sden
+        b.s += k0 * yb
+        b.v += k1 * yb
+        b.a += k2 * yb
+        b.p11 -= k1 * p01
+        b.p12 -= k1 * p02
+        b.p22 -= k2 * p02
+        b.p00 -= k0 * p00
+        b.p01 -= k0 * p01
+        b.p02 -= k0 * p02
+        assert ya == yb
+        assert [getattr(a, f) for f in Kinematic1D.__slots__] == [getattr(b, f) for f in Kinematic1D.__slots__]
+
+
+def test_branch_cover_memo_returns_the_computed_tree_and_a_private_list():
+    net = NETS[0]
+    path = Path(net, [(0, 1)])
+    cells, shortest = branch_cover(path, 0, 40.0, VEHICLE)
+    assert (cells, shortest) == _branch_cover(net, (0, 1), 40.0, VEHICLE, 48, 64)
+    cells.append(-7)  # the caller may extend its list: the cached tree must not change
+    assert branch_cover(path, 0, 40.0, VEHICLE) == _branch_cover(net, (0, 1), 40.0, VEHICLE, 48, 64)
+    assert branch_cover(path, 0, 10.0, VEHICLE) == _branch_cover(net, (0, 1), 10.0, VEHICLE, 48, 64)
