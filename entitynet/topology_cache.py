@@ -1,6 +1,7 @@
 """The cached artifact of the bundled map, so that `entitynet demo` builds it once per machine.
 
-The cache key is the map file's hash and the entitynet version: a new map or a new builder rebuilds.
+The cache key hashes the map file and the builder's own source (every module of the `topology` package), so a
+new map, a new entitynet or a changed builder rebuilds instead of serving stale lists.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import topology
 from entitynet import __version__
 from topology import BUNDLED_MAP
 from topology.artifact import ArtifactError, Topology, load, save
@@ -23,7 +25,11 @@ def cache_dir() -> Path:
 
 
 def bundled_artifact_path(with_pvs: bool = True) -> Path:
-    digest = hashlib.sha256(BUNDLED_MAP.read_bytes()).hexdigest()[:12]
+    h = hashlib.sha256(BUNDLED_MAP.read_bytes())
+    for src in sorted(Path(topology.__file__).parent.glob("*.py")):
+        h.update(src.name.encode())
+        h.update(src.read_bytes())
+    digest = h.hexdigest()[:12]
     return cache_dir() / f"helsinki-{digest}-v{__version__}{'' if with_pvs else '-nopvs'}.enttopo"
 
 

@@ -96,11 +96,16 @@ def build(raw: RawMap, config: BuildConfig | None = None, progress: Progress | N
             progress=say,
         )
         topo.extra.update(result.to_extra())
-        topo.meta["pvs"] = result.meta()
+        pvs_meta = result.meta()
+        stats = pvs_meta.get("stats", {})
+        pvs_phases = {k: stats.pop(k) for k in list(stats) if k.endswith("_s")}  # volatile: not in the digest
+        topo.meta["pvs"] = pvs_meta
         timings["pvs_s"] = time.perf_counter() - t3
     timings["total_s"] = time.perf_counter() - t0
     topo.meta["report"] = dict(sorted(net.report.items()))
     topo.meta["timings"] = {k: round(v, 3) for k, v in timings.items()}
+    if config.pvs is not None:
+        topo.meta["timings"]["pvs_phases"] = pvs_phases
     return topo
 
 

@@ -94,3 +94,15 @@ def test_run_time_queries(small_topo):
     assert np.allclose(end, small_topo.edge_polyline(e)[-1])
     assert np.allclose(small_topo.point_at(e, -5), start) and np.allclose(small_topo.point_at(e, length + 5), end)
     assert small_topo.cell_at(e, -1.0) == small_topo.cell_at(e, 0.0)
+
+
+def test_two_builds_of_one_map_share_a_digest(tmp_path):
+    from topology.build import BuildConfig
+    from topology.pvs import PvsConfig
+
+    doc = collection(*grid(3, 2))
+    cfg = BuildConfig(pvs=PvsConfig(workers=1))
+    a = build(geojson_to_raw(doc), cfg)
+    b = build(geojson_to_raw(doc), cfg)
+    assert save(a, tmp_path / "a") == save(b, tmp_path / "b")
+    assert "pvs" in a.meta and "pvs_s" in a.meta["timings"]
