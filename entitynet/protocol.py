@@ -294,6 +294,16 @@ def payload_from_encoded(encoded: Sequence[bytes]) -> bytes:
     return _array_header(len(encoded)) + b"".join(encoded)
 
 
+def array_header(n: int) -> bytes:
+    """The msgpack array header of a payload of `n` messages (a writer may send it apart from the body)."""
+    return _array_header(n)
+
+
+def frame_head(payload_size: int) -> bytes:
+    """The 4-byte length prefix of a TCP frame whose payload has `payload_size` bytes."""
+    return LENGTH_PREFIX.pack(payload_size)
+
+
 def encode_payload(msgs: Iterable[Message]) -> bytes:
     """Messages -> one payload (a WebSocket message body, or the body of a TCP frame)."""
     return payload_from_encoded([encode_message(m) for m in msgs])
