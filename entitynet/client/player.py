@@ -27,7 +27,7 @@ from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
 from entitynet.client.occupation import Occupation, occupy, occupy_area
 from entitynet.client.path import Path, follow
-from entitynet.client.payload import encode_quantized
+from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.placement import Fix, Placer, ring_distance
 from entitynet.protocol import Publish, Unpublish
 
@@ -558,9 +558,12 @@ class Player:
                 and self.kf.v < -self.etype.v_stop):
             self._reverse()  # publish in the direction of travel, whatever the filter's hysteresis says
             self._maintain_path()
-        model = self._build_model(t, from_ghost)
+        # ghost == decode(payload, net), without the round trip
+        if self.model == "network" and self.mode == "edge":
+            payload, ghost = encode_network(*self._network_fields(t, from_ghost))
+        else:
+            payload, ghost = encode_quantized(self._build_model(t, from_ghost))
         self.reposition = False
-        payload, ghost = encode_quantized(model)  # ghost == decode(payload, net), without the round trip
         self.ghost = ghost
         self.occupation = self._occupation(t, ghost)
         self.pub_t = t
@@ -573,33 +576,7 @@ class Player:
     def _build_model(self, t: float, from_ghost: bool) -> Model:
         et = self.etype
         if self.model == "network" and self.mode == "edge":
-            if from_ghost and isinstance(self.ghost, NetworkModel):
-                g = self.ghost
-                s_abs, v, a = g.s_at(t), g.speed_at(t), g.a
-                path, s = g.path, s_abs
-            else:
-                s, v, a = self.kf.s, self.kf.v, self.kf.a
-                path = self.path
-                if self.reposition:
-                    v = a = 0.0
-                if v < et.v_stop and len(self.recent_s) >= 2:
-                    # standing: the mean of the last fixes is a better position than the lagging filter
-                    near = self.recent_s[-3:]
-                    s = sum(near) / len(near)
-            if v < et.v_stop:
-                v, a = 0.0, 0.0
-            v = min(v, et.vmax)  # a noisy filter must not publish a walker at 6 m/s
-            a = min(max(a, -et.amax), et.amax) if et.accel else 0.0
-            start_s = s - et.length - self.margin
-            k0 = path.index(start_s)
-            sub = path.suffix(k0)
-            s_sub = s - path.cum[k0]
-            # an accelerating vehicle is expected to reach its usual cruising speed, not the type's maximum
-            vmax = et.vmax
-            if a > 0.0 and self.vpeak > v:
-                vmax = min(max(self.vpeak, 4.0), et.vmax)
-            stop_s = self._next_stop(sub, s_sub, v) if v > 0.0 else math.inf
-            return NetworkModel(t, sub, s_sub, max(v, 0.0), a, vmax, et.code, et.parts, stop_s, et.brake)
+            return NetworkModel(*self._network_fields(t, from_ghost))
         if self.model == "network" and self.mode == "area":
             vx, vy = self.kx.v, self.ky.v
             if math.hypot(vx, vy) < et.v_stop:
@@ -617,6 +594,37 @@ class Player:
         if math.hypot(vx, vy) < et.v_stop:
             vx = vy = ax = ay = 0.0
         return WorldModel(t, self.kx.s, self.ky.s, vx, vy, ax, ay, et.code)
+
+    def _network_fields(self, t: float, from_ghost: bool) -> tuple:
+        """The NetworkModel's fields (t0, path, s0, v, a, vmax, etype, parts, stop_s, brake) to publish."""
+        et = self.etype
+        if from_ghost and isinstance(self.ghost, NetworkModel):
+            g = self.ghost
+            s_abs, v, a = g.s_at(t), g.speed_at(t), g.a
+            path, s = g.path, s_abs
+        else:
+            s, v, a = self.kf.s, self.kf.v, self.kf.a
+            path = self.path
+            if self.reposition:
+                v = a = 0.0
+            if v < et.v_stop and len(self.recent_s) >= 2:
+                # standing: the mean of the last fixes is a better position than the lagging filter
+                near = self.recent_s[-3:]
+                s = sum(near) / len(near)
+        if v < et.v_stop:
+            v, a = 0.0, 0.0
+        v = min(v, et.vmax)  # a noisy filter must not publish a walker at 6 m/s
+        a = min(max(a, -et.amax), et.amax) if et.accel else 0.0
+        start_s = s - self.body - self.margin
+        k0 = path.index(start_s)
+        sub = path.suffix(k0)
+        s_sub = s - path.cum[k0]
+        # an accelerating vehicle is expected to reach its usual cruising speed, not the type's maximum
+        vmax = et.vmax
+        if a > 0.0 and self.vpeak > v:
+            vmax = min(max(self.vpeak, 4.0), et.vmax)
+        stop_s = self._next_stop(sub, s_sub, v) if v > 0.0 else math.inf
+        return t, sub, s_sub, max(v, 0.0), a, vmax, et.code, et.parts, stop_s, et.brake
 
     def _occupation(self, t: float, ghost: Model) -> Occupation | None:
         if self.net is None or self.mode is None:

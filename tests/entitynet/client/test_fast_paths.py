@@ -13,8 +13,10 @@ from hypothesis import strategies as st
 
 from entitynet.client import netview
 from entitynet.client.filters import Kinematic1D
+from entitynet.client.motion import AreaModel, NetworkModel, WorldModel
 from entitynet.client.occupation import _branch_cover, branch_cover
 from entitynet.client.path import Path
+from entitynet.client.payload import encode, encode_quantized, quantized
 from entitynet.client.placement import Fix, Placer
 from topology.raw import PEDESTRIAN, VEHICLE
 
@@ -106,3 +108,19 @@ def test_branch_cover_memo_returns_the_computed_tree_and_a_private_list():
     cells.append(-7)  # the caller may extend its list: the cached tree must not change
     assert branch_cover(path, 0, 40.0, VEHICLE) == _branch_cover(net, (0, 1), 40.0, VEHICLE, 48, 64)
     assert branch_cover(path, 0, 10.0, VEHICLE) == _branch_cover(net, (0, 1), 10.0, VEHICLE, 48, 64)
+
+
+finite = st.floats(-1e5, 1e5, allow_nan=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 1e6), finite, finite, finite, st.floats(0.0, 40.0), st.one_of(st.just(math.inf), finite),
+       st.lists(st.floats(0.0, 30.0), max_size=2), finite, finite)
+def test_encode_quantized_equals_encode_of_quantized(t0, s0, v, a, vmax, stop_s, parts, x, y):
+    path = Path(NETS[0], [(0, 1), (1, 1)])
+    models = [NetworkModel(t0, path, s0, v, a, vmax, 3, tuple(parts), stop_s, 1.2),
+              AreaModel(t0, 0, x, y, v, a, 0), WorldModel(t0, x, y, v, a, s0, vmax, 1)]
+    for m in models:
+        payload, ghost = encode_quantized(m)
+        assert payload == encode(quantized(m))
+        assert ghost == quantized(m)
