@@ -93,6 +93,8 @@ class Placer:
         self._segs: dict[int, list[tuple[float, ...]]] = {}
         self._ring_box: dict[int, tuple[float, float, float, float, bool]] = {}
         self._area_bounds: tuple[np.ndarray, np.ndarray] | None = None
+        self._area_rows: list[tuple[int, float, float, float, float]] | None = None
+        self._grid: tuple[dict[tuple[int, int], list[int]], dict, float] | None = None
 
     # ---- first fix -----------------------------------------------------------------------------------------
     def first(self, x: float, y: float) -> Fix | None:
@@ -130,8 +132,42 @@ class Placer:
                    float(t.ay[k] + u[k] * t.dy[k]), float(d[k]))
 
     def edges_near(self, x: float, y: float, r: float) -> list[int]:
-        """Edges of this placer's networks passing within a box of half-size r around (x, y): the placement
-        index's STRtree (used at publish time in areas, not per fix)."""
+        """Edges of this placer's networks passing within a box of half-size r around (x, y): every edge
+        whose bounding box meets the box (closed intervals), in edge order. The same answer as a query of
+        the placement index's STRtree (`_edges_near_tree`, a test), from a grid of buckets in plain Python,
+        because it runs at every publish without a route."""
+        grid = self._grid
+        if grid is None:
+            grid = self._grid = self._edge_grid()
+        cells, boxes, size = grid
+        x0, y0, x1, y1 = x - r, y - r, x + r, y + r
+        out: set[int] = set()
+        for gx in range(math.floor(x0 / size), math.floor(x1 / size) + 1):
+            for gy in range(math.floor(y0 / size), math.floor(y1 / size) + 1):
+                for e in cells.get((gx, gy), ()):
+                    bx0, by0, bx1, by1 = boxes[e]
+                    if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0):
+                        out.add(e)
+        return sorted(out)
+
+    def _edge_grid(self, size: float = 50.0) -> tuple[dict[tuple[int, int], list[int]], dict, float]:
+        """Buckets of `size` metres listing the edges (of this placer's networks) whose boxes reach them."""
+        net = self.net
+        cells: dict[tuple[int, int], list[int]] = {}
+        boxes: dict[int, tuple[float, float, float, float]] = {}
+        for e in range(net.n_edges):
+            if not net.edge_net[e] & self.networks:
+                continue
+            lo, hi = net.geom_off[e], net.geom_off[e + 1]
+            xs, ys = net.gx[lo:hi], net.gy[lo:hi]
+            b = boxes[e] = (min(xs), min(ys), max(xs), max(ys))
+            for gx in range(math.floor(b[0] / size), math.floor(b[2] / size) + 1):
+                for gy in range(math.floor(b[1] / size), math.floor(b[3] / size) + 1):
+                    cells.setdefault((gx, gy), []).append(e)
+        return cells, boxes, size
+
+    def _edges_near_tree(self, x: float, y: float, r: float) -> list[int]:
+        """`edges_near` by the placement index's STRtree (the reference for the grid)."""
         import shapely
 
         index = self.topo.placement_index()
@@ -152,8 +188,11 @@ class Placer:
         bounds, ok = b
         if not len(bounds):
             return []
-        hit = ok & (bounds[:, 0] - r <= x) & (x <= bounds[:, 2] + r) & (bounds[:, 1] - r <= y) & (y <= bounds[:, 3] + r)
-        return np.flatnonzero(hit).tolist()
+        rows = self._area_rows
+        if rows is None:  # the same comparisons as the numpy test, as a plain loop over the few areas
+            rows = self._area_rows = [(i, *bounds[i].tolist()) for i in np.flatnonzero(ok).tolist()]
+        return [i for i, bx0, by0, bx1, by1 in rows
+                if bx0 - r <= x and x <= bx1 + r and by0 - r <= y and y <= by1 + r]
 
     def ring(self, area: int) -> np.ndarray:
         r = self._rings.get(area)

@@ -124,3 +124,21 @@ def test_encode_quantized_equals_encode_of_quantized(t0, s0, v, a, vmax, stop_s,
         payload, ghost = encode_quantized(m)
         assert payload == encode(quantized(m))
         assert ghost == quantized(m)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, len(TOPOS) - 1),
+       st.one_of(coord, st.integers(-250, 350).map(float)), st.one_of(coord, st.integers(-250, 350).map(float)),
+       st.one_of(st.floats(0.0, 120.0), st.integers(0, 60).map(float)))
+def test_edges_and_areas_near_equal_the_index_queries(ti, x, y, r):
+    """Box hits, touching boxes included (integer coordinates make the box meet the streets exactly)."""
+    net = NETS[ti]
+    for networks in (PEDESTRIAN, VEHICLE, PEDESTRIAN | VEHICLE):
+        pl = Placer(net, networks)
+        assert pl.edges_near(x, y, r) == pl._edges_near_tree(x, y, r)
+        bounds = net.topo.area_polygons.bounds()
+        ok = (net.topo.area_networks & networks) != 0 if len(bounds) else np.zeros(0, bool)
+        want = [] if not len(bounds) else np.flatnonzero(
+            ok & (bounds[:, 0] - r <= x) & (x <= bounds[:, 2] + r) & (bounds[:, 1] - r <= y)
+            & (y <= bounds[:, 3] + r)).tolist()
+        assert pl.areas_near(x, y, r) == want
