@@ -83,9 +83,20 @@ class NetworkModel:
         return self.path.xy(self.s_at(t))
 
     def xy_speed_at(self, t: float) -> tuple[float, float, float]:
-        """(x, y, speed) at t in one evaluation (the player's per-fix check)."""
-        s, v = self._state(t - self.t0)
-        x, y = self.path.xy(min(s, self.path.length))
+        """(x, y, speed) at t in one evaluation (the player's per-fix check; `_state` written out)."""
+        dt = t - self.t0
+        tb, sb, vb, b = self.plan
+        if dt <= tb:
+            ds, v = advance(self.v, self.a, self.vmax, dt)
+            s = self.s0 + ds
+        elif not math.isfinite(b):
+            s, v = sb, 0.0
+        else:
+            ds, v = advance(vb, -b, vb, dt - tb)
+            s = min(sb + ds, self.stop_s)
+        path = self.path
+        length = path.cum[-1]
+        x, y = path.xy(min(s, length))
         return x, y, v
 
     def parts_xy_at(self, t: float) -> list[tuple[float, float]]:

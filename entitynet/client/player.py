@@ -511,7 +511,8 @@ class Player:
                 return "periodic"
             return self._expiry_or_heartbeat(t)
         g = self.ghost
-        v_est = self._est_speed()
+        edge = self.model == "network" and self.mode == "edge"
+        v_est = self.kf.v if edge else math.hypot(self.kx.v, self.ky.v)  # `_est_speed`
         gx, gy, gv = g.xy_speed_at(t)
         et = self.etype
         if gv > et.v_stop and v_est < et.v_stop:
@@ -535,7 +536,7 @@ class Player:
                     self.reposition = True  # still standing, just somewhere else: publish standing there
                 return "drift"  # (creeping between v_stop and v_start: publish the slow motion)
             return self._expiry_or_heartbeat(t)
-        ex, ey = self.estimate_xy()
+        ex, ey = self.path.xy(self.kf.s) if self.mode == "edge" else (self.kx.s, self.ky.s)  # `estimate_xy`
         drift = math.hypot(gx - ex, gy - ey)
         # `confirm` fixes in a row over the threshold (or one over 1.5x) make a drift update
         self.over = self.over + 1 if drift > self.threshold else 0
