@@ -23,6 +23,7 @@ from topology.placement_index import Placement
 # kind "area" (index = area); x, y the inferred point; distance from the fix
 Fix = Placement
 
+AREA_BUCKET = 100.0  # metres: grid of area boxes for `areas_near`
 PY_ROWS = 160  # segment tables up to this size are searched by a plain loop, larger ones by numpy
 
 
@@ -93,7 +94,7 @@ class Placer:
         self._segs: dict[int, list[tuple[float, ...]]] = {}
         self._ring_box: dict[int, tuple[float, float, float, float, bool]] = {}
         self._area_bounds: tuple[np.ndarray, np.ndarray] | None = None
-        self._area_rows: list[tuple[int, float, float, float, float]] | None = None
+        self._area_rows: dict[tuple[int, int], list[tuple[int, float, float, float, float]]] | None = None
         self._grid: tuple[dict[tuple[int, int], list[int]], dict, float] | None = None
 
     # ---- first fix -----------------------------------------------------------------------------------------
@@ -188,11 +189,22 @@ class Placer:
         bounds, ok = b
         if not len(bounds):
             return []
-        rows = self._area_rows
-        if rows is None:  # the same comparisons as the numpy test, as a plain loop over the few areas
-            rows = self._area_rows = [(i, *bounds[i].tolist()) for i in np.flatnonzero(ok).tolist()]
-        return [i for i, bx0, by0, bx1, by1 in rows
-                if bx0 - r <= x and x <= bx1 + r and by0 - r <= y and y <= by1 + r]
+        grid = self._area_rows
+        if grid is None:  # buckets of areas by box; the same comparisons as the numpy test on the candidates
+            grid = self._area_rows = {}
+            for i in np.flatnonzero(ok).tolist():
+                row = (i, *bounds[i].tolist())
+                for gx in range(math.floor(row[1] / AREA_BUCKET), math.floor(row[3] / AREA_BUCKET) + 1):
+                    for gy in range(math.floor(row[2] / AREA_BUCKET), math.floor(row[4] / AREA_BUCKET) + 1):
+                        grid.setdefault((gx, gy), []).append(row)
+        out: set[int] = set()
+        # the 1 m pad: bx0 - r <= x may hold by rounding while x + r < bx0 (the buckets must not miss it)
+        for gx in range(math.floor((x - r - 1.0) / AREA_BUCKET), math.floor((x + r + 1.0) / AREA_BUCKET) + 1):
+            for gy in range(math.floor((y - r - 1.0) / AREA_BUCKET), math.floor((y + r + 1.0) / AREA_BUCKET) + 1):
+                for i, bx0, by0, bx1, by1 in grid.get((gx, gy), ()):
+                    if bx0 - r <= x and x <= bx1 + r and by0 - r <= y and y <= by1 + r:
+                        out.add(i)
+        return sorted(out)
 
     def ring(self, area: int) -> np.ndarray:
         r = self._rings.get(area)
