@@ -304,6 +304,20 @@ def frame_head(payload_size: int) -> bytes:
     return LENGTH_PREFIX.pack(payload_size)
 
 
+_HEAD_FIX = struct.Struct(">IB")  # length prefix + fixarray header
+_HEAD_16 = struct.Struct(">IBH")  # length prefix + array16 header
+
+
+def frame_prefix(n_messages: int, body_size: int) -> bytes:
+    """Length prefix and array header of a TCP frame of `n_messages` already encoded messages totalling
+    `body_size` bytes, in one call (the writer sends it with the joined messages, without concatenating)."""
+    if n_messages < 16:
+        return _HEAD_FIX.pack(body_size + 1, 0x90 | n_messages)
+    if n_messages < 0x10000:
+        return _HEAD_16.pack(body_size + 3, 0xDC, n_messages)
+    return LENGTH_PREFIX.pack(body_size + 5) + _array_header(n_messages)
+
+
 def encode_payload(msgs: Iterable[Message]) -> bytes:
     """Messages -> one payload (a WebSocket message body, or the body of a TCP frame)."""
     return payload_from_encoded([encode_message(m) for m in msgs])

@@ -109,6 +109,9 @@ class Server:
         self.written = 0  # messages written
         self.frames = 0  # frames written
         self._lat_n = 0
+        # frames of up to this many states take the short path in _try_write (beyond the outbox bound the
+        # long path drops the client)
+        self._fast_batch = min(config.max_batch, self.sb.config.max_pending)
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -308,6 +311,32 @@ class Server:
         if conn.busy or conn.closed:
             return
         ob = conn.outbox
+        states = ob.states
+        n = len(states)
+        if (conn.fd is not None and 0 < n <= self._fast_batch and not ob.control and not ob.close_after
+                and not ob.overflow):
+            # the common case, kept short (it runs once per frame): only coalesced states, a plain socket
+            body = b"".join(states.values())
+            states.clear()  # in place: the core holds a reference to this dict
+            head = P.frame_prefix(n, len(body))
+            self.written += n
+            self.frames += 1
+            try:
+                sent = os.writev(conn.fd, (head, body))
+            except BlockingIOError:
+                sent = 0
+            except OSError:
+                if conn.scope is not None:
+                    conn.scope.cancel()  # peer gone: the handler closes and disconnects
+                return
+            if sent == len(head) + len(body):
+                if conn.dirty_since is not None:
+                    self._written(conn)
+                return
+            conn.rest = (head + body)[sent:]
+            conn.busy = True
+            conn.wake.set()
+            return
         if len(ob.states) > ob.max_states or ob.overflow or len(ob.control) > ob.max_control:
             self.sb.check_outbox(conn.cid, ob)  # drops it: SLOW_CONSUMER is now the only thing queued
         states = ob.states
