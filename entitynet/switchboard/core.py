@@ -7,8 +7,10 @@ with `receive(cid, msgs, now)`, runs `expire(now)` at `next_deadline()`, and wri
 Each entity keeps the set of clients that currently know it (`viewers`). A PUBLISH computes the new set
 (the union of the subscribers of its cells and its followers, minus the owner): the members get the
 UPDATE once however many of those cells they hold, and those that dropped out get LEAVE. Set algebra runs
-in C; an UPDATE is encoded once per publish (twice when an identity is shown to part of the audience) and
-the same bytes are queued for every viewer. Nothing here assumes a single shard: cell ids are plain ints
+in C, and is skipped when neither the entity's cells nor their subscribers nor its followers changed since
+the set was computed (per-cell subscription ticks): the common case of an entity updating in place. An
+UPDATE is encoded once per publish (twice when an identity is shown to part of the audience) and the same
+bytes are queued for every viewer. Nothing here assumes a single shard: cell ids are plain ints
 and a neighbouring shard would be just another client subscribing with the same messages.
 """
 
@@ -57,7 +59,7 @@ class ClientState:
 class EntityState:
     __slots__ = (
         "eid", "owner", "local", "seq", "cells", "validity_ms", "payload", "viewers", "followers",
-        "enc_plain", "enc_ident",
+        "enc_plain", "enc_ident", "viewers_tick",
     )
 
     def __init__(self, eid: int, owner: ClientState, local: int):
@@ -72,6 +74,8 @@ class EntityState:
         self.followers: set[int] = set()
         self.enc_plain = b""
         self.enc_ident: bytes | None = None  # cached encoding with the owner's identity
+        # `viewers` is the full union of subscribers and followers as of this subscription tick (-1: not)
+        self.viewers_tick = -1
 
 
 class Switchboard:
@@ -85,6 +89,11 @@ class Switchboard:
         self.timers = ExpiryHeap()
         self._states: dict[int, dict[int, bytes]] = {}  # cid -> its outbox.states (hot path shortcut)
         self._dirty: set[int] = set()
+        # Subscription ticks: a viewer set computed at tick T stays exact while none of the entity's cells has
+        # changed subscribers since (and its followers have not changed), so most PUBLISHes reuse it.
+        self._tick = 0
+        self._cell_tick: dict[int, int] = {}  # cell -> tick of its last subscriber change
+        self._valid_from = 0  # viewer sets computed before this tick are void (shutdown)
         self._next_cid = 1
         self._rng = random.Random(config.seed)
         self._shut = False
@@ -172,6 +181,8 @@ class Switchboard:
             self._dirty.add(c.cid)
         self.errors[int(ErrorCode.SHUTTING_DOWN)] += len(self.clients)
         self.subscribers.clear()
+        self._tick += 1
+        self._valid_from = self._tick
         self.by_identity.clear()
         self._shut = True
 
@@ -289,6 +300,15 @@ class Switchboard:
         e.enc_ident = None
         self.timers.set(eid, now + m.validity_ms / 1000.0 + cfg.grace_s)
 
+        t = e.viewers_tick
+        if t >= self._valid_from and (old is new or old == new):
+            cell_tick = self._cell_tick
+            for cell in new:
+                if cell_tick.get(cell, 0) > t:
+                    break
+            else:  # nobody (un)subscribed to these cells or (un)followed it: the viewers are the same
+                self._deliver(e, e.viewers)
+                return
         viewers: set[int] = set()
         subs = self.subscribers
         for cell in new:
@@ -303,6 +323,7 @@ class Switchboard:
         if gone:
             self._leave(eid, gone)
         e.viewers = viewers
+        e.viewers_tick = self._tick
 
     def _deliver(self, e: EntityState, viewers: set[int]) -> None:
         if not viewers:
@@ -410,17 +431,23 @@ class Switchboard:
         added = new - old
         cid = c.cid
         subs = self.subscribers
+        if removed or added:
+            self._tick += 1
+            tick = self._tick
+            cell_tick = self._cell_tick
         for cell in removed:
             s = subs[cell]
             s.discard(cid)
             if not s:
                 del subs[cell]
+            cell_tick[cell] = tick
         for cell in added:
             s = subs.get(cell)
             if s is None:
                 subs[cell] = {cid}
             else:
                 s.add(cid)
+            cell_tick[cell] = tick
         c.subs = new
         occ = self.occupants
         ents = self.entities
@@ -469,6 +496,7 @@ class Switchboard:
             return
         c.follows.add(m.entity)
         e.followers.add(c.cid)
+        e.viewers_tick = -1
         if c.cid not in e.viewers and e.owner is not c:
             e.viewers.add(c.cid)
             c.outbox.states[e.eid] = self._encoded_for(e, c)
@@ -483,6 +511,7 @@ class Switchboard:
         if e is None:
             return
         e.followers.discard(c.cid)
+        e.viewers_tick = -1
         if c.cid in e.viewers and c.subs.isdisjoint(e.cells):
             e.viewers.discard(c.cid)
             self._leave(e.eid, {c.cid})
@@ -553,12 +582,15 @@ class Switchboard:
         for eid in list(c.entities.values()):
             self._remove_entity(self.entities[eid])
         cid = c.cid
+        self._tick += 1
+        cell_tick = self._cell_tick
         for cell in c.subs:
             s = self.subscribers.get(cell)
             if s is not None:
                 s.discard(cid)
                 if not s:
                     del self.subscribers[cell]
+            cell_tick[cell] = self._tick
         for cell in c.subs:
             for eid in self.occupants.get(cell, ()):
                 self.entities[eid].viewers.discard(cid)
@@ -568,6 +600,7 @@ class Switchboard:
             if e is not None:
                 e.followers.discard(cid)
                 e.viewers.discard(cid)
+                e.viewers_tick = -1
         c.follows = set()
         if c.identity is not None:
             s = self.by_identity.get(c.identity)
