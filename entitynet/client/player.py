@@ -133,6 +133,7 @@ class Player:
         self.ky: Kinematic1D | None = None
         self.pending: tuple[int, int] = (-1, 0)
         self.ghost: Model | None = None
+        self._still: tuple[Model, tuple[float, float, float]] | None = None  # a standing ghost's answer
         self.occupation: Occupation | None = None
         self.pub_t = -math.inf
         self.off_since: float | None = None
@@ -513,7 +514,15 @@ class Player:
         g = self.ghost
         edge = self.model == "network" and self.mode == "edge"
         v_est = self.kf.v if edge else math.hypot(self.kx.v, self.ky.v)  # `_est_speed`
-        gx, gy, gv = g.xy_speed_at(t)
+        still = self._still
+        if still is not None and still[0] is g:
+            gx, gy, gv = still[1]
+        else:
+            gx, gy, gv = g.xy_speed_at(t)
+            if isinstance(g, NetworkModel) and g.v == 0.0 and g.a == 0.0:
+                # a standing network ghost (half the fixes of transit vehicles) answers the same at every t:
+                # advance(0, 0, .) moves 0.0 and its braking plan is void (brake_plan gives inf at v = 0)
+                self._still = (g, (gx, gy, gv))
         et = self.etype
         if gv > et.v_stop and v_est < et.v_stop:
             return "stop"

@@ -142,3 +142,14 @@ def test_edges_and_areas_near_equal_the_index_queries(ti, x, y, r):
             ok & (bounds[:, 0] - r <= x) & (x <= bounds[:, 2] + r) & (bounds[:, 1] - r <= y)
             & (y <= bounds[:, 3] + r)).tolist()
         assert pl.areas_near(x, y, r) == want
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.floats(0.0, 1e5), st.floats(0.0, 200.0), st.floats(0.0, 40.0),
+       st.one_of(st.just(math.inf), st.floats(-50.0, 300.0)), st.floats(0.1, 3.0),
+       st.lists(st.floats(-10.0, 1e4), min_size=1, max_size=6))
+def test_a_standing_network_ghost_answers_the_same_at_every_time(t0, s0, vmax, stop_s, brake, ts):
+    """The premise of the player's cache of a standing ghost (v = a = 0): its answer does not depend on t."""
+    g = NetworkModel(t0, Path(NETS[0], [(0, 1), (1, 1)]), s0, 0.0, 0.0, vmax, 3, (), stop_s, brake)
+    first = g.xy_speed_at(t0)
+    assert all(g.xy_speed_at(t0 + dt) == first for dt in ts)
