@@ -83,9 +83,11 @@ class Path:
         """(s, cell) of every cell piece that starts in (s0, s1], in order of travel."""
         out: list[tuple[float, int]] = []
         k = self.index(s0)
-        while k < len(self.edges) and self.cum[k] <= s1:
-            base = self.cum[k]
-            for a, _b, c in self.net.pieces(*self.edges[k]):
+        edges, cum, pieces = self.edges, self.cum, self.net.pieces
+        n = len(edges)
+        while k < n and cum[k] <= s1:
+            base = cum[k]
+            for a, _b, c in pieces(*edges[k]):
                 sa = base + a
                 if sa > s1:
                     break

@@ -484,7 +484,9 @@ class Player:
         if path.edges[k] not in self.route_first:
             out = 0.0
         else:
-            while k + 1 < len(path.edges) and (path.edges[k], path.edges[k + 1]) in self.route_pairs:
+            edges, pairs = path.edges, self.route_pairs
+            n = len(edges)
+            while k + 1 < n and (edges[k], edges[k + 1]) in pairs:
                 k += 1
             out = path.cum[k + 1]
         self._ku_memo = (path, k0, out)
