@@ -39,7 +39,8 @@ def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
 
 
 class _SegTable:
-    __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks", "rows")
+    __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks", "rows",
+                 "slen_py", "cum0_py")
 
     def __init__(self, net: NetView, edges: list[int], areas: list[int]) -> None:
         edges = sorted(set(edges))
@@ -66,8 +67,9 @@ class _SegTable:
         # the same numbers as Python floats, one tuple per segment: most tables hold 10-30 segments, where a
         # plain loop is several times faster than a dozen numpy calls (and gives the same IEEE results)
         self.rows = list(zip(self.ax.tolist(), self.ay.tolist(), self.dx.tolist(), self.dy.tolist(),
-                             self.inv_l2.tolist(), self.slen.tolist(), self.cum0.tolist(), self.edge.tolist(),
-                             strict=True))
+                             self.inv_l2.tolist(), self.edge.tolist(), strict=True))
+        self.slen_py: list[float] = self.slen.tolist()
+        self.cum0_py: list[float] = self.cum0.tolist()
 
     def mask(self, preferred: frozenset[int]) -> np.ndarray:
         m = self.masks.get(preferred)
@@ -246,34 +248,44 @@ class Placer:
 
     def _near_py(self, t: _SegTable, x: float, y: float, preferred: set[int] | frozenset[int],
                  margin: float) -> tuple[Fix, float]:
-        """`near` as a plain loop: the same operations per segment as the numpy pass, first minimum wins."""
+        """`near` as a plain loop: the same operations per segment as the numpy pass, first minimum wins
+        (a preferred segment's cost d + 0.0 is d itself, d being a square root >= +0.0)."""
         sqrt = math.sqrt
         best_cost = best_pref = math.inf
-        best = None
-        for row in t.rows:
-            ax, ay, dx, dy, il2 = row[0], row[1], row[2], row[3], row[4]
-            rx = x - ax
-            ry = y - ay
-            u = (rx * dx + ry * dy) * il2
-            u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
-            ex = rx - u * dx
-            ey = ry - u * dy
-            d = sqrt(ex * ex + ey * ey)
-            if preferred:
-                if row[7] in preferred:
-                    cost = d + 0.0
+        best = -1
+        bu = bd = 0.0
+        if preferred:
+            for k, (ax, ay, dx, dy, il2, e) in enumerate(t.rows):
+                rx = x - ax
+                ry = y - ay
+                u = (rx * dx + ry * dy) * il2
+                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+                ex = rx - u * dx
+                ey = ry - u * dy
+                d = sqrt(ex * ex + ey * ey)
+                if e in preferred:
+                    cost = d
                     if d < best_pref:
                         best_pref = d
                 else:
                     cost = d + margin
-            else:
-                cost = d
-            if cost < best_cost:
-                best_cost, best, bu, bd = cost, row, u, d
-        if best is None:  # no segment beat inf: fall back to the first (as argmin does)
+                if cost < best_cost:
+                    best_cost, best, bu, bd = cost, k, u, d
+        else:
+            for k, (ax, ay, dx, dy, il2, _e) in enumerate(t.rows):
+                rx = x - ax
+                ry = y - ay
+                u = (rx * dx + ry * dy) * il2
+                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+                ex = rx - u * dx
+                ey = ry - u * dy
+                d = sqrt(ex * ex + ey * ey)
+                if d < best_cost:
+                    best_cost, best, bu, bd = d, k, u, d
+        if best < 0:  # no segment beat inf: let numpy's argmin decide
             return self._near_np(t, x, y, preferred, margin)
-        ax, ay, dx, dy, _il2, slen, c0, e = best
-        return Fix("edge", e, c0 + bu * slen, ax + bu * dx, ay + bu * dy, bd), best_pref
+        ax, ay, dx, dy, _il2, e = t.rows[best]
+        return Fix("edge", e, t.cum0_py[best] + bu * t.slen_py[best], ax + bu * dx, ay + bu * dy, bd), best_pref
 
     def _near_np(self, t: _SegTable, x: float, y: float, preferred: set[int] | frozenset[int],
                  margin: float | None) -> tuple[Fix, float]:
