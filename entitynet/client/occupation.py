@@ -197,10 +197,11 @@ def occupy(
         target = reach if tight else min(want, end_known)
         nxt = path.first_boundary_after(target, end_known)
         cover_end = nxt if nxt is not None else end_known
-        # cells of [start, cover_end): the cell starting exactly at cover_end is not covered
-        cells = path.cells_between(start, reach)
-        for sa, c in path.starts_in(reach, cover_end):
-            if sa < cover_end and c not in cells:
+        # cells of [start, cover_end): the cell starting exactly at cover_end is not covered. One pass for
+        # the cells under the body (start, reach], as `cells_between` lists them, and those ahead of it
+        cells = [path.cell(start)]
+        for sa, c in path.starts_in(start, max(reach, cover_end)):
+            if (sa <= reach or sa < cover_end) and c not in cells:
                 cells.append(c)
     if cover_end >= path.length and dead_end_at_path_end:
         front = INF

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import replace
 
 from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
@@ -34,6 +33,11 @@ from entitynet.protocol import Publish, Unpublish
 MODELS = ("network", "fpw", "fvw", "periodic")
 MAX_PUBLISH_CELLS = 64
 MAX_PATH_EDGES = 48
+
+
+def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
+    """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
+    return Occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
 
 
 class FixRejected(ValueError):
@@ -658,7 +662,7 @@ class Player:
                         for a0, b0, c in self.net.pieces(e, 1):
                             if b0 >= f.offset - self.lateral and a0 <= f.offset + self.lateral and c not in cells:
                                 cells.append(c)
-                occ = replace(occ, cells=tuple(cells[:MAX_PUBLISH_CELLS]))
+                occ = _with_cells(occ, tuple(cells[:MAX_PUBLISH_CELLS]))
             return occ
         if isinstance(ghost, NetworkModel):
             path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a
@@ -677,7 +681,7 @@ class Player:
             for c in extra:
                 if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
                     cells.append(c)
-            occ = replace(occ, cells=tuple(cells))
+            occ = _with_cells(occ, tuple(cells))
         return occ
 
     def _lateral_cells(self, path: Path, s: float, ahead: float) -> list[int]:

@@ -153,3 +153,22 @@ def test_a_standing_network_ghost_answers_the_same_at_every_time(t0, s0, vmax, s
     g = NetworkModel(t0, Path(NETS[0], [(0, 1), (1, 1)]), s0, 0.0, 0.0, vmax, 3, (), stop_s, brake)
     first = g.xy_speed_at(t0)
     assert all(g.xy_speed_at(t0 + dt) == first for dt in ts)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 1.0), st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+def test_one_pass_cover_equals_cells_between_then_starts_in(f0, f1, f2):
+    """`occupy`'s single pass over the path gives the cells of the two passes it replaced."""
+    net = NETS[2]  # the chain: many short cells in a row
+    path = Path(net, [(e, 1) for e in range(net.n_edges)])
+    start, reach, cover_end = sorted(round(f * path.length, 1) for f in (f0, f1, f2))
+    for a, b, c in ((start, reach, cover_end), (start, start, reach), (start, reach, reach)):
+        want = path.cells_between(a, b)
+        for sa, cell in path.starts_in(b, c):
+            if sa < c and cell not in want:
+                want.append(cell)
+        got = [path.cell(a)]
+        for sa, cell in path.starts_in(a, max(b, c)):
+            if (sa <= b or sa < c) and cell not in got:
+                got.append(cell)
+        assert got == want
