@@ -321,13 +321,8 @@ class Server:
             head = P.frame_prefix(n, len(body))
             self.written += n
             self.frames += 1
-            try:
-                sent = os.writev(conn.fd, (head, body))
-            except BlockingIOError:
-                sent = 0
-            except OSError:
-                if conn.scope is not None:
-                    conn.scope.cancel()  # peer gone: the handler closes and disconnects
+            sent = self._writev(conn, head, body)
+            if sent is None:
                 return
             if sent == len(head) + len(body):
                 if conn.dirty_since is not None:
@@ -359,13 +354,8 @@ class Server:
             data = head + body if conn.kind == "ws" else P.frame_head(len(head) + len(body)) + head + body
         else:
             head = P.frame_head(len(head) + len(body)) + head
-            try:
-                n = os.writev(conn.fd, (head, body))
-            except BlockingIOError:
-                n = 0
-            except OSError:
-                if conn.scope is not None:
-                    conn.scope.cancel()  # peer gone: the handler closes and disconnects
+            n = self._writev(conn, head, body)
+            if n is None:
                 return
             if n == len(head) + len(body):
                 self._written(conn)
@@ -377,6 +367,18 @@ class Server:
         conn.rest = data
         conn.busy = True
         conn.wake.set()
+
+    @staticmethod
+    def _writev(conn: _Conn, head: bytes, body: bytes) -> int | None:
+        """Write what the non-blocking socket takes now: bytes sent, or None when the peer is gone."""
+        try:
+            return os.writev(conn.fd, (head, body))
+        except BlockingIOError:
+            return 0
+        except OSError:
+            if conn.scope is not None:
+                conn.scope.cancel()  # peer gone: the handler closes and disconnects
+            return None
 
     def _written(self, conn: _Conn) -> None:
         if conn.dirty_since is not None:
