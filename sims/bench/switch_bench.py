@@ -4,7 +4,8 @@ Workload on the bundled map (or --topology): N publishing entities (70 % pedestr
 8 m/s) walk the street network; like the client core, each sends an update when its cell-occupation validity
 runs out (it reaches the next cell breakpoint) and otherwise every 5-15 s; cars longer than a breakpoint occupy
 two cells. They are multiplexed over a few publisher connections (one frame per connection per 5 ms tick).
-V viewers subscribe to the cells within 500 m of a random street node (the PVS lookup is not used: see notes).
+V viewers subscribe to the PVS of a view cell over a random street node (half at street level, half above the
+roofs); an artifact without a PVS falls back to the cells within 500 m, and the report's notes say so.
 
 Redis run: the same entities and ticks, PUBLISH to one channel per occupied cell (pipelined); each viewer is a
 connection SUBSCRIBEd to its cells' channels. A delivery is counted once per (viewer, entity, seq): a Redis
