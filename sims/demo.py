@@ -13,7 +13,7 @@ import signal
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -49,10 +49,8 @@ class DemoConfig:
 class Stats:
     published: int = 0
     deliveries: int = 0
-    leaves: int = 0
     rejected_fixes: int = 0
     subscribe_msgs: int = 0
-    errors: Counter = field(default_factory=Counter)
 
 
 def distance_cells_at(topo, view_distance: float = 500.0) -> Callable[[float, float, float], np.ndarray]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import networkx as nx
 import numpy as np
@@ -45,7 +45,6 @@ class Edge:
     xy: np.ndarray
     networks: int
     layer: int
-    ways: set[int] = field(default_factory=set)
 
     @property
     def length(self) -> float:
@@ -139,11 +138,11 @@ def clean(raw: RawMap, params: CleanParams | None = None) -> Network:
 
     # --- 3. split at true endpoints
     edges: list[Edge] = []
-    for (way_id, xy, _, bits, layer), keys in zip(ways, way_keys, strict=True):
+    for (_, xy, _, bits, layer), keys in zip(ways, way_keys, strict=True):
         start = 0
         for i in range(1, len(keys)):
             if i == len(keys) - 1 or occurrences[keys[i]] > 1:
-                edges.append(Edge(keys[start], keys[i], xy[start : i + 1].copy(), bits, layer, {way_id}))
+                edges.append(Edge(keys[start], keys[i], xy[start : i + 1].copy(), bits, layer))
                 start = i
     report["read:edges_before_cleaning"] += len(edges)
 
@@ -229,7 +228,6 @@ def _drop_degenerate(node_xy, edges: list[Edge], p: CleanParams, report: Counter
             if dup.networks | e.networks != dup.networks:
                 report["repaired:duplicate_merged_networks"] += 1
             dup.networks |= e.networks
-            dup.ways |= e.ways
             report["dropped:duplicate_segment"] += 1
             continue
         seen[key].append(e)
@@ -299,7 +297,7 @@ def _join_areas(node_xy, edges: list[Edge], areas: list[Area], tolerance: float,
         for s0, s1, c in sorted(pieces, key=lambda t: t[0]):
             u = e.u if s0 <= 1e-6 else _nearest_area_node(served, c[0])
             v = e.v if s1 >= total - 1e-6 else _nearest_area_node(served, c[-1])
-            out.append(Edge(u, v, c, e.networks, e.layer, set(e.ways)))
+            out.append(Edge(u, v, c, e.networks, e.layer))
         if pieces and (len(pieces) > 1 or pieces[0][0] > 1e-6 or pieces[0][1] < total - 1e-6):
             report["repaired:edge_clipped_at_area"] += 1
     return _join_touching_nodes(node_xy, out, areas, tolerance, report)
@@ -365,7 +363,6 @@ def _merge_degree2(edges: list[Edge], keep_nodes: set[int], report: Counter) -> 
             continue
         a.xy = np.vstack([a.xy, b.xy[1:]])
         a.v = b.v
-        a.ways |= b.ways
         alive[ids[1]] = False
         inc[b.v] = [ids[0] if i == ids[1] else i for i in inc[b.v]]
         inc[n] = []
