@@ -174,9 +174,10 @@ def car_trace() -> Entity | None:
 
 # ---- running -----------------------------------------------------------------------------------------------
 def run_entity(topo, ent: Entity, model: str, threshold: float, np_rng: np.random.Generator, acc: dict,
-               noisy: bool = True) -> None:
-    p = Player(topo if ent.cells is not None else None, 1, ent.etype, model=model, route=ent.route,
-               stops=getattr(ent, "stops", ()) if model == "network" else (), threshold=threshold)
+               noisy: bool = True, player=None) -> None:
+    p = player() if player is not None else Player(
+        topo if ent.cells is not None else None, 1, ent.etype, model=model, route=ent.route,
+        stops=getattr(ent, "stops", ()) if model == "network" else (), threshold=threshold)
     if noisy:
         fix_idx = np.arange(0, len(ent.t), int(round(1.0 / SAMPLE)))
         # the same noise for every model and threshold: differences are the models', not the dice's
@@ -263,6 +264,53 @@ def oracle_updates_per_min(ents: list[Entity], threshold: float, vmax: float = 1
             updates += 1
         minutes += (e.t[-1] - e.t[0]) / 60.0
     return updates / max(minutes, 1e-9)
+
+
+class _TruthPlayer(Player):
+    """The network player with part of its estimate replaced by the truth (`true_state`: the speed and the
+    acceleration it publishes; `true_test`: the position its drift test compares the ghost with). Measures
+    how much of the gap to the oracle each part of the estimation costs."""
+
+    def __init__(self, *args, truth: tuple, true_state: bool, true_test: bool, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.truth_t0, self.truth_xy, self.truth_v, self.truth_a = truth
+        self.true_state, self.true_test = true_state, true_test
+
+    def _i(self, t: float) -> int:
+        return min(max(int(round((t - self.truth_t0) / SAMPLE)), 0), len(self.truth_v) - 1)
+
+    def _network_fields(self, t: float, from_ghost: bool) -> tuple:
+        f = super()._network_fields(t, from_ghost)
+        if self.true_state and not from_ghost and f[3] > 0.0:
+            i = self._i(t)
+            f = (*f[:3], max(float(self.truth_v[i]), 0.0), float(self.truth_a[i]), *f[5:])
+        return f
+
+    def _drift_reference(self) -> tuple[float, float]:
+        if self.true_test and self.mode == "edge":
+            x, y = self.truth_xy[self._i(self.last_t)]
+            return float(x), float(y)
+        return super()._drift_reference()
+
+
+def estimation_bounds(topo, ents: list[Entity], threshold: float) -> dict[str, float]:
+    """Updates per entity-minute of the network model with the truth in place of: the published speed and
+    acceleration, the drift test's position, or both (same noisy fixes and placement as the table)."""
+    out = {}
+    for key, st, tt in (("true_state_at_publish", True, False), ("true_position_in_drift_test", False, True),
+                        ("both", True, True)):
+        acc = _new_acc()
+        for ent in ents:
+            s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ent.xy, axis=0).T))])
+            v = np.gradient(s, ent.t)
+            truth = (float(ent.t[0]), ent.xy, v, np.gradient(v, ent.t))
+            run_entity(topo, ent, "network", threshold, None, acc,
+                       player=lambda e=ent, tr=truth, a=st, b=tt: _TruthPlayer(
+                           topo, 1, e.etype, model="network", route=e.route, stops=e.stops, threshold=threshold,
+                           truth=tr, true_state=a, true_test=b))
+        row = _row("vehicles", "network", threshold, acc)
+        out[key] = {"updates_per_entity_min": float(row["updates_per_entity_min"]), "error_p95_m": row["error_p95_m"]}
+    return out
 
 
 def _new_acc() -> dict:
@@ -381,6 +429,7 @@ def run(args, progress) -> dict:
         results["extra_cells_price_5m"] = net5["cells_published_per_true_cell"]
         oracle = oracle_updates_per_min(datasets["vehicles"], 5.0)
         results["network_oracle_updates_per_entity_min_5m"] = round(oracle, 3)
+        results["network_estimation_bounds_5m"] = estimation_bounds(topo, datasets["vehicles"], 5.0)
     occ = [r["occupation_error"] for r in table if r["model"] == "network" and r["threshold_m"] == 5.0
            and r["occupation_error"] is not None]
     results["occupation_error"] = {r["dataset"]: r["occupation_error"] for r in table
