@@ -103,6 +103,27 @@ class Kinematic1D:
         self.p02 = p02 - k0 * p02
         return y
 
+    def update_speed(self, z: float, r: float) -> float:
+        """Fold in a measured speed z (variance r) taken at the filter's time (right after `update`): a
+        Doppler speed from the receiver, far less noisy than differences of positions."""
+        p01, p11, p12 = self.p01, self.p11, self.p12
+        y = z - self.v
+        sden = p11 + r
+        if not sden > 0.0:
+            return y
+        k0, k1, k2 = p01 / sden, p11 / sden, p12 / sden
+        self.s += k0 * y
+        self.v += k1 * y
+        if self.accel:
+            self.a += k2 * y
+            self.p02 -= k0 * p12
+            self.p22 -= k2 * p12
+            self.p12 = p12 - k1 * p12
+        self.p00 -= k0 * p01
+        self.p01 = p01 - k0 * p11
+        self.p11 = p11 - k1 * p11
+        return y
+
     def state_at(self, t: float) -> tuple[float, float, float]:
         """Predicted (s, v, a) at t without changing the filter."""
         dt = max(t - self.t, 0.0)
