@@ -267,6 +267,9 @@ class Player:
             fix = placer.first(x, y)
             if fix is None or fix.distance > self.off_network:
                 return "off"
+            if fix.kind == "edge" and placer.holds_area(self.area, x, y, fix.distance, self.lateral):
+                self._area_update(x, y, t, r)  # GPS noise just outside the area, no way nearer: still inside
+                return None
             self._init_at(fix, t, r)
             self.last_fix = fix
             return "path"
@@ -651,10 +654,12 @@ class Player:
             vx, vy = (ghost.vx, ghost.vy) if isinstance(ghost, AreaModel) else (0.0, 0.0)
             # the strip outside the area is covered by the lateral cells below, so the period only keeps
             # the GPS accuracy as its margin (a large drift threshold would otherwise make it vanish)
+            margin = min(self.margin, self.accuracy)
             occ = occupy_area(x, y, vx, vy, self.placer.ring(self.area), self.net.area_cell[self.area],
-                              margin=min(self.margin, self.accuracy), max_validity=self.max_validity)
+                              margin=margin, max_validity=self.max_validity)
             if self.lateral > 0.0:
-                # ways crossing or skirting the area: under GPS noise the entity may be on one of them
+                # ways crossing or skirting the area and areas next to it: under GPS noise the entity may be
+                # on one of them
                 cells = list(occ.cells)
                 for e in self.placer.edges_near(x, y, self.lateral):
                     f = self.placer.project_on(x, y, e)
@@ -662,7 +667,18 @@ class Player:
                         for a0, b0, c in self.net.pieces(e, 1):
                             if b0 >= f.offset - self.lateral and a0 <= f.offset + self.lateral and c not in cells:
                                 cells.append(c)
-                occ = _with_cells(occ, tuple(cells[:MAX_PUBLISH_CELLS]))
+                for area in self.placer.areas_near(x, y, self.lateral):
+                    c = self.net.area_cell[area]
+                    if c not in cells and ring_distance(self.placer.ring(area), x, y) <= self.lateral:
+                        cells.append(c)
+                validity = occ.validity
+                speed = math.hypot(vx, vy)
+                if len(cells) <= MAX_PUBLISH_CELLS and speed > 0.0 and self.lateral > margin:
+                    # every cell within `lateral` of the position is listed: the ghost must move
+                    # `lateral - margin` before the truth can be outside them, wherever the boundary is
+                    validity = max(validity, min((self.lateral - margin) / speed, self.max_validity))
+                occ = Occupation(tuple(cells[:MAX_PUBLISH_CELLS]), validity, occ.front_period, occ.aft_period,
+                                 occ.cover_start, occ.cover_end)
             return occ
         if isinstance(ghost, NetworkModel):
             path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a

@@ -1,0 +1,64 @@
+"""Pedestrian occupation under GPS noise: areas, parallel ways, paths that come back near themselves."""
+
+from __future__ import annotations
+
+import math
+
+from client_fixtures import area_square, make_topology
+
+from entitynet.client import Player
+from topology.raw import PEDESTRIAN
+
+
+def two_squares():
+    """Two 60 m pedestrian areas side by side (west W1, east E1, touching at x = 0), a street west of W1."""
+    west = [(-60.0, -30.0), (0.0, -30.0), (0.0, 30.0), (-60.0, 30.0), (-60.0, -30.0)]
+    east = [(0.0, -30.0), (60.0, -30.0), (60.0, 30.0), (0.0, 30.0), (0.0, -30.0)]
+    nodes = {"P": (-30.0, 0.0), "Q": (30.0, 0.0), "S": (-160.0, 0.0)}
+    return make_topology(nodes, [("S", "P", PEDESTRIAN), ("P", "Q", PEDESTRIAN)],
+                         areas=[("P", west, PEDESTRIAN), ("Q", east, PEDESTRIAN)], junction_radius=10.0)
+
+
+def test_a_fix_just_outside_an_area_with_no_way_near_keeps_the_entity_inside():
+    topo = area_square(side=60.0)  # boundary at |x|, |y| = 30; streets leave it west and east along y = 0
+    p = Player(topo, 1, "pedestrian")
+    for i in range(5):
+        p.feed(0.0, 20.0 + i, float(i))
+    assert p.mode == "area"
+    out = p.feed(0.0, 34.0, 5.0)  # 4 m north of the boundary, the nearest way 34 m away: GPS noise
+    assert p.mode == "area" and p.stats.get("path", 0) == 0
+    assert all(m.cells[0] == int(topo.area_cell[0]) for m in out)
+
+
+def test_a_fix_on_a_way_leaving_the_area_leaves_it():
+    topo = area_square(side=60.0)
+    p = Player(topo, 1, "pedestrian")
+    for i in range(5):
+        p.feed(-25.0 - i, 0.0, float(i))
+    assert p.mode == "area"
+    p.feed(-36.0, 0.5, 5.0)  # 6 m out, half a metre from the western street: the street is nearer
+    assert p.mode == "edge" and p.stats["path"] == 1
+
+
+def test_a_fix_far_outside_the_area_leaves_it_even_without_a_nearer_way():
+    topo = area_square(side=60.0)
+    p = Player(topo, 1, "pedestrian")
+    p.feed(0.0, 25.0, 0.0)
+    p.feed(0.0, 45.0, 1.0)  # 15 m out: more than 2 x accuracy, not noise
+    assert p.mode == "edge"
+
+
+def test_area_occupation_lists_the_neighbouring_area_and_lasts_until_the_lateral_cover_is_used_up():
+    topo = two_squares()
+    p = Player(topo, 1, "pedestrian", accuracy=5.0)
+    out = []
+    for i in range(8):  # walking east at 1.4 m/s, 4 m inside the western area's boundary with the eastern one
+        out += p.feed(-12.0 + 1.4 * i, 0.5, float(i))
+    assert p.mode == "area" and p.area == 0
+    m = out[-1]
+    assert int(topo.area_cell[1]) in m.cells  # 4 m from the other area: GPS cannot tell them apart
+    speed = math.hypot(p.ghost.vx, p.ghost.vy)
+    assert speed > 0.5
+    # every cell within lateral (10 m) is listed: valid until the ghost has moved lateral - accuracy (5 m),
+    # not only until it could reach the area's boundary (half a second away here)
+    assert p.occupation.validity >= (10.0 - 5.0) / speed - 1e-3
