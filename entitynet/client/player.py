@@ -33,6 +33,9 @@ from entitynet.protocol import Publish, Unpublish
 MODELS = ("network", "fpw", "fvw", "periodic")
 MAX_PUBLISH_CELLS = 64
 MAX_PATH_EDGES = 48
+# choosing among the path's edges: an along-path jump of ALONG_SCALE metres from the prediction costs as
+# much as one metre off the way (the prediction is good to a few metres; the fix only to its accuracy)
+ALONG_SCALE = 3.0
 
 
 def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
@@ -293,6 +296,8 @@ class Player:
             hi = path.index(s_pred + 60.0)
             preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
             fix, best_pref = placer.near(x, y, e_cur, preferred, margin)
+            if fix.kind == "edge" and fix.index in preferred and len(preferred) > 1:
+                fix = self._best_on(x, y, s_pred, lo, hi)
         if fix.kind == "area":
             self._init_at(fix, t, r)
             self.last_fix = fix
@@ -319,7 +324,7 @@ class Player:
                     return "jump"
             else:
                 # hysteresis: stay on the expected edges for now
-                fix = self._best_on(x, y, preferred, e_cur)
+                fix = self._best_on(x, y, s_pred, lo, hi)
         else:
             self.pending = (-1, 0)
         self.last_fix = fix
@@ -373,13 +378,27 @@ class Player:
                     return f
         return self.placer.first(x, y)
 
-    def _best_on(self, x: float, y: float, preferred: set[int], e_cur: int) -> Fix:
-        best = None
-        for e in sorted(preferred):
-            f = self.placer.project_on(x, y, e)
-            if best is None or f.distance < best.distance:
-                best = f
-        return best if best is not None else self.placer.project_on(x, y, e_cur)
+    def _best_on(self, x: float, y: float, s_pred: float, lo: int, hi: int) -> Fix:
+        """The fix on the path edges lo..hi that best explains both the fix and the prediction: lateral
+        distance plus the along-path jump from `s_pred`, each against its noise. Where the path passes near
+        itself (a hairpin, a triangle of footways, a short link between parallel sidewalks) the nearest edge
+        is often a piece of the path 10-30 m behind or ahead; taking it drags the filter back and forth."""
+        placer, path = self.placer, self.path
+        w = 1.0 / (ALONG_SCALE * ALONG_SCALE)
+        best, best_cost = None, math.inf
+        seen: set[int] = set()
+        for k in range(lo, hi + 1):
+            de = path.edges[k]
+            e = de[0]
+            if e in seen:
+                continue
+            seen.add(e)
+            f = placer.project_on(x, y, e)
+            ds = self._s_of(f, s_pred, k) - s_pred
+            cost = f.distance * f.distance + w * ds * ds
+            if cost < best_cost:
+                best, best_cost = f, cost
+        return best
 
     def _s_of(self, fix: Fix, s_pred: float, k_hint: int = 0) -> float:
         """Path coordinate of an edge fix: the occurrence of its edge nearest to the prediction."""

@@ -62,3 +62,25 @@ def test_area_occupation_lists_the_neighbouring_area_and_lasts_until_the_lateral
     # every cell within lateral (10 m) is listed: valid until the ghost has moved lateral - accuracy (5 m),
     # not only until it could reach the area's boundary (half a second away here)
     assert p.occupation.validity >= (10.0 - 5.0) / speed - 1e-3
+
+
+def u_turn(link: float = 8.0):
+    """A footway that turns back on itself: A -> B east 20 m, a `link` m link north, C -> D back west."""
+    nodes = {"A": (0.0, 0.0), "B": (20.0, 0.0), "C": (20.0, link), "D": (0.0, link), "E": (-60.0, link)}
+    return make_topology(nodes, [("A", "B", PEDESTRIAN), ("B", "C", PEDESTRIAN), ("C", "D", PEDESTRIAN),
+                                 ("D", "E", PEDESTRIAN)], junction_radius=2.0)
+
+
+def test_a_fix_nearer_the_path_behind_is_placed_where_the_prediction_is():
+    topo = u_turn(link=8.0)
+    p = Player(topo, 1, "pedestrian")
+    pts = [(float(i), 0.0) for i in range(20)] + [(20.0, float(j)) for j in range(8)]
+    pts += [(20.0 - i, 8.0) for i in range(9)]  # on C -> D at x = 12 when t = 36
+    for t, (x, y) in enumerate(pts):
+        p.feed(x, y, float(t))
+    s_before = p.kf.s
+    # 4.5 m south of the walker: 3.5 m from A -> B (24 m back along the path), 4.5 m from C -> D
+    p.feed(11.0, 3.5, float(len(pts)))
+    assert p.inferred[1] == 2  # still on C -> D
+    assert p.last_fix.index == 2
+    assert p.kf.s > s_before  # the estimate keeps moving on, not dragged back towards A -> B
