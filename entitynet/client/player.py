@@ -296,7 +296,9 @@ class Player:
             hi = path.index(s_pred + 60.0)
             preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
             fix, best_pref = placer.near(x, y, e_cur, preferred, margin)
-            if fix.kind == "edge" and fix.index in preferred and len(preferred) > 1:
+            if (fix.kind == "edge" and fix.index in preferred and len(preferred) > 1
+                    and abs(self._s_of(fix, s_pred, k_cur) - s_pred) > 2.0 * math.sqrt(r)):
+                # the nearest edge of the path puts the fix far along it: another edge may fit better
                 fix = self._best_on(x, y, s_pred, lo, hi)
         if fix.kind == "area":
             self._init_at(fix, t, r)
