@@ -433,27 +433,33 @@ class Player:
         ends = (net.edge_from[fix.index], net.edge_to[fix.index])
         k0 = path.index(s_pred)
         order = sorted(range(len(path.edges)), key=lambda k: (abs(k - k0), k))
+        reach = 30.0 + self.body  # joints, and the fix on the joined edge, are this near the prediction
         for k in order[:8]:
             de = path.edges[k]
             for node, keep in ((net.end_node(de), k + 1), (net.start_node(de), k)):
-                if abs(path.cum[keep] - s_pred) > 30.0 + self.body:
+                if abs(path.cum[keep] - s_pred) > reach:
                     continue  # a joint far along the path (a loop): not where the entity is
                 if node in ends:
                     d = 1 if net.edge_from[fix.index] == node else -1
                     if keep > 0 and path.edges[keep - 1] == (fix.index, -d):
                         continue
+                    if abs(path.cum[keep] + net.dist_of((fix.index, d), fix.offset) - s_pred) > reach:
+                        continue  # the fix would land far along the path from the prediction: a detour
                     new = path.edges[:keep] + [(fix.index, d)]
                     if keep == 0:
                         return False
                     self.path = Path(net, new)
                     self.pending = (-1, 0)
                     return True
-            if abs(path.cum[k + 1] - s_pred) > 30.0 + self.body:
+            if abs(path.cum[k + 1] - s_pred) > reach:
                 continue
             for mid in net.choices(de, self.etype.networks):
                 if net.end_node(mid) in ends:
                     node = net.end_node(mid)
                     d = 1 if net.edge_from[fix.index] == node else -1
+                    s_fix = path.cum[k + 1] + net.edge_len[mid[0]] + net.dist_of((fix.index, d), fix.offset)
+                    if abs(s_fix - s_pred) > reach:
+                        continue
                     self.path = Path(net, path.edges[: k + 1] + [mid, (fix.index, d)])
                     self.pending = (-1, 0)
                     return True

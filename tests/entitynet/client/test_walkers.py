@@ -84,3 +84,26 @@ def test_a_fix_nearer_the_path_behind_is_placed_where_the_prediction_is():
     assert p.inferred[1] == 2  # still on C -> D
     assert p.last_fix.index == 2
     assert p.kf.s > s_before  # the estimate keeps moving on, not dragged back towards A -> B
+
+
+def detour():
+    """A footway A -> B -> E going east and, from B, a second one turning back west 6 m north of the first
+    (B -> (40, 6) -> D): the two run side by side but meet only at B."""
+    nodes = {"A": (0.0, 0.0), "B": (40.0, 0.0), "E": (140.0, 0.0), "D": (-60.0, 6.0)}
+    return make_topology(nodes, [("A", "B", PEDESTRIAN), ("B", "E", PEDESTRIAN),
+                                 ("B", "D", PEDESTRIAN, [(40.0, 6.0)])], junction_radius=2.0)
+
+
+def test_switching_to_a_side_by_side_way_joined_only_by_a_detour_restarts_there():
+    topo = detour()
+    p = Player(topo, 1, "pedestrian")
+    for i in range(21):  # walking east along A -> B at 1.2 m/s
+        p.feed(1.2 * i, 0.0, float(i))
+    assert p.inferred[1] == 0 and p.kf.v > 1.0
+    # two fixes on the northern way, 6 m away: the walker is there. Joined at B, 16 m ahead, the fix would be
+    # 38 m along the path (to B, 6 m north, 16 m back west): not a turn it made, and no speed to learn from
+    p.feed(25.2, 6.0, 21.0)
+    p.feed(26.4, 6.0, 22.0)
+    assert p.inferred[1] == 2
+    assert p.stats.get("jump", 0) == 1 and p.stats.get("path", 0) == 0
+    assert abs(p.kf.v) < 3.0
