@@ -24,7 +24,7 @@ from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
 from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
-from entitynet.client.occupation import Occupation, occupy, occupy_area
+from entitynet.client.occupation import Occupation, occupy, occupy_area, wire_validity
 from entitynet.client.path import Path, follow
 from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.placement import Fix, Placer, ring_distance
@@ -41,6 +41,14 @@ ALONG_SCALE = 3.0
 def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
     """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
     return Occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+def _wire(occ: Occupation) -> Occupation:
+    """The occupation with its validity as the PUBLISH carries it (`wire_validity`)."""
+    v = wire_validity(occ.validity)
+    if v == occ.validity:
+        return occ
+    return Occupation(occ.cells, v, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
 
 
 class FixRejected(ValueError):
@@ -706,7 +714,7 @@ class Player:
                     validity = max(validity, min((self.lateral - margin) / speed, self.max_validity))
                 occ = Occupation(tuple(cells[:MAX_PUBLISH_CELLS]), validity, occ.front_period, occ.aft_period,
                                  occ.cover_start, occ.cover_end)
-            return occ
+            return _wire(occ)
         if isinstance(ghost, NetworkModel):
             path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a
             known = self._known_until(path, s)
@@ -725,7 +733,7 @@ class Player:
                 if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
                     cells.append(c)
             occ = _with_cells(occ, tuple(cells))
-        return occ
+        return _wire(occ)
 
     def _lateral_cells(self, path: Path, s: float, ahead: float) -> list[int]:
         """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may

@@ -107,3 +107,31 @@ def test_switching_to_a_side_by_side_way_joined_only_by_a_detour_restarts_there(
     assert p.inferred[1] == 2
     assert p.stats.get("jump", 0) == 1 and p.stats.get("path", 0) == 0
     assert abs(p.kf.v) < 3.0
+
+
+def test_the_player_expires_its_occupation_when_the_published_validity_runs_out():
+    topo = area_square(side=200.0)
+    p = Player(topo, 1, "pedestrian")
+    pubs = []
+    for i in range(70):  # across a square at 1.3 m/s, zigzagging: periods end at fractions of a millisecond
+        for m in p.feed(-80.0 + 1.3 * i, 3.0 * (-1) ** i, float(i)):
+            pubs.append((m, p.occupation.validity))
+    assert len(pubs) > 3
+    for m, validity in pubs:  # the player's own period is the one on the wire, to the millisecond
+        assert m.validity_ms / 1000.0 == validity
+    # so a tick at the instant the receivers' copy expires re-publishes (it was up to 1 ms late)
+    m, validity = pubs[-1]
+    t_pub = p.pub_t
+    assert p.tick(t_pub + m.validity_ms / 1000.0)
+
+
+def test_wire_validity_encodes_to_itself_and_never_exceeds_the_period():
+    import random
+
+    from entitynet.client.occupation import wire_validity
+
+    rng = random.Random(4)
+    for v in [0.5, 1.0003094925868763, 2.0009759138414185, 59.9999] + [rng.uniform(0.5, 60.0) for _ in range(2000)]:
+        q = wire_validity(v)
+        assert q <= v < q + 0.002
+        assert int(q * 1000.0) / 1000.0 == q
