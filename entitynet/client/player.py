@@ -308,10 +308,19 @@ class Player:
                     and abs(self._s_of(fix, s_pred, k_cur) - s_pred) > 2.0 * math.sqrt(r)):
                 # the nearest edge of the path puts the fix far along it: another edge may fit better
                 fix = self._best_on(x, y, s_pred, lo, hi)
+        entering = None
         if fix.kind == "area":
-            self._init_at(fix, t, r)
-            self.last_fix = fix
-            return "path"
+            # a way along an area's edge: one noisy fix inside the area is not an entry. Enter when the fix is
+            # far from the path's ways, or inside the area `switch_count` fixes in a row
+            on_way = self._best_on(x, y, s_pred, lo, hi)
+            cand, count = self.pending
+            count = count + 1 if cand == -2 - fix.index else 1
+            need = placer.switch_count if self.switch_count is None else self.switch_count
+            if count >= need or on_way.distance > self.lateral:
+                self._init_at(fix, t, r)
+                self.last_fix = fix
+                return "path"
+            fix, preferred, entering = on_way, None, (-2 - fix.index, count)
         if fix.distance > placer.reacquire:
             g = self._first(x, y)
             if g is None or g.distance > self.off_network:
@@ -336,7 +345,7 @@ class Player:
                 # hysteresis: stay on the expected edges for now
                 fix = self._best_on(x, y, s_pred, lo, hi)
         else:
-            self.pending = (-1, 0)
+            self.pending = (-1, 0) if entering is None else entering
         self.last_fix = fix
         # consistency: fixes that stay far from the edge we hold mean we hold the wrong one (a first fix on
         # the wrong street, or the hysteresis kept us there): ask the placement index again

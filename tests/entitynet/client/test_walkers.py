@@ -135,3 +135,36 @@ def test_wire_validity_encodes_to_itself_and_never_exceeds_the_period():
         q = wire_validity(v)
         assert q <= v < q + 0.002
         assert int(q * 1000.0) / 1000.0 == q
+
+
+def square_by_a_footway(linked: bool):
+    """A 60 m pedestrian square (|x|, |y| <= 30) and a footway along its southern side, 3 m outside it
+    (y = -33); `linked`: a link from the footway's middle M into the square's node Q."""
+    ring = [(-30.0, -30.0), (30.0, -30.0), (30.0, 30.0), (-30.0, 30.0), (-30.0, -30.0)]
+    nodes = {"Q": (0.0, 0.0), "A": (-150.0, -33.0), "M": (0.0, -33.0), "B": (150.0, -33.0)}
+    edges = [("A", "M", PEDESTRIAN), ("M", "B", PEDESTRIAN)] + ([("M", "Q", PEDESTRIAN)] if linked else [])
+    return make_topology(nodes, edges, areas=[("Q", ring, PEDESTRIAN)], junction_radius=5.0)
+
+
+def test_one_noisy_fix_inside_an_area_beside_the_footway_is_not_an_entry():
+    topo = square_by_a_footway(linked=True)
+    p = Player(topo, 1, "pedestrian")
+    for i in range(40):  # east along the footway, x = -100 .. -53
+        p.feed(-100.0 + 1.2 * i, -33.0, float(i))
+    for i, y in enumerate([-28.0, -33.5, -27.0, -32.0]):  # x = -28 ..: now and then a fix 3-6 m into the square
+        p.feed(-28.0 + 1.2 * i, y, 40.0 + i)
+        assert p.mode == "edge"
+    assert p.stats.get("path", 0) == 0
+    p.feed(-23.0, -27.0, 44.0)
+    p.feed(-22.0, -26.0, 45.0)  # two in a row: in the square
+    assert p.mode == "area"
+
+
+def test_a_fix_deep_inside_an_area_enters_it_at_once():
+    topo = square_by_a_footway(linked=True)
+    p = Player(topo, 1, "pedestrian")
+    for i in range(40):
+        p.feed(-100.0 + 1.2 * i, -33.0, float(i))
+    p.feed(-25.0, -18.0, 40.0)  # 15 m from the footway
+    assert p.mode == "area"
+
