@@ -352,6 +352,10 @@ class Player:
         self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
         if self.dist_ema > 1.5 * math.sqrt(r) and reason is None:
             g = self._first(x, y)
+            if g is not None and g.kind == "area":  # inside an area the neighbourhood search does not see
+                self._init_at(g, t, r)
+                self.last_fix = g
+                return "path"
             if g is not None and g.kind == "edge" and g.index != fix.index and g.distance + margin < fix.distance:
                 self._init_at(g, t, r)
                 self.last_fix = g

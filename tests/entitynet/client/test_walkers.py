@@ -168,3 +168,12 @@ def test_a_fix_deep_inside_an_area_enters_it_at_once():
     p.feed(-25.0, -18.0, 40.0)  # 15 m from the footway
     assert p.mode == "area"
 
+
+def test_fixes_inside_an_area_the_held_way_does_not_lead_to_re_acquire_it():
+    topo = square_by_a_footway(linked=False)  # the footway's neighbourhood knows no area
+    p = Player(topo, 1, "pedestrian")
+    for i in range(30):
+        p.feed(-100.0 + 1.2 * i, -33.0, float(i))
+    for i in range(10):  # inside the square, 14 m from the footway: held on it, the fixes stay far from it
+        p.feed(-20.0 + 1.2 * i, -19.0, 30.0 + i)
+    assert p.mode == "area"
