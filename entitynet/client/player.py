@@ -739,8 +739,21 @@ class Player:
         travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
         occ = occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel)
+        back = None
+        if v == 0.0 and not self.route and self.body == 0.0 and isinstance(ghost, NetworkModel):
+            # a walker standing still may turn and leave the other way, and the standing test needs a few
+            # fixes to see it go: cover the way behind too, `lateral` beyond the margin (and the parallel
+            # ways as far behind)
+            back = self._behind(path, s, self.lateral, et.networks)
+            cells = list(occ.cells)
+            for c in back.cells:
+                if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
+                    cells.append(c)
+            occ = Occupation(tuple(cells), min(occ.validity, back.validity), occ.front_period, occ.aft_period,
+                             occ.cover_start, occ.cover_end)
         if self.lateral > 0.0 and not self.route:
-            extra = self._lateral_cells(path, s, occ.cover_end - s)
+            extra = self._lateral_cells(path, s, occ.cover_end - s,
+                                        None if back is None else back.cover_end - back.cover_start)
             cells = list(occ.cells)
             for c in extra:
                 if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
@@ -748,7 +761,20 @@ class Player:
             occ = _with_cells(occ, tuple(cells))
         return _wire(occ)
 
-    def _lateral_cells(self, path: Path, s: float, ahead: float) -> list[int]:
+    def _behind(self, path: Path, s: float, lookahead: float, networks: int) -> Occupation:
+        """The occupation of a standing entity turned around: the published path's edge at s reversed and
+        followed by the junction rule, covered as `occupy` covers the way ahead (`lookahead` beyond the margin,
+        every branch at a choice of way within it)."""
+        net = self.net
+        k = path.index(s)
+        e, d = path.edges[k]
+        back = (e, -d)
+        s_back = path.cum[k + 1] - s
+        edges = [back] + follow(net, back, networks, lookahead + self.margin + 80.0, max_edges=MAX_PATH_EDGES)
+        return occupy(Path(net, edges), s_back, 0.0, 0.0, 0.0, self.etype.vmax, networks, margin=self.margin,
+                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
+
+    def _lateral_cells(self, path: Path, s: float, ahead: float, behind: float | None = None) -> list[int]:
         """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may
         be on a parallel way (the other sidewalk) rather than the one it was placed on. Each such edge is
         covered from `margin` behind the projected point to `ahead` metres on, in the direction of travel."""
@@ -771,8 +797,8 @@ class Player:
             bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
             fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
             length = net.edge_len[e]
-            lo, hi = ((f.offset - self.margin - self.body, f.offset + ahead) if fwd
-                      else (f.offset - ahead, f.offset + self.margin + self.body))
+            back = self.margin + self.body if behind is None else behind  # a standing walker: both ways
+            lo, hi = (f.offset - back, f.offset + ahead) if fwd else (f.offset - ahead, f.offset + back)
             lo, hi = max(lo, 0.0), min(hi, length)
             for a0, b0, c in net.pieces(e, 1):
                 if b0 >= lo and a0 <= hi and c not in out:

@@ -177,3 +177,18 @@ def test_fixes_inside_an_area_the_held_way_does_not_lead_to_re_acquire_it():
     for i in range(10):  # inside the square, 14 m from the footway: held on it, the fixes stay far from it
         p.feed(-20.0 + 1.2 * i, -19.0, 30.0 + i)
     assert p.mode == "area"
+
+
+def test_a_standing_walker_is_covered_behind_as_well():
+    # a straight 300 m footway cut into 5 m street cells
+    topo = make_topology({"A": (0.0, 0.0), "B": (300.0, 0.0)}, [("A", "B", PEDESTRIAN)], street_cell_max=5.0)
+    net = Player(topo, 1, "pedestrian").net
+    p = Player(topo, 1, "pedestrian")
+    for i in range(90):  # east at 1.3 m/s to x = 78, then standing there
+        p.feed(min(1.3 * i, 78.0), 0.0, float(i))
+    assert p.stats.get("stop", 0) >= 1 and p.ghost.v == 0.0
+    cells = set(p.occupation.cells)
+    # it may turn round: 12 m behind (margin 5 m + lateral 10 m, to a cell boundary) is covered, as ahead
+    assert net.cell_at(0, 78.0 - 12.0) in cells
+    assert net.cell_at(0, 78.0 + 12.0) in cells
+    assert net.cell_at(0, 78.0 - 25.0) not in cells  # and no further than that
