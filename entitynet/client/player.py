@@ -311,12 +311,12 @@ class Player:
         entering = None
         if fix.kind == "area":
             # a way along an area's edge: one noisy fix inside the area is not an entry. Enter when the fix is
-            # far from the path's ways, or inside the area `switch_count` fixes in a row
+            # farther from the path's ways than GPS noise goes (3 x accuracy), or `switch_count` fixes in a row
             on_way = self._best_on(x, y, s_pred, lo, hi)
             cand, count = self.pending
             count = count + 1 if cand == -2 - fix.index else 1
             need = placer.switch_count if self.switch_count is None else self.switch_count
-            if count >= need or on_way.distance > self.lateral:
+            if count >= need or on_way.distance > 3.0 * math.sqrt(r):
                 self._init_at(fix, t, r)
                 self.last_fix = fix
                 return "path"
