@@ -777,7 +777,8 @@ class Player:
     def _lateral_cells(self, path: Path, s: float, ahead: float, behind: float | None = None) -> list[int]:
         """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may
         be on a parallel way (the other sidewalk) rather than the one it was placed on. Each such edge is
-        covered from `margin` behind the projected point to `ahead` metres on, in the direction of travel."""
+        covered from `behind` metres behind the projected point (default: the margin and the body) to `ahead`
+        metres on, in the direction of travel."""
         net = self.net
         x, y = path.xy(s)
         hx, hy = path.xy(min(s + 1.0, path.length))
