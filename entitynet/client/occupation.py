@@ -216,6 +216,18 @@ def occupy(
     return Occupation(tuple(cells), validity, front, aft, start, cover_end)
 
 
+def wire_validity(validity: float) -> float:
+    """The validity as a PUBLISH carries it (whole milliseconds, `int(validity * 1000)`), as seconds that
+    encode back to the same milliseconds. The player expires its occupation with this value, so it re-publishes
+    exactly when the receivers' copy runs out, not up to a millisecond after it."""
+    ms = int(validity * 1000.0)
+    q = ms / 1000.0
+    while ms > 0 and int(q * 1000.0) < ms:  # ms / 1000 may encode one below ms (binary fractions)
+        ms -= 1
+        q = ms / 1000.0
+    return q
+
+
 def occupy_area(x: float, y: float, vx: float, vy: float, ring_xy, area_cell: int, *,
                 margin: float = 0.0, max_validity: float = 60.0, min_validity: float = 0.5) -> Occupation:
     """An entity inside an area occupies the area cell until it could reach the area's boundary.

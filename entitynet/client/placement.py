@@ -233,6 +233,13 @@ class Placer:
             xs = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
         return bool(np.count_nonzero(cond & (x < xs)) % 2)
 
+    def holds_area(self, area: int, x: float, y: float, edge_distance: float, radius: float) -> bool:
+        """Whether a fix just outside `area` still means inside it: within `radius` of its boundary, and the
+        boundary nearer than the nearest way (`edge_distance`) by the switch margin. An entity leaves an area
+        on a way, so leaving needs a way at least as near as the area; noise alone is not an exit."""
+        d = ring_distance(self.ring(area), x, y)
+        return d <= radius and d + self.switch_margin < edge_distance
+
     def near(self, x: float, y: float, edge: int, preferred: set[int] | frozenset[int],
              margin: float | None = None) -> tuple[Fix, float]:
         """Best placement near `edge` with the head start (`margin`, default switch_margin) for `preferred`.

@@ -24,7 +24,7 @@ from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
 from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
-from entitynet.client.occupation import Occupation, occupy, occupy_area
+from entitynet.client.occupation import Occupation, occupy, occupy_area, wire_validity
 from entitynet.client.path import Path, follow
 from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.placement import Fix, Placer, ring_distance
@@ -33,11 +33,22 @@ from entitynet.protocol import Publish, Unpublish
 MODELS = ("network", "fpw", "fvw", "periodic")
 MAX_PUBLISH_CELLS = 64
 MAX_PATH_EDGES = 48
+# choosing among the path's edges: an along-path jump of ALONG_SCALE metres from the prediction costs as
+# much as one metre off the way (the prediction is good to a few metres; the fix only to its accuracy)
+ALONG_SCALE = 3.0
 
 
 def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
     """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
     return Occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+def _wire(occ: Occupation) -> Occupation:
+    """The occupation with its validity as the PUBLISH carries it (`wire_validity`)."""
+    v = wire_validity(occ.validity)
+    if v == occ.validity:
+        return occ
+    return Occupation(occ.cells, v, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
 
 
 class FixRejected(ValueError):
@@ -314,6 +325,9 @@ class Player:
             fix = placer.first(x, y)
             if fix is None or fix.distance > self.off_network:
                 return "off"
+            if fix.kind == "edge" and placer.holds_area(self.area, x, y, fix.distance, self.lateral):
+                self._area_update(x, y, t, r)  # GPS noise just outside the area, no way nearer: still inside
+                return None
             self._init_at(fix, t, r)
             self.last_fix = fix
             return "path"
@@ -337,10 +351,23 @@ class Player:
             hi = path.index(s_pred + 60.0)
             preferred = {path.edges[k][0] for k in range(lo, hi + 1)}
             fix, best_pref = placer.near(x, y, e_cur, preferred, margin)
+            if (fix.kind == "edge" and fix.index in preferred and len(preferred) > 1
+                    and abs(self._s_of(fix, s_pred, k_cur) - s_pred) > 2.0 * math.sqrt(r)):
+                # the nearest edge of the path puts the fix far along it: another edge may fit better
+                fix = self._best_on(x, y, s_pred, lo, hi)
+        entering = None
         if fix.kind == "area":
-            self._init_at(fix, t, r)
-            self.last_fix = fix
-            return "path"
+            # a way along an area's edge: one noisy fix inside the area is not an entry. Enter when the fix is
+            # farther from the path's ways than GPS noise goes (3 x accuracy), or `switch_count` fixes in a row
+            on_way = self._best_on(x, y, s_pred, lo, hi)
+            cand, count = self.pending
+            count = count + 1 if cand == -2 - fix.index else 1
+            need = placer.switch_count if self.switch_count is None else self.switch_count
+            if count >= need or on_way.distance > 3.0 * math.sqrt(r):
+                self._init_at(fix, t, r)
+                self.last_fix = fix
+                return "path"
+            fix, preferred, entering = on_way, None, (-2 - fix.index, count)
         if fix.distance > placer.reacquire:
             g = self._first(x, y)
             if g is None or g.distance > self.off_network:
@@ -363,15 +390,19 @@ class Player:
                     return "jump"
             else:
                 # hysteresis: stay on the expected edges for now
-                fix = self._best_on(x, y, preferred, e_cur)
+                fix = self._best_on(x, y, s_pred, lo, hi)
         else:
-            self.pending = (-1, 0)
+            self.pending = (-1, 0) if entering is None else entering
         self.last_fix = fix
         # consistency: fixes that stay far from the edge we hold mean we hold the wrong one (a first fix on
         # the wrong street, or the hysteresis kept us there): ask the placement index again
         self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
         if self.dist_ema > 1.5 * math.sqrt(r) and reason is None:
             g = self._first(x, y)
+            if g is not None and g.kind == "area":  # inside an area the neighbourhood search does not see
+                self._init_at(g, t, r)
+                self.last_fix = g
+                return "path"
             if g is not None and g.kind == "edge" and g.index != fix.index and g.distance + margin < fix.distance:
                 self._init_at(g, t, r)
                 self.last_fix = g
@@ -417,13 +448,27 @@ class Player:
                     return f
         return self.placer.first(x, y)
 
-    def _best_on(self, x: float, y: float, preferred: set[int], e_cur: int) -> Fix:
-        best = None
-        for e in sorted(preferred):
-            f = self.placer.project_on(x, y, e)
-            if best is None or f.distance < best.distance:
-                best = f
-        return best if best is not None else self.placer.project_on(x, y, e_cur)
+    def _best_on(self, x: float, y: float, s_pred: float, lo: int, hi: int) -> Fix:
+        """The fix on the path edges lo..hi that best explains both the fix and the prediction: lateral
+        distance plus the along-path jump from `s_pred`, each against its noise. Where the path passes near
+        itself (a hairpin, a triangle of footways, a short link between parallel sidewalks) the nearest edge
+        is often a piece of the path 10-30 m behind or ahead; taking it drags the filter back and forth."""
+        placer, path = self.placer, self.path
+        w = 1.0 / (ALONG_SCALE * ALONG_SCALE)
+        best, best_cost = None, math.inf
+        seen: set[int] = set()
+        for k in range(lo, hi + 1):
+            de = path.edges[k]
+            e = de[0]
+            if e in seen:
+                continue
+            seen.add(e)
+            f = placer.project_on(x, y, e)
+            ds = self._s_of(f, s_pred, k) - s_pred
+            cost = f.distance * f.distance + w * ds * ds
+            if cost < best_cost:
+                best, best_cost = f, cost
+        return best
 
     def _s_of(self, fix: Fix, s_pred: float, k_hint: int = 0) -> float:
         """Path coordinate of an edge fix: the occurrence of its edge nearest to the prediction."""
@@ -456,27 +501,33 @@ class Player:
         ends = (net.edge_from[fix.index], net.edge_to[fix.index])
         k0 = path.index(s_pred)
         order = sorted(range(len(path.edges)), key=lambda k: (abs(k - k0), k))
+        reach = 30.0 + self.body  # joints, and the fix on the joined edge, are this near the prediction
         for k in order[:8]:
             de = path.edges[k]
             for node, keep in ((net.end_node(de), k + 1), (net.start_node(de), k)):
-                if abs(path.cum[keep] - s_pred) > 30.0 + self.body:
+                if abs(path.cum[keep] - s_pred) > reach:
                     continue  # a joint far along the path (a loop): not where the entity is
                 if node in ends:
                     d = 1 if net.edge_from[fix.index] == node else -1
                     if keep > 0 and path.edges[keep - 1] == (fix.index, -d):
                         continue
+                    if abs(path.cum[keep] + net.dist_of((fix.index, d), fix.offset) - s_pred) > reach:
+                        continue  # the fix would land far along the path from the prediction: a detour
                     new = path.edges[:keep] + [(fix.index, d)]
                     if keep == 0:
                         return False
                     self.path = Path(net, new)
                     self.pending = (-1, 0)
                     return True
-            if abs(path.cum[k + 1] - s_pred) > 30.0 + self.body:
+            if abs(path.cum[k + 1] - s_pred) > reach:
                 continue
             for mid in net.choices(de, self.etype.networks):
                 if net.end_node(mid) in ends:
                     node = net.end_node(mid)
                     d = 1 if net.edge_from[fix.index] == node else -1
+                    s_fix = path.cum[k + 1] + net.edge_len[mid[0]] + net.dist_of((fix.index, d), fix.offset)
+                    if abs(s_fix - s_pred) > reach:
+                        continue
                     self.path = Path(net, path.edges[: k + 1] + [mid, (fix.index, d)])
                     self.pending = (-1, 0)
                     return True
@@ -698,10 +749,12 @@ class Player:
             vx, vy = (ghost.vx, ghost.vy) if isinstance(ghost, AreaModel) else (0.0, 0.0)
             # the strip outside the area is covered by the lateral cells below, so the period only keeps
             # the GPS accuracy as its margin (a large drift threshold would otherwise make it vanish)
+            margin = min(self.margin, self.accuracy)
             occ = occupy_area(x, y, vx, vy, self.placer.ring(self.area), self.net.area_cell[self.area],
-                              margin=min(self.margin, self.accuracy), max_validity=self.max_validity)
+                              margin=margin, max_validity=self.max_validity)
             if self.lateral > 0.0:
-                # ways crossing or skirting the area: under GPS noise the entity may be on one of them
+                # ways crossing or skirting the area and areas next to it: under GPS noise the entity may be
+                # on one of them
                 cells = list(occ.cells)
                 for e in self.placer.edges_near(x, y, self.lateral):
                     f = self.placer.project_on(x, y, e)
@@ -709,8 +762,19 @@ class Player:
                         for a0, b0, c in self.net.pieces(e, 1):
                             if b0 >= f.offset - self.lateral and a0 <= f.offset + self.lateral and c not in cells:
                                 cells.append(c)
-                occ = _with_cells(occ, tuple(cells[:MAX_PUBLISH_CELLS]))
-            return occ
+                for area in self.placer.areas_near(x, y, self.lateral):
+                    c = self.net.area_cell[area]
+                    if c not in cells and ring_distance(self.placer.ring(area), x, y) <= self.lateral:
+                        cells.append(c)
+                validity = occ.validity
+                speed = math.hypot(vx, vy)
+                if len(cells) <= MAX_PUBLISH_CELLS and speed > 0.0 and self.lateral > margin:
+                    # every cell within `lateral` of the position is listed: the ghost must move
+                    # `lateral - margin` before the truth can be outside them, wherever the boundary is
+                    validity = max(validity, min((self.lateral - margin) / speed, self.max_validity))
+                occ = Occupation(tuple(cells[:MAX_PUBLISH_CELLS]), validity, occ.front_period, occ.aft_period,
+                                 occ.cover_start, occ.cover_end)
+            return _wire(occ)
         if isinstance(ghost, NetworkModel):
             path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a
             known = self._known_until(path, s)
@@ -722,19 +786,46 @@ class Player:
         travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
         occ = occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel)
+        back = None
+        if v == 0.0 and not self.route and self.body == 0.0 and isinstance(ghost, NetworkModel):
+            # a walker standing still may turn and leave the other way, and the standing test needs a few
+            # fixes to see it go: cover the way behind too, `lateral` beyond the margin (and the parallel
+            # ways as far behind)
+            back = self._behind(path, s, self.lateral, et.networks)
+            cells = list(occ.cells)
+            for c in back.cells:
+                if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
+                    cells.append(c)
+            occ = Occupation(tuple(cells), min(occ.validity, back.validity), occ.front_period, occ.aft_period,
+                             occ.cover_start, occ.cover_end)
         if self.lateral > 0.0 and not self.route:
-            extra = self._lateral_cells(path, s, occ.cover_end - s)
+            extra = self._lateral_cells(path, s, occ.cover_end - s,
+                                        None if back is None else back.cover_end - back.cover_start)
             cells = list(occ.cells)
             for c in extra:
                 if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
                     cells.append(c)
             occ = _with_cells(occ, tuple(cells))
-        return occ
+        return _wire(occ)
 
-    def _lateral_cells(self, path: Path, s: float, ahead: float) -> list[int]:
+    def _behind(self, path: Path, s: float, lookahead: float, networks: int) -> Occupation:
+        """The occupation of a standing entity turned around: the published path's edge at s reversed and
+        followed by the junction rule, covered as `occupy` covers the way ahead (`lookahead` beyond the margin,
+        every branch at a choice of way within it)."""
+        net = self.net
+        k = path.index(s)
+        e, d = path.edges[k]
+        back = (e, -d)
+        s_back = path.cum[k + 1] - s
+        edges = [back] + follow(net, back, networks, lookahead + self.margin + 80.0, max_edges=MAX_PATH_EDGES)
+        return occupy(Path(net, edges), s_back, 0.0, 0.0, 0.0, self.etype.vmax, networks, margin=self.margin,
+                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
+
+    def _lateral_cells(self, path: Path, s: float, ahead: float, behind: float | None = None) -> list[int]:
         """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may
         be on a parallel way (the other sidewalk) rather than the one it was placed on. Each such edge is
-        covered from `margin` behind the projected point to `ahead` metres on, in the direction of travel."""
+        covered from `behind` metres behind the projected point (default: the margin and the body) to `ahead`
+        metres on, in the direction of travel."""
         net = self.net
         x, y = path.xy(s)
         hx, hy = path.xy(min(s + 1.0, path.length))
@@ -754,8 +845,8 @@ class Player:
             bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
             fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
             length = net.edge_len[e]
-            lo, hi = ((f.offset - self.margin - self.body, f.offset + ahead) if fwd
-                      else (f.offset - ahead, f.offset + self.margin + self.body))
+            back = self.margin + self.body if behind is None else behind  # a standing walker: both ways
+            lo, hi = (f.offset - back, f.offset + ahead) if fwd else (f.offset - ahead, f.offset + back)
             lo, hi = max(lo, 0.0), min(hi, length)
             for a0, b0, c in net.pieces(e, 1):
                 if b0 >= lo and a0 <= hi and c not in out:
