@@ -308,6 +308,8 @@ class Player:
         s = self.net.dist_of(de, fix.offset)
         self.kf = Kinematic1D(s, t, r, q=self.filter_q, accel=self.filter_accel)
         self.pending = (-1, 0)
+        self.dead_end = None
+        self._maintain_path()  # a publish right after a (re)placement needs the way ahead too
 
     def _track(self, x: float, y: float, t: float, r: float) -> str | None:
         placer = self.placer
@@ -784,8 +786,10 @@ class Player:
             path, s, v, a = self.path, self.kf.s, max(self.kf.v, 0.0), 0.0
             known, lookahead = self._known_until(path, s), self.lookahead
         travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
+        # at a dead end the model halts at the path's end: nothing ahead to enter, no front period
         occ = occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
-                     lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel)
+                     lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel,
+                     dead_end_at_path_end=path.edges[-1] == self.dead_end)
         back = None
         if v == 0.0 and not self.route and self.body == 0.0 and isinstance(ghost, NetworkModel):
             # a walker standing still may turn and leave the other way, and the standing test needs a few
@@ -832,7 +836,11 @@ class Player:
         bx, by = path.xy(max(s - 1.0, 0.0))
         dx, dy = hx - bx, hy - by
         e_cur = path.locate(s)[0]
-        on_path = {e for e, _d in path.edges}
+        back = self.margin + self.body if behind is None else behind  # a standing walker: both ways
+        # the path's own edges are covered where the occupation runs; one the path reaches only further on
+        # (it loops back along the parallel way) is still a lateral candidate here
+        cum, edges = path.cum, path.edges
+        on_path = {edges[k][0] for k in range(len(edges)) if cum[k + 1] >= s - back and cum[k] <= s + ahead}
         out: list[int] = []
         # every way near the position, connected or not (footways drawn twice, a few metres apart)
         for e in self.placer.edges_near(x, y, self.lateral):
@@ -845,7 +853,6 @@ class Player:
             bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
             fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
             length = net.edge_len[e]
-            back = self.margin + self.body if behind is None else behind  # a standing walker: both ways
             lo, hi = (f.offset - back, f.offset + ahead) if fwd else (f.offset - ahead, f.offset + back)
             lo, hi = max(lo, 0.0), min(hi, length)
             for a0, b0, c in net.pieces(e, 1):

@@ -122,3 +122,26 @@ def test_world_models_without_a_topology():
         Player(None, 1, "car", model="network")
     per = Player(None, 1, "car", model="periodic")
     assert len(drive(per, [10.0 * i for i in range(30)])) == 30
+
+
+def test_the_first_publish_already_reaches_past_its_first_edge():
+    topo = cross(arm=300.0)
+    p = Player(topo, 1, "car", threshold=5.0)
+    (m,) = p.feed(-100.0, 0.0, 0.0)  # on W->C, 100 m before the crossing
+    ghost = decode(m.payload, netview(topo))
+    assert (1, 1) in ghost.path.edges  # straight on through C to the east arm
+    assert m.validity_ms > 1000
+
+
+def test_a_dead_end_ahead_is_no_reason_to_republish():
+    """The model halts at the end of a dead-end path: nothing ahead to enter, so no validity runs out there."""
+    topo = cross(arm=300.0)
+    p = Player(topo, 1, "car", threshold=5.0)
+    t = 0.0
+    xs = [150.0 + 10.0 * i for i in range(15)] + [295.0] * 12  # east along C->E to its dead end, then stand
+    for x in xs:
+        p.feed(x, 0.0, t)
+        p.tick(t + 0.5)
+        t += 1.0
+    assert p.stats.get("expiry", 0) == 0, p.stats
+    assert p.occupation.front_period == math.inf
