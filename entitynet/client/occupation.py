@@ -241,6 +241,8 @@ def occupy_area(x: float, y: float, vx: float, vy: float, ring_xy, area_cell: in
     dist = ring_distance(np.asarray(ring_xy, dtype=np.float64), x, y)
     dist = 0.0 if math.isinf(dist) else dist
     speed = math.hypot(vx, vy)
-    period = time_to_travel(dist - margin, speed, 0.0, speed)
+    # a standing model never reaches the boundary, even one within the margin (the strip beyond it is the
+    # lateral cover's): its cells do not change, as for a standing entity on a way
+    period = INF if speed == 0.0 else time_to_travel(dist - margin, speed, 0.0, speed)
     validity = max(min(period, max_validity), min_validity)
     return Occupation((int(area_cell),), validity, period, INF, 0.0, 0.0)

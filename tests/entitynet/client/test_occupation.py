@@ -140,3 +140,16 @@ def test_without_route_the_lookahead_covers_every_branch_of_the_next_junction():
     assert shallow.front_period == pytest.approx((110.0 - 55.0) / V)
     tight = occupy(path, 50.0, 0.0, V, 0.0, 14.0, 7, known_until=0.0, margin=5.0)
     assert south not in tight.cells and east not in tight.cells
+
+
+def test_standing_in_an_area_near_its_boundary_keeps_the_area_cell_for_good():
+    """Within the margin of the boundary a moving entity may leave at once, a standing one never does."""
+    from entitynet.client.occupation import occupy_area
+
+    ring = [(0.0, 0.0), (60.0, 0.0), (60.0, 60.0), (0.0, 60.0), (0.0, 0.0)]
+    standing = occupy_area(1.0, 30.0, 0.0, 0.0, ring, 9, margin=5.0, max_validity=60.0)
+    assert standing.cells == (9,) and standing.front_period == math.inf and standing.validity == 60.0
+    moving = occupy_area(1.0, 30.0, 1.0, 0.0, ring, 9, margin=5.0, max_validity=60.0)
+    assert moving.validity == 0.5  # the floor: it may already be outside
+    inside = occupy_area(30.0, 30.0, 1.0, 0.0, ring, 9, margin=5.0, max_validity=60.0)
+    assert inside.validity == pytest.approx(25.0)  # 30 m to the nearest boundary, less the margin, at 1 m/s
