@@ -25,6 +25,9 @@ Fix = Placement
 
 AREA_BUCKET = 100.0  # metres: grid of area boxes for `areas_near`
 PY_ROWS = 160  # segment tables up to this size are searched by a plain loop, larger ones by numpy
+# slack (metres) on the box lower bound that lets the loop skip an edge: far above the rounding of a computed
+# distance (coordinates of 1e4 m have ulps of 2e-12 m), so a skipped segment can never be the answer
+PRUNE_SLACK = 1e-6
 
 
 def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
@@ -40,7 +43,7 @@ def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
 
 class _SegTable:
     __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks", "rows",
-                 "slen_py", "cum0_py")
+                 "slen_py", "cum0_py", "groups", "group_of")
 
     def __init__(self, net: NetView, edges: list[int], areas: list[int]) -> None:
         edges = sorted(set(edges))
@@ -70,6 +73,23 @@ class _SegTable:
                              self.inv_l2.tolist(), self.edge.tolist(), strict=True))
         self.slen_py: list[float] = self.slen.tolist()
         self.cum0_py: list[float] = self.cum0.tolist()
+        # per edge, in table order: (edge, box of its vertices, first row, end row), for skipping whole edges
+        self.groups: list[tuple[int, float, float, float, float, int, int]] = []
+        self.group_of: dict[int, tuple[int, float, float, float, float, int, int]] = {}
+        k = 0
+        rows = self.rows
+        while k < len(rows):
+            e, k1 = rows[k][5], k
+            xs, ys = [], []
+            while k1 < len(rows) and rows[k1][5] == e:
+                ax, ay, dx, dy = rows[k1][:4]
+                xs += (ax, ax + dx)
+                ys += (ay, ay + dy)
+                k1 += 1
+            g = (e, min(xs), min(ys), max(xs), max(ys), k, k1)
+            self.groups.append(g)
+            self.group_of[e] = g
+            k = k1
 
     def mask(self, preferred: frozenset[int]) -> np.ndarray:
         m = self.masks.get(preferred)
@@ -243,19 +263,29 @@ class Placer:
             if self.topo.area_networks[a] & self.networks and self.inside_area(a, x, y):
                 return Fix("area", a, 0.0, x, y, 0.0), math.inf
         if len(t.rows) <= PY_ROWS:
-            return self._near_py(t, x, y, preferred, self.switch_margin if margin is None else margin)
+            return self._near_py(t, x, y, preferred, self.switch_margin if margin is None else margin, edge)
         return self._near_np(t, x, y, preferred, margin)
 
     def _near_py(self, t: _SegTable, x: float, y: float, preferred: set[int] | frozenset[int],
-                 margin: float) -> tuple[Fix, float]:
+                 margin: float, edge: int | None = None) -> tuple[Fix, float]:
         """`near` as a plain loop: the same operations per segment as the numpy pass, first minimum wins
-        (a preferred segment's cost d + 0.0 is d itself, d being a square root >= +0.0)."""
+        (a preferred segment's cost d + 0.0 is d itself, d being a square root >= +0.0).
+
+        Whole edges are skipped when the box of their vertices is farther than the best cost so far (plus
+        the margin for an edge that is not preferred), or for a preferred edge farther than the best preferred
+        distance: such a segment cannot be the first minimum nor lower the best preferred distance. The
+        bounds start from `edge`'s own segments (an answer any later minimum can only improve on)."""
         sqrt = math.sqrt
-        best_cost = best_pref = math.inf
-        best = -1
-        bu = bd = 0.0
-        if preferred:
-            for k, (ax, ay, dx, dy, il2, e) in enumerate(t.rows):
+        rows = t.rows
+        if not preferred:
+            margin = 0.0  # no preferred edges: every cost is d itself
+        # upper bounds of the final best cost and best preferred distance: costs of `edge`'s segments
+        ub_cost = ub_pref = math.inf
+        g = t.group_of.get(edge) if edge is not None else None
+        if g is not None:
+            pref = edge in preferred
+            for k in range(g[5], g[6]):
+                ax, ay, dx, dy, il2, _e = rows[k]
                 rx = x - ax
                 ry = y - ay
                 u = (rx * dx + ry * dy) * il2
@@ -263,7 +293,39 @@ class Placer:
                 ex = rx - u * dx
                 ey = ry - u * dy
                 d = sqrt(ex * ex + ey * ey)
-                if e in preferred:
+                if pref:
+                    if d < ub_pref:
+                        ub_pref = d
+                    if d < ub_cost:
+                        ub_cost = d
+                elif d + margin < ub_cost:
+                    ub_cost = d + margin
+        best_cost = best_pref = math.inf
+        best = -1
+        bu = bd = 0.0
+        slack = PRUNE_SLACK
+        for e, bx0, by0, bx1, by1, k0, k1 in t.groups:
+            gx = bx0 - x if x < bx0 else (x - bx1 if x > bx1 else 0.0)
+            gy = by0 - y if y < by0 else (y - by1 if y > by1 else 0.0)
+            lb = (gx if gx > gy else gy) - slack  # below every computed distance to the edge's segments
+            if e in preferred:
+                is_pref = True
+                if lb > best_pref or lb > ub_pref:
+                    continue
+            else:
+                is_pref = False
+                if lb + margin > best_cost or lb + margin > ub_cost:
+                    continue
+            for k in range(k0, k1):
+                ax, ay, dx, dy, il2, _e = rows[k]
+                rx = x - ax
+                ry = y - ay
+                u = (rx * dx + ry * dy) * il2
+                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+                ex = rx - u * dx
+                ey = ry - u * dy
+                d = sqrt(ex * ex + ey * ey)
+                if is_pref:
                     cost = d
                     if d < best_pref:
                         best_pref = d
@@ -271,20 +333,9 @@ class Placer:
                     cost = d + margin
                 if cost < best_cost:
                     best_cost, best, bu, bd = cost, k, u, d
-        else:
-            for k, (ax, ay, dx, dy, il2, _e) in enumerate(t.rows):
-                rx = x - ax
-                ry = y - ay
-                u = (rx * dx + ry * dy) * il2
-                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
-                ex = rx - u * dx
-                ey = ry - u * dy
-                d = sqrt(ex * ex + ey * ey)
-                if d < best_cost:
-                    best_cost, best, bu, bd = d, k, u, d
         if best < 0:  # no segment beat inf: let numpy's argmin decide
             return self._near_np(t, x, y, preferred, margin)
-        ax, ay, dx, dy, _il2, e = t.rows[best]
+        ax, ay, dx, dy, _il2, e = rows[best]
         return Fix("edge", e, t.cum0_py[best] + bu * t.slen_py[best], ax + bu * dx, ay + bu * dy, bd), best_pref
 
     def _near_np(self, t: _SegTable, x: float, y: float, preferred: set[int] | frozenset[int],

@@ -7,7 +7,7 @@ here verbatim. Exact equality, not closeness: players and receivers must take th
 import math
 
 import numpy as np
-from client_fixtures import area_square, chain, cross, hairpin, parallel
+from client_fixtures import area_square, chain, cross, hairpin, make_topology, parallel
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -172,3 +172,81 @@ def test_one_pass_cover_equals_cells_between_then_starts_in(f0, f1, f2):
             if (sa <= b or sa < c) and cell not in got:
                 got.append(cell)
         assert got == want
+
+
+def _near_py_reference(t, x, y, preferred, margin):
+    """`Placer._near_py` as it was written before it skipped far edges (every segment, in table order)."""
+    sqrt = math.sqrt
+    best_cost = best_pref = math.inf
+    best = -1
+    bu = bd = 0.0
+    for k, (ax, ay, dx, dy, il2, e) in enumerate(t.rows):
+        rx = x - ax
+        ry = y - ay
+        u = (rx * dx + ry * dy) * il2
+        u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+        ex = rx - u * dx
+        ey = ry - u * dy
+        d = sqrt(ex * ex + ey * ey)
+        if preferred and e in preferred:
+            cost = d
+            if d < best_pref:
+                best_pref = d
+        else:
+            cost = d + margin if preferred else d
+        if cost < best_cost:
+            best_cost, best, bu, bd = cost, k, u, d
+    if best < 0:
+        return None
+    ax, ay, dx, dy, _il2, e = t.rows[best]
+    return Fix("edge", e, t.cum0_py[best] + bu * t.slen_py[best], ax + bu * dx, ay + bu * dy, bd), best_pref
+
+
+def _mesh():
+    """A jittered 5 x 5 street grid with bent edges: neighbourhood tables of many edges and segments."""
+    rng = np.random.default_rng(11)
+    nodes = {f"n{i}{j}": (i * 40.0 + rng.uniform(-8, 8), j * 40.0 + rng.uniform(-8, 8))
+             for i in range(5) for j in range(5)}
+    edges = []
+    for i in range(5):
+        for j in range(5):
+            for di, dj in ((1, 0), (0, 1)):
+                if i + di < 5 and j + dj < 5:
+                    a, b = nodes[f"n{i}{j}"], nodes[f"n{i + di}{j + dj}"]
+                    mids = [((a[0] + b[0]) / 2 + rng.uniform(-6, 6), (a[1] + b[1]) / 2 + rng.uniform(-6, 6))
+                            for _ in range(int(rng.integers(0, 3)))]
+                    mids.sort(key=lambda p, a=a: math.hypot(p[0] - a[0], p[1] - a[1]))
+                    edges.append((f"n{i}{j}", f"n{i + di}{j + dj}", VEHICLE | PEDESTRIAN, mids))
+    edges.append(("n00", "n11", VEHICLE | PEDESTRIAN))  # a diagonal crossing other edges' boxes
+    return make_topology(nodes, edges)
+
+
+MESH = netview(_mesh())
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.data())
+def test_near_skipping_far_edges_equals_the_full_loop(ti, data):
+    """The pruned neighbourhood loop gives the full loop's answer bit for bit (ties, margins, no preferred)."""
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    networks = PEDESTRIAN if ti == 4 else VEHICLE
+    pl = Placer(net, networks)
+    edges = [e for e in range(net.n_edges) if net.edge_net[e] & networks]
+    edge = data.draw(st.sampled_from(edges))
+    t = pl.table(edge)
+    tab_edges = t.edges
+    preferred = set(data.draw(st.lists(st.sampled_from(tab_edges), max_size=5)))
+    if data.draw(st.booleans()):
+        preferred.add(edge)
+    margin = data.draw(st.sampled_from([0.0, 3.0, 15.0]))
+    # points near the table's vertices (on them, on segments, integer offsets) and anywhere around it
+    k = data.draw(st.integers(0, len(t.rows) - 1))
+    ax, ay, dx, dy = t.rows[k][:4]
+    f = data.draw(st.one_of(st.just(0.0), st.just(0.5), st.just(1.0), st.floats(-0.5, 1.5)))
+    off = data.draw(st.one_of(st.just(0.0), st.integers(-20, 20).map(float), st.floats(-60.0, 60.0)))
+    x = ax + f * dx + off
+    y = ay + f * dy + data.draw(st.one_of(st.just(0.0), st.integers(-20, 20).map(float), st.floats(-60.0, 60.0)))
+    want = _near_py_reference(t, x, y, preferred, margin)
+    assert want is not None
+    for hint in (edge, None, data.draw(st.sampled_from(tab_edges))):
+        assert pl._near_py(t, x, y, preferred, margin, hint) == want
