@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from entitynet.client.frozen import maker
 from entitynet.client.kinematics import INF, advance, brake_plan, time_to_travel
 from entitynet.client.path import Path
 
@@ -155,3 +156,19 @@ class WorldModel:
 
 
 Model = NetworkModel | AreaModel | WorldModel
+
+_make_network_model = maker(NetworkModel)
+_NO_PLAN = NetworkModel.__dataclass_fields__["plan"].default
+
+
+def network_model(t0: float, path: Path, s0: float, v: float, a: float, vmax: float, etype: int,
+                  parts: tuple[float, ...], stop_s: float = INF, brake: float = 1.0) -> NetworkModel:
+    """`NetworkModel(...)` through the fast constructor, its braking plan computed as `__post_init__` does
+    (the publish path builds one per update; equality is a test)."""
+    plan = _NO_PLAN
+    if math.isfinite(stop_s):
+        tb, b = brake_plan(v, a, vmax, stop_s - s0, brake)
+        if math.isfinite(tb):
+            ds, vb = advance(v, a, vmax, tb)
+            plan = (tb, s0 + ds, vb, b)
+    return _make_network_model(t0, path, s0, v, a, vmax, etype, parts, stop_s, brake, plan)

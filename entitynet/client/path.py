@@ -61,7 +61,7 @@ class Path:
         return e, (d if d_ > 0 else length - d)
 
     def xy(self, s: float) -> tuple[float, float]:
-        # `locate` written out (called on every fix, twice)
+        # `locate` and `NetView.point` written out (called on every fix, twice)
         cum = self.cum
         k = bisect_right(cum, s) - 1
         if k < 0:
@@ -73,7 +73,25 @@ class Path:
         length = net.edge_len[e]
         d = s - cum[k]
         d = 0.0 if d < 0.0 else (length if d > length else d)
-        return net.point(e, d if d_ > 0 else length - d)
+        offset = d if d_ > 0 else length - d
+        geom_off = net.geom_off
+        lo, hi = geom_off[e], geom_off[e + 1]
+        if offset <= 0.0:
+            return net.gx[lo], net.gy[lo]
+        gcum = net.gcum
+        if offset >= gcum[hi - 1]:
+            return net.gx[hi - 1], net.gy[hi - 1]
+        if hi - lo == 2:  # one segment: the bisection below can only give lo
+            k = lo
+        else:
+            k = bisect_right(gcum, offset, lo, hi) - 1
+            k = min(max(k, lo), hi - 2)
+        c0 = gcum[k]
+        seg = gcum[k + 1] - c0
+        t = 0.0 if seg <= 0.0 else (offset - c0) / seg
+        gx, gy = net.gx, net.gy
+        x0, y0 = gx[k], gy[k]
+        return x0 + t * (gx[k + 1] - x0), y0 + t * (gy[k + 1] - y0)
 
     def cell(self, s: float) -> int:
         e, off = self.locate(s)

@@ -22,6 +22,7 @@ from topology.placement_index import Placement
 # a placement result is the placement index's own record: kind "edge" (index = edge, offset along it) or
 # kind "area" (index = area); x, y the inferred point; distance from the fix
 Fix = Placement
+_new_fix = tuple.__new__  # Fix(...) without the NamedTuple's Python-level __new__ (the same tuple)
 
 AREA_BUCKET = 100.0  # metres: grid of area boxes for `areas_near`
 PY_ROWS = 160  # segment tables up to this size are searched by a plain loop, larger ones by numpy
@@ -368,10 +369,10 @@ class Placer:
         if segs is None:
             segs = self._segs[edge] = self._edge_segs(edge)
         best_d = math.inf
-        best = None
+        found = False
         hypot = math.hypot
-        for seg in segs:
-            ax, ay, dx, dy, l2 = seg[0], seg[1], seg[2], seg[3], seg[4]
+        bu = bc0 = bsl = bpx = bpy = 0.0
+        for ax, ay, dx, dy, l2, c0, sl in segs:
             if l2 <= 0.0:
                 u = 0.0
             else:
@@ -380,11 +381,10 @@ class Placer:
             px, py = ax + u * dx, ay + u * dy
             dd = hypot(x - px, y - py)
             if dd < best_d:
-                best_d, best = dd, (seg, u, px, py)
-        if best is None:
+                best_d, found, bu, bc0, bsl, bpx, bpy = dd, True, u, c0, sl, px, py
+        if not found:
             return Fix("edge", edge, 0.0, 0.0, 0.0, math.inf)
-        seg, u, px, py = best
-        return Fix("edge", edge, seg[5] + u * seg[6], px, py, best_d)
+        return _new_fix(Fix, ("edge", edge, bc0 + bu * bsl, bpx, bpy, best_d))
 
     def _edge_segs(self, edge: int) -> list[tuple[float, ...]]:
         """(ax, ay, dx, dy, l2, cum0, seg_len) of each segment of an edge: the per-fix projection's table,

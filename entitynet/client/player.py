@@ -18,13 +18,15 @@ only the world-frame models work and no cells are published.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Sequence
 
 from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
+from entitynet.client.frozen import maker
 from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
-from entitynet.client.occupation import Occupation, occupy, occupy_area
+from entitynet.client.occupation import Occupation, make_occupation, occupy, occupy_area
 from entitynet.client.path import Path, follow
 from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.placement import Fix, Placer, ring_distance
@@ -37,7 +39,10 @@ MAX_PATH_EDGES = 48
 
 def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
     """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
-    return Occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+    return make_occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+_make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
 
 
 class FixRejected(ValueError):
@@ -272,10 +277,16 @@ class Player:
             return "path"
         # on an edge
         path, kf = self.path, self.kf
-        dt = t - kf.t if t > kf.t else 0.0
+        kt = kf.t
+        dt = t - kt if t > kt else 0.0
         s_pred = kf.s + kf.v * dt + 0.5 * kf.a * dt * dt
-        k_cur = path.index(s_pred)
-        e_cur = path.edges[k_cur][0]
+        edges = path.edges
+        k_cur = bisect_right(path.cum, s_pred) - 1  # `path.index` written out
+        if k_cur < 0:
+            k_cur = 0
+        elif k_cur >= len(edges):
+            k_cur = len(edges) - 1
+        e_cur = edges[k_cur][0]
         net = self.net
         # fast path: a fix within the switch margin of the current edge, away from its ends, cannot be won
         # by another edge (they all start `switch_margin` behind), so the neighbourhood search is skipped
@@ -283,6 +294,8 @@ class Player:
         margin = placer.switch_margin if self.switch_margin is None else self.switch_margin
         if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
                 and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
+            if cur.distance <= placer.reacquire:
+                return self._track_on(x, y, cur, e_cur, k_cur, s_pred, t, r, margin)
             fix, best_pref = cur, cur.distance
             preferred = None
         else:
@@ -349,6 +362,58 @@ class Player:
         if self.reverse_count >= 3:
             self._reverse()
             reason = reason or "path"
+        self._maintain_path()
+        return reason
+
+    def _track_on(self, x: float, y: float, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float,
+                  r: float, margin: float) -> str | None:
+        """The rest of `_track` for the usual fix (on the predicted edge, inside the switch margin, within
+        `reacquire`): the same steps with `_s_of`'s first case and the bookkeeping written out."""
+        self.pending = (-1, 0)
+        self.last_fix = fix
+        dist = fix.distance
+        ema = self.dist_ema = 0.7 * self.dist_ema + 0.3 * dist
+        if ema > 1.5 * math.sqrt(r):
+            g = self._first(x, y)
+            if g is not None and g.kind == "edge" and g.index != e_cur and g.distance + margin < dist:
+                self._init_at(g, t, r)
+                self.last_fix = g
+                self.dist_ema = g.distance
+                return "jump"
+        path = self.path
+        edges = path.edges
+        n = len(edges)
+        # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs nearby
+        for j in range(k_cur - 3 if k_cur > 3 else 0, k_cur + 4 if k_cur + 4 < n else n):
+            if j != k_cur and edges[j][0] == e_cur:
+                s_meas = self._s_of(fix, s_pred, k_cur)
+                break
+        else:
+            off = fix.offset
+            s_meas = path.cum[k_cur] + (off if edges[k_cur][1] > 0 else self.net.edge_len[e_cur] - off)
+        placer = self.placer
+        if abs(s_meas - s_pred) > placer.reacquire:
+            self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
+            self.last_fix = fix
+            return "jump"
+        recent_s = self.recent_s
+        recent_s.append(s_meas)
+        if len(recent_s) > 5:
+            del recent_s[0]
+        kf = self.kf
+        kf.update(s_meas, t, r)
+        v = kf.v
+        if v > self.vpeak or t - self.vpeak_t > 120.0:
+            self.vpeak, self.vpeak_t = v, t
+        reason = None
+        if self.route:
+            self.reverse_count = 0
+        else:
+            backwards = v < -self.etype.v_start and v + kf.speed_sigma() < 0.0
+            self.reverse_count = self.reverse_count + 1 if backwards else 0
+            if self.reverse_count >= 3:
+                self._reverse()
+                reason = "path"
         self._maintain_path()
         return reason
 
@@ -587,7 +652,7 @@ class Player:
         self.published = True
         validity_ms = int(self.occupation.validity * 1000.0) if self.occupation else int(self.max_validity * 1000)
         cells = self.occupation.cells[:MAX_PUBLISH_CELLS] if self.occupation else ()
-        return Publish(self.entity, self.seq, tuple(cells), validity_ms, payload)
+        return _make_publish(self.entity, self.seq, tuple(cells), validity_ms, payload)
 
     def _build_model(self, t: float, from_ghost: bool) -> Model:
         et = self.etype

@@ -4,20 +4,38 @@ Each fast path is checked against a reference: the numpy pass it replaces, or th
 here verbatim. Exact equality, not closeness: players and receivers must take the same decisions.
 """
 
+import dataclasses
 import math
 
 import numpy as np
+import pytest
 from client_fixtures import area_square, chain, cross, hairpin, make_topology, parallel
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from entitynet.client import netview
 from entitynet.client.filters import Kinematic1D
-from entitynet.client.motion import AreaModel, NetworkModel, WorldModel
-from entitynet.client.occupation import _branch_cover, branch_cover
+from entitynet.client.frozen import maker
+from entitynet.client.motion import AreaModel, NetworkModel, WorldModel, network_model
+from entitynet.client.occupation import (
+    Occupation,
+    _branch_cover,
+    branch_cover,
+    certain_end,
+    choice_node,
+    make_occupation,
+)
 from entitynet.client.path import Path
-from entitynet.client.payload import encode, encode_quantized, quantized
+from entitynet.client.payload import (
+    PayloadError,
+    _encode_network_checked,
+    encode,
+    encode_network,
+    encode_quantized,
+    quantized,
+)
 from entitynet.client.placement import Fix, Placer
+from entitynet.protocol import Publish
 from topology.raw import PEDESTRIAN, VEHICLE
 
 TOPOS = [cross(arm=100.0), parallel(gap=12.0, length=300.0), chain(), hairpin(), area_square()]
@@ -250,3 +268,113 @@ def test_near_skipping_far_edges_equals_the_full_loop(ti, data):
     assert want is not None
     for hint in (edge, None, data.draw(st.sampled_from(tab_edges))):
         assert pl._near_py(t, x, y, preferred, margin, hint) == want
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 1e6), finite, st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0.0, 40.0),
+       st.one_of(st.just(math.inf), finite), st.lists(st.floats(0.0, 30.0), max_size=2), st.floats(0.01, 5.0))
+def test_fast_model_constructors_equal_the_dataclass_init(t0, s0, v, a, vmax, stop_s, parts, brake):
+    path = Path(NETS[0], [(0, 1), (1, 1)])
+    got = network_model(t0, path, s0, v, a, vmax, 3, tuple(parts), stop_s, brake)
+    want = NetworkModel(t0, path, s0, v, a, vmax, 3, tuple(parts), stop_s, brake)
+    assert got == want and repr(got) == repr(want) and type(got) is NetworkModel
+    occ = make_occupation((1, 2), t0, s0, math.inf, v, a)
+    assert occ == Occupation((1, 2), t0, s0, math.inf, v, a)
+    pub = maker(Publish)(7, 2, (1, 2), 5, b"x")
+    assert pub == Publish(7, 2, (1, 2), 5, b"x") and hash(pub) == hash(Publish(7, 2, (1, 2), 5, b"x"))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        occ.validity = 1.0  # still frozen
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 1e6), finite, finite, finite, st.floats(0.0, 40.0), st.one_of(st.just(math.inf), finite),
+       st.lists(st.floats(0.0, 30.0), max_size=2), st.floats(0.01, 5.0))
+def test_encode_network_equals_the_checked_encoder(t0, s0, v, a, vmax, stop_s, parts, brake):
+    path = Path(NETS[0], [(0, 1), (1, 1)])
+    args = (t0, path, s0, v, a, vmax, 3, tuple(parts), stop_s, brake)
+    payload, ghost = encode_network(*args)
+    want_payload, want_ghost = _encode_network_checked(*args)
+    assert payload == want_payload and ghost == want_ghost and repr(ghost) == repr(want_ghost)
+    for k in (0, 2, 3, 4, 5, 9):  # a non-finite value raises as before
+        bad = list(args)
+        bad[k] = math.nan
+        with pytest.raises(PayloadError):
+            encode_network(*bad)
+
+
+def _xy_reference(path, s):
+    """`Path.xy` as it was: `locate`, then `NetView.point`."""
+    e, off = path.locate(s)
+    return path.net.point(e, off)
+
+
+def _random_path(net, data, networks=VEHICLE | PEDESTRIAN):
+    """A walk of up to 8 directed edges through `net` (any turn, U-turns excepted when there is a choice)."""
+    edges = [e for e in range(net.n_edges) if net.edge_net[e] & networks]
+    de = (data.draw(st.sampled_from(edges)), data.draw(st.sampled_from([1, -1])))
+    out = [de]
+    for _ in range(data.draw(st.integers(0, 7))):
+        nxt = net.choices(out[-1], networks)
+        if not nxt:
+            break
+        out.append(data.draw(st.sampled_from(nxt)))
+    return Path(net, out)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.data())
+def test_path_xy_equals_locate_then_point(ti, data):
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    path = _random_path(net, data)
+    for _ in range(5):
+        s = data.draw(st.one_of(st.floats(-5.0, path.length + 5.0), st.sampled_from(path.cum),
+                                st.sampled_from([-0.0, 0.0, path.length])))
+        assert path.xy(s) == _xy_reference(path, s)
+
+
+def _certain_end_reference(path, s_front, networks, known_until):
+    """`certain_end` as it was written before the shared search."""
+    net = path.net
+    k = path.index(max(s_front, known_until))
+    while k < len(path.edges):
+        de = path.edges[k]
+        s_node = path.cum[k + 1]
+        if s_node >= known_until and s_node >= s_front and (
+                len(net.choices(de, networks)) > 1 or net.node_area[net.end_node(de)] >= 0):
+            node_cell = path.cell(s_node - 1e-9) if s_node > 0 else path.cell(0.0)
+            allowance = math.inf
+            for cand in net.choices(de, networks):
+                pieces = net.pieces(*cand)
+                a0, b0, c0 = pieces[0]
+                allowance = min(allowance, b0 if c0 == node_cell else 0.0)
+            if not net.choices(de, networks):
+                allowance = 0.0
+            return min(s_node + allowance, path.length)
+        k += 1
+    return path.length
+
+
+def _choice_node_reference(path, s_front, networks, known_until):
+    net = path.net
+    k = path.index(max(s_front, known_until))
+    while k < len(path.edges):
+        s_node = path.cum[k + 1]
+        de = path.edges[k]
+        if s_node >= known_until and s_node >= s_front and (
+                len(net.choices(de, networks)) > 1 or net.node_area[net.end_node(de)] >= 0):
+            return k, s_node
+        k += 1
+    return None
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.data())
+def test_shared_choice_search_equals_the_two_loops(ti, data):
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    networks = data.draw(st.sampled_from([VEHICLE, PEDESTRIAN, VEHICLE | PEDESTRIAN]))
+    path = _random_path(net, data)
+    for _ in range(4):
+        s = data.draw(st.one_of(st.floats(-5.0, path.length + 5.0), st.sampled_from(path.cum)))
+        known = data.draw(st.one_of(st.just(0.0), st.floats(0.0, path.length + 5.0), st.sampled_from(path.cum)))
+        assert certain_end(path, s, networks, known) == _certain_end_reference(path, s, networks, known)
+        assert choice_node(path, s, networks, known) == _choice_node_reference(path, s, networks, known)
