@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass
 
 from entitynet.client.frozen import maker
-from entitynet.client.kinematics import INF, advance, brake_plan, time_to_travel
+from entitynet.client.kinematics import A_EPS, INF, advance, brake_plan, time_to_travel
 from entitynet.client.path import Path
 
 KIND_NETWORK, KIND_AREA, KIND_WORLD = 1, 2, 3
@@ -88,8 +88,12 @@ class NetworkModel:
         dt = t - self.t0
         tb, sb, vb, b = self.plan
         if dt <= tb:
-            ds, v = advance(self.v, self.a, self.vmax, dt)
-            s = self.s0 + ds
+            v, a = self.v, self.a
+            if dt > 0.0 and -A_EPS < a < A_EPS:  # `advance` at constant speed (its `_a(a)` is 0)
+                s = self.s0 + v * dt
+            else:
+                ds, v = advance(v, a, self.vmax, dt)
+                s = self.s0 + ds
         elif not math.isfinite(b):
             s, v = sb, 0.0
         else:
@@ -97,7 +101,7 @@ class NetworkModel:
             s = min(sb + ds, self.stop_s)
         path = self.path
         length = path.cum[-1]
-        x, y = path.xy(min(s, length))
+        x, y = path.xy(length if length < s else s)  # min(s, length)
         return x, y, v
 
     def parts_xy_at(self, t: float) -> list[tuple[float, float]]:

@@ -215,10 +215,7 @@ def occupy(
         cover_end = nxt if nxt is not None else end_known
         # cells of [start, cover_end): the cell starting exactly at cover_end is not covered. One pass for
         # the cells under the body (start, reach], as `cells_between` lists them, and those ahead of it
-        cells = [path.cell(start)]
-        for sa, c in path.starts_in(start, max(reach, cover_end)):
-            if (sa <= reach or sa < cover_end) and c not in cells:
-                cells.append(c)
+        cells = path.cover_cells(start, reach, cover_end)
     if cover_end >= path.length and dead_end_at_path_end:
         front = INF
     else:

@@ -94,8 +94,22 @@ class Path:
         return x0 + t * (gx[k + 1] - x0), y0 + t * (gy[k + 1] - y0)
 
     def cell(self, s: float) -> int:
-        e, off = self.locate(s)
-        return self.net.cell_at(e, off)
+        # `locate` and `NetView.cell_at` written out (several times per publish)
+        cum = self.cum
+        k = bisect_right(cum, s) - 1
+        if k < 0:
+            k = 0
+        elif k >= len(self.edges):
+            k = len(self.edges) - 1
+        e, d_ = self.edges[k]
+        net = self.net
+        length = net.edge_len[e]
+        d = s - cum[k]
+        d = 0.0 if d < 0.0 else (length if d > length else d)
+        off = d if d_ > 0 else length - d
+        lo, hi = net.bp_off[e], net.bp_off[e + 1]
+        j = bisect_right(net.bp_start, off, lo, hi) - 1
+        return net.bp_cell[j if j > lo else lo]
 
     def starts_in(self, s0: float, s1: float) -> list[tuple[float, int]]:
         """(s, cell) of every cell piece that starts in (s0, s1], in order of travel."""
@@ -105,7 +119,8 @@ class Path:
         n = len(edges)
         while k < n and cum[k] <= s1:
             base = cum[k]
-            for a, _b, c in pieces(*edges[k]):
+            e, d = edges[k]
+            for a, _b, c in pieces(e, d):
                 sa = base + a
                 if sa > s1:
                     break
@@ -113,6 +128,27 @@ class Path:
                     out.append((sa, c))
             k += 1
         return out
+
+    def cover_cells(self, start: float, reach: float, cover_end: float) -> list[int]:
+        """Cells of [start, cover_end) and of the body (start, reach], in order, without repeats: the cell at
+        `start`, then those of `starts_in(start, max(reach, cover_end))` with sa <= reach or sa < cover_end
+        (that loop written out, without its list)."""
+        cells = [self.cell(start)]
+        s1 = cover_end if cover_end > reach else reach  # max(reach, cover_end)
+        k = self.index(start)
+        edges, cum, pieces = self.edges, self.cum, self.net.pieces
+        n = len(edges)
+        while k < n and cum[k] <= s1:
+            base = cum[k]
+            e, d = edges[k]
+            for a, _b, c in pieces(e, d):
+                sa = base + a
+                if sa > s1:
+                    break
+                if sa > start and (sa <= reach or sa < cover_end) and c not in cells:
+                    cells.append(c)
+            k += 1
+        return cells
 
     def cells_between(self, s0: float, s1: float) -> list[int]:
         """Cells met along [s0, s1] (clamped to the path), in order of travel, without repeats."""
@@ -144,9 +180,12 @@ class Path:
         prev = self.cell(s)
         limit = min(limit, self.length)
         k = self.index(s)
-        while k < len(self.edges) and self.cum[k] <= limit:
-            base = self.cum[k]
-            for a, _b, c in self.net.pieces(*self.edges[k]):
+        edges, cum, pieces = self.edges, self.cum, self.net.pieces
+        n = len(edges)
+        while k < n and cum[k] <= limit:
+            base = cum[k]
+            e, d = edges[k]
+            for a, _b, c in pieces(e, d):
                 sa = base + a
                 if sa > limit:
                     return None

@@ -529,12 +529,16 @@ class Player:
             return math.inf
         known = self._known_until(path, s)
         k = path.index(s)
-        while k < len(path.edges) and path.cum[k] <= known:
-            e, d = path.edges[k]
-            for off in sorted(self.stops.get(e, ()), reverse=d < 0):
-                sp = path.cum[k] + self.net.dist_of((e, d), off)
-                if sp > s + 2.0 and sp <= known:
-                    return sp
+        edges, cum, stops = path.edges, path.cum, self.stops
+        n = len(edges)
+        while k < n and cum[k] <= known:
+            e, d = edges[k]
+            offs = stops.get(e)
+            if offs:  # the same steps as before, on the few edges that have stops
+                for off in sorted(offs, reverse=d < 0):
+                    sp = cum[k] + self.net.dist_of((e, d), off)
+                    if sp > s + 2.0 and sp <= known:
+                        return sp
             k += 1
         return math.inf
 

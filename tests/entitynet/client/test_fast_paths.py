@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from entitynet.client import netview
 from entitynet.client.filters import Kinematic1D
 from entitynet.client.frozen import maker
+from entitynet.client.kinematics import advance
 from entitynet.client.motion import AreaModel, NetworkModel, WorldModel, network_model
 from entitynet.client.occupation import (
     Occupation,
@@ -378,3 +379,42 @@ def test_shared_choice_search_equals_the_two_loops(ti, data):
         known = data.draw(st.one_of(st.just(0.0), st.floats(0.0, path.length + 5.0), st.sampled_from(path.cum)))
         assert certain_end(path, s, networks, known) == _certain_end_reference(path, s, networks, known)
         assert choice_node(path, s, networks, known) == _choice_node_reference(path, s, networks, known)
+
+
+def _xy_speed_at_reference(g, t):
+    """`NetworkModel.xy_speed_at` as it was: `_state` written out, `advance` called in every case."""
+    dt = t - g.t0
+    tb, sb, vb, b = g.plan
+    if dt <= tb:
+        ds, v = advance(g.v, g.a, g.vmax, dt)
+        s = g.s0 + ds
+    elif not math.isfinite(b):
+        s, v = sb, 0.0
+    else:
+        ds, v = advance(vb, -b, vb, dt - tb)
+        s = min(sb + ds, g.stop_s)
+    x, y = g.path.xy(min(s, g.path.cum[-1]))
+    return x, y, v
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.data(), st.floats(-50.0, 400.0), st.floats(0.0, 30.0),
+       st.one_of(st.just(0.0), st.just(1e-10), st.just(-1e-10), st.floats(-3.0, 3.0)), st.floats(0.0, 30.0),
+       st.one_of(st.just(math.inf), st.floats(-10.0, 400.0)), st.lists(st.floats(-5.0, 100.0), min_size=1, max_size=5))
+def test_xy_speed_and_cells_written_out_equal_the_calls(ti, data, s0, v, a, vmax, stop_s, dts):
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    path = _random_path(net, data)
+    g = NetworkModel(10.0, path, s0, v, a, vmax, 3, (4.0,), stop_s, 1.2)
+    for dt in [0.0, *dts]:
+        assert g.xy_speed_at(10.0 + dt) == _xy_speed_at_reference(g, 10.0 + dt)
+    for _ in range(5):
+        s = data.draw(st.one_of(st.floats(-5.0, path.length + 5.0), st.sampled_from(path.cum)))
+        e, off = path.locate(s)
+        assert path.cell(s) == net.cell_at(e, off)
+        reach = s + data.draw(st.floats(0.0, 30.0))
+        cover_end = data.draw(st.one_of(st.just(reach), st.floats(s, path.length + 10.0)))
+        want = [path.cell(s)]  # `occupy`'s one pass as it was written with `starts_in`
+        for sa, c in path.starts_in(s, max(reach, cover_end)):
+            if (sa <= reach or sa < cover_end) and c not in want:
+                want.append(c)
+        assert path.cover_cells(s, reach, cover_end) == want
