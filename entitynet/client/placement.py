@@ -29,6 +29,7 @@ PY_ROWS = 160  # segment tables up to this size are searched by a plain loop, la
 # slack (metres) on the box lower bound that lets the loop skip an edge: far above the rounding of a computed
 # distance (coordinates of 1e4 m have ulps of 2e-12 m), so a skipped segment can never be the answer
 PRUNE_SLACK = 1e-6
+RING_PY = 64  # rings up to this many vertices are tested by a plain loop, larger ones by numpy
 
 
 def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
@@ -116,6 +117,7 @@ class Placer:
         self._rings: dict[int, np.ndarray] = {}
         self._segs: dict[int, list[tuple[float, ...]]] = {}
         self._ring_box: dict[int, tuple[float, float, float, float, bool]] = {}
+        self._ring_segs: dict[int, list[tuple[float, float, float, float]]] = {}
         self._area_bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._area_rows: dict[tuple[int, int], list[tuple[int, float, float, float, float]]] | None = None
         self._grid: tuple[dict[tuple[int, int], list[int]], dict, float] | None = None
@@ -248,6 +250,18 @@ class Placer:
         # even (left): the same answer without the numpy pass. The 1 m pads absorb the rounding of xs.
         if y < b[1] or y >= b[3] or x > b[2] or (b[4] and x < b[0]):
             return False
+        segs = self._ring_segs.get(area)
+        if segs is None:
+            segs = self._ring_segs[area] = (list(zip(r[:-1, 0].tolist(), r[:-1, 1].tolist(), r[1:, 0].tolist(),
+                                                     r[1:, 1].tolist(), strict=True))
+                                            if len(r) <= RING_PY else [])
+        if segs:  # the numpy pass below as a plain loop (a small ring: most areas have about 12 vertices)
+            inside = False
+            for x0, y0, x1, y1 in segs:
+                # crossing edges only: there y1 != y0, and the xs below is the numpy pass's value
+                if (y0 > y) != (y1 > y) and x < x0 + (y - y0) * (x1 - x0) / (y1 - y0):
+                    inside = not inside
+            return inside
         x0, y0, x1, y1 = r[:-1, 0], r[:-1, 1], r[1:, 0], r[1:, 1]
         cond = (y0 > y) != (y1 > y)
         with np.errstate(divide="ignore", invalid="ignore"):

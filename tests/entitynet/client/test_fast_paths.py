@@ -77,10 +77,28 @@ def test_near_loop_equals_the_numpy_pass(ti, x, y, data):
     assert pl.project_on(x, y, edge) == _project_on_reference(net, x, y, edge)
 
 
-@settings(max_examples=200, deadline=None)
-@given(st.floats(-80.0, 80.0, allow_nan=False), st.floats(-80.0, 80.0, allow_nan=False))
-def test_inside_area_box_test_agrees_with_the_crossing_count(x, y):
-    net = NETS[4]
+def _star_area():
+    """An irregular (star-shaped, non-convex) pedestrian area: slanted ring edges, a vertex on an integer y."""
+    rng = np.random.default_rng(5)
+    ring = [(r * math.cos(a), r * math.sin(a))
+            for a, r in zip(np.linspace(0.0, 2 * math.pi, 12, endpoint=False), rng.uniform(20.0, 70.0, 12),
+                            strict=True)]
+    ring[3] = (ring[3][0], 30.0)
+    ring.append(ring[0])
+    nodes = {"Q": (0.0, 0.0), "W": (-200.0, 0.0)}
+    return make_topology(nodes, [("W", "Q", PEDESTRIAN)], areas=[("Q", ring, PEDESTRIAN)], junction_radius=10.0)
+
+
+AREA_NETS = [NETS[4], netview(_star_area())]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 1), st.one_of(st.floats(-80.0, 80.0, allow_nan=False), st.integers(-80, 80).map(float)),
+       st.one_of(st.floats(-80.0, 80.0, allow_nan=False), st.integers(-80, 80).map(float), st.just(30.0)))
+def test_inside_area_box_test_agrees_with_the_crossing_count(ai, x, y):
+    """The box test and the plain loop over the ring's edges give the numpy crossing count's answer (vertices
+    on integer coordinates, slanted edges)."""
+    net = AREA_NETS[ai]
     pl = Placer(net, PEDESTRIAN)
     r = pl.ring(0)
     x0, y0, x1, y1 = r[:-1, 0], r[:-1, 1], r[1:, 0], r[1:, 1]
