@@ -172,6 +172,8 @@ class Path:
 
     def suffix(self, k: int) -> Path:
         """The path from edge k on (s shifts by cum[k]); no re-validation."""
+        if k == 0 and self.cum[0] == 0.0:  # c - 0.0 is c: the same coordinates (copied: no shared lists)
+            return Path(self.net, self.edges, _cum=list(self.cum))
         c0 = self.cum[k]
         return Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
 

@@ -554,10 +554,16 @@ class Player:
         if memo is not None and memo[0] is path and memo[1] == k0:
             return memo[2]
         k = k0
-        if path.edges[k] not in self.route_first:
+        edges = path.edges
+        i = self.route_first.get(edges[k])
+        if i is None:
             out = 0.0
+        elif edges[k:] == self.route[i : i + len(edges) - k]:
+            # the rest of the path is a stretch of the route (the usual case): all its pairs are route pairs,
+            # so the walk below would reach the path's end
+            out = path.cum[len(edges)]
         else:
-            edges, pairs = path.edges, self.route_pairs
+            pairs = self.route_pairs
             n = len(edges)
             while k + 1 < n and (edges[k], edges[k + 1]) in pairs:
                 k += 1

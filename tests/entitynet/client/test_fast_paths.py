@@ -36,6 +36,7 @@ from entitynet.client.payload import (
     quantized,
 )
 from entitynet.client.placement import Fix, Placer
+from entitynet.client.player import Player
 from entitynet.protocol import Publish
 from topology.raw import PEDESTRIAN, VEHICLE
 
@@ -436,3 +437,43 @@ def test_xy_speed_and_cells_written_out_equal_the_calls(ti, data, s0, v, a, vmax
             if (sa <= reach or sa < cover_end) and c not in want:
                 want.append(c)
         assert path.cover_cells(s, reach, cover_end) == want
+
+
+def _known_until_reference(p, path, s):
+    """`Player._known_until` as it was (without its memo): walk the route pairs from the edge holding s."""
+    if not p.route:
+        return 0.0
+    k = path.index(s)
+    if path.edges[k] not in p.route_first:
+        return 0.0
+    edges, n = path.edges, len(path.edges)
+    while k + 1 < n and (edges[k], edges[k + 1]) in p.route_pairs:
+        k += 1
+    return path.cum[k + 1]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.data())
+def test_known_until_route_stretch_equals_the_pair_walk(ti, data):
+    """Paths along the route, off it, or along a route that passes an edge twice (pairs from elsewhere)."""
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    topo = net.topo
+    route = _random_path(net, data).edges
+    if data.draw(st.booleans()):
+        route = route + _random_path(net, data).edges  # a second stretch (may not join: pairs only)
+    p = Player(topo, 1, "cyclist", route=route)
+    for _ in range(3):
+        # the route's first stretch (a path along the route), or any walk (on and off the route)
+        first = route[: len(route) if _joins(net, route) else 1]
+        path = Path(net, first) if data.draw(st.booleans()) else _random_path(net, data)
+        k = data.draw(st.integers(0, len(path.edges) - 1))
+        sub = path.suffix(k)
+        assert sub == Path(net, path.edges[k:]) and sub.cum == [c - path.cum[k] for c in path.cum[k:]]
+        for s in (data.draw(st.floats(-5.0, sub.length + 5.0)), *sub.cum):
+            p._ku_memo = None
+            assert p._known_until(sub, s) == _known_until_reference(p, sub, s)
+
+
+def _joins(net, edges):
+    return all(net.end_node(a) == net.start_node(b) for a, b in zip(edges, edges[1:], strict=False))
+
