@@ -33,6 +33,30 @@ RING_PY = 64  # rings up to this many vertices are tested by a plain loop, large
 
 
 def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
+    """Distance from (x, y) to a closed ring's boundary. A small ring's projections are a plain loop (the same
+    IEEE operations as the numpy pass, a dozen numpy calls cost more than the loop) and only the final
+    hypot and minimum are numpy's, so the answer is `_ring_distance_np`'s bit for bit (a test)."""
+    n = len(ring) - 1
+    if n <= 0:
+        return math.inf
+    if n > RING_PY:
+        return _ring_distance_np(ring, x, y)
+    pts = ring.tolist()
+    exs, eys = [], []
+    p0x, p0y = pts[0]
+    for p1x, p1y in pts[1:]:
+        dx = p1x - p0x
+        dy = p1y - p0y
+        l2 = dx * dx + dy * dy
+        t = ((x - p0x) * dx + (y - p0y) * dy) / (l2 if l2 > 0 else 1.0)
+        t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+        exs.append(p0x + t * dx - x)
+        eys.append(p0y + t * dy - y)
+        p0x, p0y = p1x, p1y
+    return float(np.min(np.hypot(exs, eys)))
+
+
+def _ring_distance_np(ring: np.ndarray, x: float, y: float) -> float:
     """Distance from (x, y) to a closed ring's boundary (vectorised over its segments)."""
     p0, p1 = ring[:-1], ring[1:]
     d = p1 - p0

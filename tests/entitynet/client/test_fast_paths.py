@@ -35,7 +35,7 @@ from entitynet.client.payload import (
     encode_quantized,
     quantized,
 )
-from entitynet.client.placement import Fix, Placer
+from entitynet.client.placement import Fix, Placer, _ring_distance_np, ring_distance
 from entitynet.client.player import Player
 from entitynet.protocol import Publish
 from topology.raw import PEDESTRIAN, VEHICLE
@@ -477,3 +477,14 @@ def test_known_until_route_stretch_equals_the_pair_walk(ti, data):
 def _joins(net, edges):
     return all(net.end_node(a) == net.start_node(b) for a, b in zip(edges, edges[1:], strict=False))
 
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 1), st.one_of(st.floats(-90.0, 90.0), st.integers(-90, 90).map(float)),
+       st.one_of(st.floats(-90.0, 90.0), st.integers(-90, 90).map(float), st.just(30.0)))
+def test_ring_distance_loop_equals_the_numpy_pass(ai, x, y):
+    ring = Placer(AREA_NETS[ai], PEDESTRIAN).ring(0)
+    assert ring_distance(ring, x, y) == _ring_distance_np(ring, x, y)
+    dup = np.vstack([ring[:2], ring[1:]])  # a zero-length segment
+    assert ring_distance(dup, x, y) == _ring_distance_np(dup, x, y)
+    assert ring_distance(ring[:1], x, y) == _ring_distance_np(ring[:1], x, y) == math.inf
