@@ -14,9 +14,10 @@ from entitynet.client.network import DirEdge, NetView
 
 
 class Path:
-    __slots__ = ("net", "edges", "cum")
+    __slots__ = ("net", "edges", "cum", "_ids")
 
     def __init__(self, net: NetView, edges: Sequence[DirEdge], *, _cum: list[float] | None = None) -> None:
+        self._ids: list[int] | None = None
         if _cum is not None:  # a slice of a path already checked: no validation needed
             self.net, self.edges, self.cum = net, list(edges), _cum
             return
@@ -37,6 +38,13 @@ class Path:
     @property
     def length(self) -> float:
         return self.cum[-1]
+
+    def edge_ids(self) -> list[int]:
+        """The undirected edge ids in path order (computed once per path: paths are not changed in place)."""
+        ids = self._ids
+        if ids is None:
+            ids = self._ids = [e for e, _d in self.edges]
+        return ids
 
     def index(self, s: float) -> int:
         """Index of the edge holding s (clamped to the path)."""

@@ -381,16 +381,12 @@ class Player:
                 self.dist_ema = g.distance
                 return "jump"
         path = self.path
-        edges = path.edges
-        n = len(edges)
-        # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs nearby
-        for j in range(k_cur - 3 if k_cur > 3 else 0, k_cur + 4 if k_cur + 4 < n else n):
-            if j != k_cur and edges[j][0] == e_cur:
-                s_meas = self._s_of(fix, s_pred, k_cur)
-                break
-        else:
+        # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs within 3 edges
+        if path.edge_ids()[k_cur - 3 if k_cur > 3 else 0 : k_cur + 4].count(e_cur) == 1:
             off = fix.offset
-            s_meas = path.cum[k_cur] + (off if edges[k_cur][1] > 0 else self.net.edge_len[e_cur] - off)
+            s_meas = path.cum[k_cur] + (off if path.edges[k_cur][1] > 0 else self.net.edge_len[e_cur] - off)
+        else:
+            s_meas = self._s_of(fix, s_pred, k_cur)
         placer = self.placer
         if abs(s_meas - s_pred) > placer.reacquire:
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
@@ -414,7 +410,14 @@ class Player:
             if self.reverse_count >= 3:
                 self._reverse()
                 reason = "path"
-        self._maintain_path()
+        # `_maintain_path` changes nothing unless the path is to be trimmed or is short of what is needed ahead
+        path = self.path
+        cum = path.cum
+        s = kf.s
+        v = kf.v
+        if ((len(cum) > 2 and s - (self.body + self.margin + 50.0) > cum[1])
+                or cum[-1] < s + self.lookahead + self.margin + 80.0 + 15.0 * (v if v > 0.0 else 0.0)):
+            self._maintain_path()
         return reason
 
     def _reverse(self) -> None:
