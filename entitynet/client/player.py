@@ -59,6 +59,8 @@ def placer_for(net: NetView, networks: int) -> Placer:
 
 
 class Player:
+    FAST_TRACK = True  # `_track_on` for the usual fix (False: the general code below it, the test's reference)
+
     def __init__(
         self,
         topo,
@@ -294,7 +296,7 @@ class Player:
         margin = placer.switch_margin if self.switch_margin is None else self.switch_margin
         if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
                 and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
-            if cur.distance <= placer.reacquire:
+            if cur.distance <= placer.reacquire and self.FAST_TRACK:
                 return self._track_on(x, y, cur, e_cur, k_cur, s_pred, t, r, margin)
             fix, best_pref = cur, cur.distance
             preferred = None

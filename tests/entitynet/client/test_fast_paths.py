@@ -488,3 +488,37 @@ def test_ring_distance_loop_equals_the_numpy_pass(ai, x, y):
     dup = np.vstack([ring[:2], ring[1:]])  # a zero-length segment
     assert ring_distance(dup, x, y) == _ring_distance_np(dup, x, y)
     assert ring_distance(ring[:1], x, y) == _ring_distance_np(ring[:1], x, y) == math.inf
+
+
+class _GeneralTrack(Player):
+    FAST_TRACK = False  # every fix through `_track`'s general code (what `_track_on` writes out)
+
+
+def _state(p):
+    kf = p.kf
+    return (p.mode, p.path.edges if p.path else None, p.path.cum if p.path else None,
+            [getattr(kf, f) for f in type(kf).__slots__] if kf is not None else None, p.last_fix, p.pending,
+            p.dist_ema, list(p.recent_s), p.vpeak, p.vpeak_t, p.reverse_count, p.dead_end, p.ghost, p.occupation)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.sampled_from(["car", "pedestrian", "tram"]), st.booleans(),
+       st.integers(0, 2**32 - 1), st.floats(0.5, 8.0), st.data())
+def test_track_on_equals_the_general_track(ti, etype, with_route, seed, noise, data):
+    """Walk a random path (forwards, pausing, turning back) with GPS noise: the players with and without
+    `_track_on` send the same messages and hold the same state after every fix."""
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    path = _random_path(net, data)
+    route = path.edges if with_route else None
+    a = Player(net.topo, 1, etype, route=route, accuracy=5.0)
+    b = _GeneralTrack(net.topo, 1, etype, route=route, accuracy=5.0)
+    rng = np.random.default_rng(seed)
+    s, v = 0.0, float(rng.uniform(0.0, 12.0))
+    for i in range(80):
+        if rng.random() < 0.05:
+            v = -v if rng.random() < 0.3 else float(rng.uniform(0.0, 12.0))
+        s = min(max(s + v, 0.0), path.length)
+        x, y = path.xy(s)
+        x, y = x + float(rng.normal(0.0, noise)), y + float(rng.normal(0.0, noise))
+        assert a.feed(x, y, float(i)) == b.feed(x, y, float(i))
+        assert _state(a) == _state(b)
