@@ -297,7 +297,7 @@ class Player:
         if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
                 and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
             if cur.distance <= placer.reacquire and self.FAST_TRACK:
-                return self._track_on(x, y, cur, e_cur, k_cur, s_pred, t, r, margin)
+                return self._track_on(cur, e_cur, k_cur, s_pred, t, r)
             fix, best_pref = cur, cur.distance
             preferred = None
         else:
@@ -338,7 +338,8 @@ class Player:
         # consistency: fixes that stay far from the edge we hold mean we hold the wrong one (a first fix on
         # the wrong street, or the hysteresis kept us there): ask the placement index again
         self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
-        if self.dist_ema > 1.5 * math.sqrt(r) and reason is None:
+        # (a fix within the margin cannot be beaten by g.distance + margin, g.distance >= 0: no need to ask)
+        if self.dist_ema > 1.5 * math.sqrt(r) and reason is None and fix.distance > margin:
             g = self._first(x, y)
             if g is not None and g.kind == "edge" and g.index != fix.index and g.distance + margin < fix.distance:
                 self._init_at(g, t, r)
@@ -367,21 +368,14 @@ class Player:
         self._maintain_path()
         return reason
 
-    def _track_on(self, x: float, y: float, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float,
-                  r: float, margin: float) -> str | None:
+    def _track_on(self, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float, r: float) -> str | None:
         """The rest of `_track` for the usual fix (on the predicted edge, inside the switch margin, within
         `reacquire`): the same steps with `_s_of`'s first case and the bookkeeping written out."""
         self.pending = (-1, 0)
         self.last_fix = fix
-        dist = fix.distance
-        ema = self.dist_ema = 0.7 * self.dist_ema + 0.3 * dist
-        if ema > 1.5 * math.sqrt(r):
-            g = self._first(x, y)
-            if g is not None and g.kind == "edge" and g.index != e_cur and g.distance + margin < dist:
-                self._init_at(g, t, r)
-                self.last_fix = g
-                self.dist_ema = g.distance
-                return "jump"
+        # the consistency check of `_track` cannot jump here: it needs g.distance + margin < fix.distance, and
+        # this fix is within the margin (so the placement index is not asked)
+        self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
         path = self.path
         # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs within 3 edges
         if path.edge_ids()[k_cur - 3 if k_cur > 3 else 0 : k_cur + 4].count(e_cur) == 1:
