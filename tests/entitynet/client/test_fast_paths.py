@@ -35,7 +35,7 @@ from entitynet.client.payload import (
     encode_quantized,
     quantized,
 )
-from entitynet.client.placement import Fix, Placer, _ring_distance_np, ring_distance
+from entitynet.client.placement import Fix, Placer, _ring_distance_np, _SegTable, ring_distance
 from entitynet.client.player import Player
 from entitynet.protocol import Publish
 from topology.raw import PEDESTRIAN, VEHICLE
@@ -522,3 +522,30 @@ def test_track_on_equals_the_general_track(ti, etype, with_route, seed, noise, d
         x, y = x + float(rng.normal(0.0, noise)), y + float(rng.normal(0.0, noise))
         assert a.feed(x, y, float(i)) == b.feed(x, y, float(i))
         assert _state(a) == _state(b)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.data())
+def test_segment_table_rows_and_groups_equal_the_vertex_loop(ti, data):
+    """The rows the plain loop reads are the numpy arrays' numbers, and the groups cover them edge by edge."""
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    edges = data.draw(st.lists(st.integers(0, net.n_edges - 1), min_size=1, max_size=12))
+    t = _SegTable(net, edges, [])
+    ax, ay, dx, dy, cum0, eid = [], [], [], [], [], []
+    for e in sorted(set(edges)):
+        for k in range(net.geom_off[e], net.geom_off[e + 1] - 1):
+            ax.append(net.gx[k])
+            ay.append(net.gy[k])
+            dx.append(net.gx[k + 1] - net.gx[k])
+            dy.append(net.gy[k + 1] - net.gy[k])
+            cum0.append(net.gcum[k])
+            eid.append(e)
+    ax, ay, dx, dy = np.array(ax), np.array(ay), np.array(dx), np.array(dy)
+    l2 = dx * dx + dy * dy
+    inv_l2 = np.where(l2 > 0.0, 1.0 / np.where(l2 > 0.0, l2, 1.0), 0.0)
+    for got, want in ((t.ax, ax), (t.ay, ay), (t.dx, dx), (t.dy, dy), (t.inv_l2, inv_l2), (t.slen, np.sqrt(l2)),
+                      (t.cum0, np.array(cum0)), (t.edge, np.array(eid, dtype=np.int64))):
+        assert got.dtype == want.dtype and got.tolist() == want.tolist()
+    assert t.rows == list(zip(ax.tolist(), ay.tolist(), dx.tolist(), dy.tolist(), inv_l2.tolist(), eid, strict=True))
+    assert t.slen_py == np.sqrt(l2).tolist() and t.cum0_py == cum0
+    assert [g[0] for g in t.groups] == sorted(set(eid)) and all(t.rows[g[5]][5] == g[0] for g in t.groups)
