@@ -57,8 +57,11 @@ class NetView:
             return self.gx[lo], self.gy[lo]
         if offset >= cum[hi - 1]:
             return self.gx[hi - 1], self.gy[hi - 1]
-        k = bisect_right(cum, offset, lo, hi) - 1
-        k = min(max(k, lo), hi - 2)
+        if hi - lo == 2:  # one segment: the bisection below can only give lo
+            k = lo
+        else:
+            k = bisect_right(cum, offset, lo, hi) - 1
+            k = min(max(k, lo), hi - 2)
         seg = cum[k + 1] - cum[k]
         t = 0.0 if seg <= 0.0 else (offset - cum[k]) / seg
         x0, y0 = self.gx[k], self.gy[k]

@@ -6,6 +6,7 @@ here verbatim. Exact equality, not closeness: players and receivers must take th
 
 import dataclasses
 import math
+from bisect import bisect_right
 
 import numpy as np
 import pytest
@@ -549,3 +550,28 @@ def test_segment_table_rows_and_groups_equal_the_vertex_loop(ti, data):
     assert t.rows == list(zip(ax.tolist(), ay.tolist(), dx.tolist(), dy.tolist(), inv_l2.tolist(), eid, strict=True))
     assert t.slen_py == np.sqrt(l2).tolist() and t.cum0_py == cum0
     assert [g[0] for g in t.groups] == sorted(set(eid)) and all(t.rows[g[5]][5] == g[0] for g in t.groups)
+
+
+def _point_reference(net, edge, offset):
+    """`NetView.point` as it was (a bisection for every edge)."""
+    lo, hi = net.geom_off[edge], net.geom_off[edge + 1]
+    cum = net.gcum
+    if offset <= 0.0:
+        return net.gx[lo], net.gy[lo]
+    if offset >= cum[hi - 1]:
+        return net.gx[hi - 1], net.gy[hi - 1]
+    k = bisect_right(cum, offset, lo, hi) - 1
+    k = min(max(k, lo), hi - 2)
+    seg = cum[k + 1] - cum[k]
+    t = 0.0 if seg <= 0.0 else (offset - cum[k]) / seg
+    x0, y0 = net.gx[k], net.gy[k]
+    return x0 + t * (net.gx[k + 1] - x0), y0 + t * (net.gy[k + 1] - y0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, len(TOPOS)), st.data())
+def test_point_one_segment_shortcut_equals_the_bisection(ti, data):
+    net = NETS[ti] if ti < len(TOPOS) else MESH
+    e = data.draw(st.integers(0, net.n_edges - 1))
+    for off in (data.draw(st.floats(-5.0, net.edge_len[e] + 5.0)), 0.0, net.edge_len[e], net.edge_len[e] / 2):
+        assert net.point(e, off) == _point_reference(net, e, off)
