@@ -412,7 +412,8 @@ class Player:
         s = kf.s
         v = kf.v
         if ((len(cum) > 2 and s - (self.body + self.margin + 50.0) > cum[1])
-                or cum[-1] < s + self.lookahead + self.margin + 80.0 + 15.0 * (v if v > 0.0 else 0.0)):
+                or (cum[-1] < s + self.lookahead + self.margin + 80.0 + 15.0 * (v if v > 0.0 else 0.0)
+                    and len(path.edges) < MAX_PATH_EDGES and path.edges[-1] != self.dead_end)):
             self._maintain_path()
         return reason
 
