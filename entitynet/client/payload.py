@@ -74,19 +74,20 @@ def encode_network(t0: float, path: Path, s0: float, v: float, a: float, vmax: f
     (whose braking plan would be computed only to be thrown away). The quantisation is `_q` written out
     for finite values (the usual case); anything else takes `_encode_network_checked`, which raises."""
     v = max(v, 0.0)
-    isfinite = math.isfinite
-    if not (isfinite(t0) and isfinite(s0) and isfinite(v) and isfinite(a) and isfinite(vmax) and isfinite(brake)
-            and all(isfinite(p) for p in parts)):
+    # one test for all: a NaN or an infinity makes the sum non-finite (a finite sum too large to represent
+    # only sends finite values the long way, which encodes them the same)
+    if not math.isfinite(t0 + s0 + v + a + vmax + brake + sum(parts)):
         return _encode_network_checked(t0, path, s0, v, a, vmax, etype, parts, stop_s, brake)
-    t0i = int(round(t0 * 1000.0))
-    s0i = int(round(s0 * 100.0))
-    vi = int(round(v * 1000.0))
-    ai = int(round(a * 1000.0))
-    vmaxi = int(round(vmax * 1000.0))
-    partsi = [int(round(p * 100.0)) for p in parts]
-    stop_finite = isfinite(stop_s)
-    stopi = int(round(stop_s * 100.0)) if stop_finite else -1
-    brakei = int(round(brake * 1000.0))
+    # round(x) of a float is already the int that int(round(x)) gives
+    t0i = round(t0 * 1000.0)
+    s0i = round(s0 * 100.0)
+    vi = round(v * 1000.0)
+    ai = round(a * 1000.0)
+    vmaxi = round(vmax * 1000.0)
+    partsi = [round(p * 100.0) for p in parts]
+    stop_finite = math.isfinite(stop_s)
+    stopi = round(stop_s * 100.0) if stop_finite else -1
+    brakei = round(brake * 1000.0)
     body = [VERSION, KIND_NETWORK, t0i, etype, s0i, vi, ai, vmaxi, partsi, [(e + 1) * d for e, d in path.edges],
             stopi, brakei]
     ghost = network_model(t0i / 1000.0, path, s0i / 100.0, vi / 1000.0, ai / 1000.0, vmaxi / 1000.0, etype,

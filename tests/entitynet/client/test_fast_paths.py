@@ -316,11 +316,22 @@ def test_encode_network_equals_the_checked_encoder(t0, s0, v, a, vmax, stop_s, p
     payload, ghost = encode_network(*args)
     want_payload, want_ghost = _encode_network_checked(*args)
     assert payload == want_payload and ghost == want_ghost and repr(ghost) == repr(want_ghost)
-    for k in (0, 2, 3, 4, 5, 9):  # a non-finite value raises as before
-        bad = list(args)
-        bad[k] = math.nan
-        with pytest.raises(PayloadError):
-            encode_network(*bad)
+    for k in (0, 2, 3, 4, 5, 7, 9):  # a non-finite value raises as before (7: in the parts)
+        for value in (math.nan, math.inf, -math.inf):
+            bad = list(args)
+            bad[k] = (*parts, value) if k == 7 else value
+            if k == 3 and value == -math.inf:
+                bad_payload, bad_ghost = encode_network(*bad)  # max(v, 0.0) makes a speed of -inf zero
+                assert (bad_payload, bad_ghost) == _encode_network_checked(*bad)
+                continue
+            with pytest.raises(PayloadError):
+                encode_network(*bad)
+    huge = list(args)
+    huge[2], huge[4] = 1e300, 1.7e308  # finite values whose sum overflows: the checked path, the same outcome
+    with pytest.raises(OverflowError):  # (1.7e308 * 1000 is inf: round fails, before and now)
+        _encode_network_checked(*huge)
+    with pytest.raises(OverflowError):
+        encode_network(*huge)
 
 
 def _xy_reference(path, s):
