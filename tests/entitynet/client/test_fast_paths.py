@@ -353,7 +353,7 @@ def _random_path(net, data, networks=VEHICLE | PEDESTRIAN):
     return Path(net, out)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.integers(0, len(TOPOS)), st.data())
 def test_path_xy_equals_locate_then_point(ti, data):
     net = NETS[ti] if ti < len(TOPOS) else MESH
@@ -399,7 +399,7 @@ def _choice_node_reference(path, s_front, networks, known_until):
     return None
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.integers(0, len(TOPOS)), st.data())
 def test_shared_choice_search_equals_the_two_loops(ti, data):
     net = NETS[ti] if ti < len(TOPOS) else MESH
@@ -428,7 +428,7 @@ def _xy_speed_at_reference(g, t):
     return x, y, v
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.integers(0, len(TOPOS)), st.data(), st.floats(-50.0, 400.0), st.floats(0.0, 30.0),
        st.one_of(st.just(0.0), st.just(1e-10), st.just(-1e-10), st.floats(-3.0, 3.0)), st.floats(0.0, 30.0),
        st.one_of(st.just(math.inf), st.floats(-10.0, 400.0)), st.lists(st.floats(-5.0, 100.0), min_size=1, max_size=5))
@@ -464,7 +464,7 @@ def _known_until_reference(p, path, s):
     return path.cum[k + 1]
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.integers(0, len(TOPOS)), st.data())
 def test_known_until_route_stretch_equals_the_pair_walk(ti, data):
     """Paths along the route, off it, or along a route that passes an edge twice (pairs from elsewhere)."""
