@@ -16,7 +16,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from entitynet.client.kinematics import INF, advance, brake_plan, time_to_travel
+from entitynet.client.frozen import maker
+from entitynet.client.kinematics import A_EPS, INF, advance, brake_plan, time_to_travel
 from entitynet.client.path import Path
 
 KIND_NETWORK, KIND_AREA, KIND_WORLD = 1, 2, 3
@@ -87,8 +88,12 @@ class NetworkModel:
         dt = t - self.t0
         tb, sb, vb, b = self.plan
         if dt <= tb:
-            ds, v = advance(self.v, self.a, self.vmax, dt)
-            s = self.s0 + ds
+            v, a = self.v, self.a
+            if dt > 0.0 and -A_EPS < a < A_EPS:  # `advance` at constant speed (its `_a(a)` is 0)
+                s = self.s0 + v * dt
+            else:
+                ds, v = advance(v, a, self.vmax, dt)
+                s = self.s0 + ds
         elif not math.isfinite(b):
             s, v = sb, 0.0
         else:
@@ -96,7 +101,7 @@ class NetworkModel:
             s = min(sb + ds, self.stop_s)
         path = self.path
         length = path.cum[-1]
-        x, y = path.xy(min(s, length))
+        x, y = path.xy(length if length < s else s)  # min(s, length)
         return x, y, v
 
     def parts_xy_at(self, t: float) -> list[tuple[float, float]]:
@@ -155,3 +160,19 @@ class WorldModel:
 
 
 Model = NetworkModel | AreaModel | WorldModel
+
+_make_network_model = maker(NetworkModel)
+_NO_PLAN = NetworkModel.__dataclass_fields__["plan"].default
+
+
+def network_model(t0: float, path: Path, s0: float, v: float, a: float, vmax: float, etype: int,
+                  parts: tuple[float, ...], stop_s: float = INF, brake: float = 1.0) -> NetworkModel:
+    """`NetworkModel(...)` through the fast constructor, its braking plan computed as `__post_init__` does
+    (the publish path builds one per update; equality is a test)."""
+    plan = _NO_PLAN
+    if math.isfinite(stop_s):
+        tb, b = brake_plan(v, a, vmax, stop_s - s0, brake)
+        if math.isfinite(tb):
+            ds, vb = advance(v, a, vmax, tb)
+            plan = (tb, s0 + ds, vb, b)
+    return _make_network_model(t0, path, s0, v, a, vmax, etype, parts, stop_s, brake, plan)

@@ -46,6 +46,7 @@ class NetView:
         self._next_cache: dict[tuple[int, int, int], DirEdge | None] = {}
         self._choice_cache: dict[tuple[int, int, int], list[DirEdge]] = {}
         self._pieces: dict[DirEdge, list[tuple[float, float, int]]] = {}
+        self._is_choice: dict[tuple[DirEdge, int], bool] = {}
 
     # ---- points and cells ---------------------------------------------------------------------------------
     def point(self, edge: int, offset: float) -> tuple[float, float]:
@@ -56,8 +57,11 @@ class NetView:
             return self.gx[lo], self.gy[lo]
         if offset >= cum[hi - 1]:
             return self.gx[hi - 1], self.gy[hi - 1]
-        k = bisect_right(cum, offset, lo, hi) - 1
-        k = min(max(k, lo), hi - 2)
+        if hi - lo == 2:  # one segment: the bisection below can only give lo
+            k = lo
+        else:
+            k = bisect_right(cum, offset, lo, hi) - 1
+            k = min(max(k, lo), hi - 2)
         seg = cum[k + 1] - cum[k]
         t = 0.0 if seg <= 0.0 else (offset - cum[k]) / seg
         x0, y0 = self.gx[k], self.gy[k]
@@ -160,7 +164,11 @@ class NetView:
 
     def is_choice(self, de: DirEdge, networks: int) -> bool:
         """Whether leaving `de` at its end node is a real choice (more than one way on, or an area)."""
-        return len(self.choices(de, networks)) > 1 or self.node_area[self.end_node(de)] >= 0
+        key = (de, networks)
+        hit = self._is_choice.get(key)
+        if hit is None:
+            hit = self._is_choice[key] = len(self.choices(de, networks)) > 1 or self.node_area[self.end_node(de)] >= 0
+        return hit
 
     def is_junction_cell(self, cell: int) -> bool:
         return self.cell_kind[cell] == CELL_JUNCTION

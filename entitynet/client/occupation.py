@@ -28,6 +28,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from entitynet.client.frozen import maker
 from entitynet.client.kinematics import INF, time_to_travel
 from entitynet.client.path import Path
 
@@ -42,39 +43,53 @@ class Occupation:
     cover_end: float
 
 
+make_occupation = maker(Occupation)  # Occupation(...) without the frozen dataclass __init__ (once per publish)
+
+
 def certain_end(path: Path, s_front: float, networks: int, known_until: float) -> float:
     """How far along `path` the entity's way is certain: to the first choice node beyond `known_until`
     (after the front), plus the stretch every branch stays in the cell at that node."""
-    net = path.net
-    k = path.index(max(s_front, known_until))
-    while k < len(path.edges):
-        de = path.edges[k]
-        s_node = path.cum[k + 1]
-        if s_node >= known_until and s_node >= s_front and net.is_choice(de, networks):
-            node_cell = path.cell(s_node - 1e-9) if s_node > 0 else path.cell(0.0)
-            allowance = INF
-            for cand in net.choices(de, networks):
-                pieces = net.pieces(*cand)
-                a0, b0, c0 = pieces[0]
-                allowance = min(allowance, b0 if c0 == node_cell else 0.0)
-            if not net.choices(de, networks):
-                allowance = 0.0
-            return min(s_node + allowance, path.length)
-        k += 1
-    return path.length
+    return _certain_end_at(path, _first_choice(path, s_front, networks, known_until), networks)
 
 
 def choice_node(path: Path, s_front: float, networks: int, known_until: float) -> tuple[int, float] | None:
     """(index of the path edge ending at it, its path coordinate) of the first real choice of way ahead of
     the front that the a-priori route does not decide; None when the path ends first."""
-    net = path.net
+    k = _first_choice(path, s_front, networks, known_until)
+    return (k, path.cum[k + 1]) if k >= 0 else None
+
+
+def _first_choice(path: Path, s_front: float, networks: int, known_until: float) -> int:
+    """Index of the path edge ending at the first choice node ahead of the front beyond `known_until`, or -1
+    (the search `certain_end` and `choice_node` share: `occupy` runs it once for both)."""
+    is_choice = path.net.is_choice
+    cum, edges = path.cum, path.edges
+    n = len(edges)
     k = path.index(max(s_front, known_until))
-    while k < len(path.edges):
-        s_node = path.cum[k + 1]
-        if s_node >= known_until and s_node >= s_front and net.is_choice(path.edges[k], networks):
-            return k, s_node
+    while k < n:
+        s_node = cum[k + 1]
+        if s_node >= known_until and s_node >= s_front and is_choice(edges[k], networks):
+            return k
         k += 1
-    return None
+    return -1
+
+
+def _certain_end_at(path: Path, k: int, networks: int) -> float:
+    """`certain_end` given the choice edge index from `_first_choice`."""
+    if k < 0:
+        return path.length
+    net = path.net
+    de = path.edges[k]
+    s_node = path.cum[k + 1]
+    node_cell = path.cell(s_node - 1e-9) if s_node > 0 else path.cell(0.0)
+    allowance = INF
+    for cand in net.choices(de, networks):
+        pieces = net.pieces(*cand)
+        a0, b0, c0 = pieces[0]
+        allowance = min(allowance, b0 if c0 == node_cell else 0.0)
+    if not net.choices(de, networks):
+        allowance = 0.0
+    return min(s_node + allowance, path.length)
 
 
 def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int = 48,
@@ -177,8 +192,9 @@ def occupy(
     s_aft = s_front - max(length, 0.0)
     start = min(max(s_aft - margin, 0.0), path.length)
     reach = min(max(s_front + margin, start), path.length)
-    end_known = max(certain_end(path, s_front, networks, known_until), reach)
-    choice = None if tight else choice_node(path, s_front, networks, known_until)
+    k_choice = _first_choice(path, s_front, networks, known_until)
+    end_known = max(_certain_end_at(path, k_choice, networks), reach)
+    choice = None if tight or k_choice < 0 else (k_choice, path.cum[k_choice + 1])
     want = reach + max(lookahead, 0.0)
     if choice is not None and want > end_known:
         # the way on is not known: cover every branch at the next choice node (a tree, not a line)
@@ -199,10 +215,7 @@ def occupy(
         cover_end = nxt if nxt is not None else end_known
         # cells of [start, cover_end): the cell starting exactly at cover_end is not covered. One pass for
         # the cells under the body (start, reach], as `cells_between` lists them, and those ahead of it
-        cells = [path.cell(start)]
-        for sa, c in path.starts_in(start, max(reach, cover_end)):
-            if (sa <= reach or sa < cover_end) and c not in cells:
-                cells.append(c)
+        cells = path.cover_cells(start, reach, cover_end)
     if cover_end >= path.length and dead_end_at_path_end:
         front = INF
     else:
@@ -213,7 +226,7 @@ def occupy(
         if behind is not None:
             aft = travel(behind - start)
     validity = max(min(front, aft, max_validity), min_validity)
-    return Occupation(tuple(cells), validity, front, aft, start, cover_end)
+    return make_occupation(tuple(cells), validity, front, aft, start, cover_end)
 
 
 def wire_validity(validity: float) -> float:

@@ -14,9 +14,10 @@ from entitynet.client.network import DirEdge, NetView
 
 
 class Path:
-    __slots__ = ("net", "edges", "cum")
+    __slots__ = ("net", "edges", "cum", "_ids")
 
     def __init__(self, net: NetView, edges: Sequence[DirEdge], *, _cum: list[float] | None = None) -> None:
+        self._ids: list[int] | None = None
         if _cum is not None:  # a slice of a path already checked: no validation needed
             self.net, self.edges, self.cum = net, list(edges), _cum
             return
@@ -37,6 +38,13 @@ class Path:
     @property
     def length(self) -> float:
         return self.cum[-1]
+
+    def edge_ids(self) -> list[int]:
+        """The undirected edge ids in path order (computed once per path: paths are not changed in place)."""
+        ids = self._ids
+        if ids is None:
+            ids = self._ids = [e for e, _d in self.edges]
+        return ids
 
     def index(self, s: float) -> int:
         """Index of the edge holding s (clamped to the path)."""
@@ -61,7 +69,7 @@ class Path:
         return e, (d if d_ > 0 else length - d)
 
     def xy(self, s: float) -> tuple[float, float]:
-        # `locate` written out (called on every fix, twice)
+        # `locate` and `NetView.point` written out (called on every fix, twice)
         cum = self.cum
         k = bisect_right(cum, s) - 1
         if k < 0:
@@ -73,11 +81,43 @@ class Path:
         length = net.edge_len[e]
         d = s - cum[k]
         d = 0.0 if d < 0.0 else (length if d > length else d)
-        return net.point(e, d if d_ > 0 else length - d)
+        offset = d if d_ > 0 else length - d
+        geom_off = net.geom_off
+        lo, hi = geom_off[e], geom_off[e + 1]
+        if offset <= 0.0:
+            return net.gx[lo], net.gy[lo]
+        gcum = net.gcum
+        if offset >= gcum[hi - 1]:
+            return net.gx[hi - 1], net.gy[hi - 1]
+        if hi - lo == 2:  # one segment: the bisection below can only give lo
+            k = lo
+        else:
+            k = bisect_right(gcum, offset, lo, hi) - 1
+            k = min(max(k, lo), hi - 2)
+        c0 = gcum[k]
+        seg = gcum[k + 1] - c0
+        t = 0.0 if seg <= 0.0 else (offset - c0) / seg
+        gx, gy = net.gx, net.gy
+        x0, y0 = gx[k], gy[k]
+        return x0 + t * (gx[k + 1] - x0), y0 + t * (gy[k + 1] - y0)
 
     def cell(self, s: float) -> int:
-        e, off = self.locate(s)
-        return self.net.cell_at(e, off)
+        # `locate` and `NetView.cell_at` written out (several times per publish)
+        cum = self.cum
+        k = bisect_right(cum, s) - 1
+        if k < 0:
+            k = 0
+        elif k >= len(self.edges):
+            k = len(self.edges) - 1
+        e, d_ = self.edges[k]
+        net = self.net
+        length = net.edge_len[e]
+        d = s - cum[k]
+        d = 0.0 if d < 0.0 else (length if d > length else d)
+        off = d if d_ > 0 else length - d
+        lo, hi = net.bp_off[e], net.bp_off[e + 1]
+        j = bisect_right(net.bp_start, off, lo, hi) - 1
+        return net.bp_cell[j if j > lo else lo]
 
     def starts_in(self, s0: float, s1: float) -> list[tuple[float, int]]:
         """(s, cell) of every cell piece that starts in (s0, s1], in order of travel."""
@@ -87,7 +127,8 @@ class Path:
         n = len(edges)
         while k < n and cum[k] <= s1:
             base = cum[k]
-            for a, _b, c in pieces(*edges[k]):
+            e, d = edges[k]
+            for a, _b, c in pieces(e, d):
                 sa = base + a
                 if sa > s1:
                     break
@@ -95,6 +136,27 @@ class Path:
                     out.append((sa, c))
             k += 1
         return out
+
+    def cover_cells(self, start: float, reach: float, cover_end: float) -> list[int]:
+        """Cells of [start, cover_end) and of the body (start, reach], in order, without repeats: the cell at
+        `start`, then those of `starts_in(start, max(reach, cover_end))` with sa <= reach or sa < cover_end
+        (that loop written out, without its list)."""
+        cells = [self.cell(start)]
+        s1 = cover_end if cover_end > reach else reach  # max(reach, cover_end)
+        k = self.index(start)
+        edges, cum, pieces = self.edges, self.cum, self.net.pieces
+        n = len(edges)
+        while k < n and cum[k] <= s1:
+            base = cum[k]
+            e, d = edges[k]
+            for a, _b, c in pieces(e, d):
+                sa = base + a
+                if sa > s1:
+                    break
+                if sa > start and (sa <= reach or sa < cover_end) and c not in cells:
+                    cells.append(c)
+            k += 1
+        return cells
 
     def cells_between(self, s0: float, s1: float) -> list[int]:
         """Cells met along [s0, s1] (clamped to the path), in order of travel, without repeats."""
@@ -118,6 +180,8 @@ class Path:
 
     def suffix(self, k: int) -> Path:
         """The path from edge k on (s shifts by cum[k]); no re-validation."""
+        if k == 0 and self.cum[0] == 0.0:  # c - 0.0 is c: the same coordinates (copied: no shared lists)
+            return Path(self.net, self.edges, _cum=list(self.cum))
         c0 = self.cum[k]
         return Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
 
@@ -126,9 +190,12 @@ class Path:
         prev = self.cell(s)
         limit = min(limit, self.length)
         k = self.index(s)
-        while k < len(self.edges) and self.cum[k] <= limit:
-            base = self.cum[k]
-            for a, _b, c in self.net.pieces(*self.edges[k]):
+        edges, cum, pieces = self.edges, self.cum, self.net.pieces
+        n = len(edges)
+        while k < n and cum[k] <= limit:
+            base = cum[k]
+            e, d = edges[k]
+            for a, _b, c in pieces(e, d):
                 sa = base + a
                 if sa > limit:
                     return None

@@ -24,11 +24,15 @@ from entitynet.client.motion import (
     Model,
     NetworkModel,
     WorldModel,
+    network_model,
 )
 from entitynet.client.network import NetView
 from entitynet.client.path import Path
 
 VERSION = 1
+# one packer for the module (as `msgpack.packb` makes per call; autoreset: each call returns its own bytes).
+# The client core is single-threaded per process, like the switchboard's shared packer
+_pack = msgpack.Packer(use_bin_type=True).pack
 
 
 class PayloadError(ValueError):
@@ -67,7 +71,34 @@ def encode_quantized(model: Model) -> tuple[bytes, Model]:
 def encode_network(t0: float, path: Path, s0: float, v: float, a: float, vmax: float, etype: int,
                    parts: tuple[float, ...], stop_s: float, brake: float) -> tuple[bytes, NetworkModel]:
     """`encode_quantized` of the NetworkModel with these fields, without building the unquantised model
-    (whose braking plan would be computed only to be thrown away)."""
+    (whose braking plan would be computed only to be thrown away). The quantisation is `_q` written out
+    for finite values (the usual case); anything else takes `_encode_network_checked`, which raises."""
+    v = max(v, 0.0)
+    # one test for all: a NaN or an infinity makes the sum non-finite (a finite sum too large to represent
+    # only sends finite values the long way, which encodes them the same)
+    if not math.isfinite(t0 + s0 + v + a + vmax + brake + sum(parts)):
+        return _encode_network_checked(t0, path, s0, v, a, vmax, etype, parts, stop_s, brake)
+    # round(x) of a float is already the int that int(round(x)) gives
+    t0i = round(t0 * 1000.0)
+    s0i = round(s0 * 100.0)
+    vi = round(v * 1000.0)
+    ai = round(a * 1000.0)
+    vmaxi = round(vmax * 1000.0)
+    partsi = [round(p * 100.0) for p in parts]
+    stop_finite = math.isfinite(stop_s)
+    stopi = round(stop_s * 100.0) if stop_finite else -1
+    brakei = round(brake * 1000.0)
+    body = [VERSION, KIND_NETWORK, t0i, etype, s0i, vi, ai, vmaxi, partsi, [(e + 1) * d for e, d in path.edges],
+            stopi, brakei]
+    ghost = network_model(t0i / 1000.0, path, s0i / 100.0, vi / 1000.0, ai / 1000.0, vmaxi / 1000.0, etype,
+                          tuple([p / 100.0 for p in partsi]), stopi / 100.0 if stop_finite else math.inf,
+                          brakei / 1000.0)
+    return _pack(body), ghost
+
+
+def _encode_network_checked(t0: float, path: Path, s0: float, v: float, a: float, vmax: float, etype: int,
+                            parts: tuple[float, ...], stop_s: float, brake: float) -> tuple[bytes, NetworkModel]:
+    """`encode_network` as first written: every value through `_q` (the reference; raises on non-finite)."""
     t0i = _q(t0, 1000.0)
     s0i = _q(s0, 100.0)
     vi = _q(max(v, 0.0), 1000.0)

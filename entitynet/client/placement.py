@@ -22,12 +22,41 @@ from topology.placement_index import Placement
 # a placement result is the placement index's own record: kind "edge" (index = edge, offset along it) or
 # kind "area" (index = area); x, y the inferred point; distance from the fix
 Fix = Placement
+_new_fix = tuple.__new__  # Fix(...) without the NamedTuple's Python-level __new__ (the same tuple)
 
 AREA_BUCKET = 100.0  # metres: grid of area boxes for `areas_near`
 PY_ROWS = 160  # segment tables up to this size are searched by a plain loop, larger ones by numpy
+# slack (metres) on the box lower bound that lets the loop skip an edge: far above the rounding of a computed
+# distance (coordinates of 1e4 m have ulps of 2e-12 m), so a skipped segment can never be the answer
+PRUNE_SLACK = 1e-6
+RING_PY = 64  # rings up to this many vertices are tested by a plain loop, larger ones by numpy
 
 
 def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
+    """Distance from (x, y) to a closed ring's boundary. A small ring's projections are a plain loop (the same
+    IEEE operations as the numpy pass, a dozen numpy calls cost more than the loop) and only the final
+    hypot and minimum are numpy's, so the answer is `_ring_distance_np`'s bit for bit (a test)."""
+    n = len(ring) - 1
+    if n <= 0:
+        return math.inf
+    if n > RING_PY:
+        return _ring_distance_np(ring, x, y)
+    pts = ring.tolist()
+    exs, eys = [], []
+    p0x, p0y = pts[0]
+    for p1x, p1y in pts[1:]:
+        dx = p1x - p0x
+        dy = p1y - p0y
+        l2 = dx * dx + dy * dy
+        t = ((x - p0x) * dx + (y - p0y) * dy) / (l2 if l2 > 0 else 1.0)
+        t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+        exs.append(p0x + t * dx - x)
+        eys.append(p0y + t * dy - y)
+        p0x, p0y = p1x, p1y
+    return float(np.min(np.hypot(exs, eys)))
+
+
+def _ring_distance_np(ring: np.ndarray, x: float, y: float) -> float:
     """Distance from (x, y) to a closed ring's boundary (vectorised over its segments)."""
     p0, p1 = ring[:-1], ring[1:]
     d = p1 - p0
@@ -40,7 +69,7 @@ def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
 
 class _SegTable:
     __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks", "rows",
-                 "slen_py", "cum0_py")
+                 "slen_py", "cum0_py", "groups", "group_of")
 
     def __init__(self, net: NetView, edges: list[int], areas: list[int]) -> None:
         edges = sorted(set(edges))
@@ -70,6 +99,23 @@ class _SegTable:
                              self.inv_l2.tolist(), self.edge.tolist(), strict=True))
         self.slen_py: list[float] = self.slen.tolist()
         self.cum0_py: list[float] = self.cum0.tolist()
+        # per edge, in table order: (edge, box of its vertices, first row, end row), for skipping whole edges
+        self.groups: list[tuple[int, float, float, float, float, int, int]] = []
+        self.group_of: dict[int, tuple[int, float, float, float, float, int, int]] = {}
+        k = 0
+        rows = self.rows
+        while k < len(rows):
+            e, k1 = rows[k][5], k
+            xs, ys = [], []
+            while k1 < len(rows) and rows[k1][5] == e:
+                ax, ay, dx, dy = rows[k1][:4]
+                xs += (ax, ax + dx)
+                ys += (ay, ay + dy)
+                k1 += 1
+            g = (e, min(xs), min(ys), max(xs), max(ys), k, k1)
+            self.groups.append(g)
+            self.group_of[e] = g
+            k = k1
 
     def mask(self, preferred: frozenset[int]) -> np.ndarray:
         m = self.masks.get(preferred)
@@ -95,6 +141,7 @@ class Placer:
         self._rings: dict[int, np.ndarray] = {}
         self._segs: dict[int, list[tuple[float, ...]]] = {}
         self._ring_box: dict[int, tuple[float, float, float, float, bool]] = {}
+        self._ring_segs: dict[int, list[tuple[float, float, float, float]]] = {}
         self._area_bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._area_rows: dict[tuple[int, int], list[tuple[int, float, float, float, float]]] | None = None
         self._grid: tuple[dict[tuple[int, int], list[int]], dict, float] | None = None
@@ -227,6 +274,18 @@ class Placer:
         # even (left): the same answer without the numpy pass. The 1 m pads absorb the rounding of xs.
         if y < b[1] or y >= b[3] or x > b[2] or (b[4] and x < b[0]):
             return False
+        segs = self._ring_segs.get(area)
+        if segs is None:
+            segs = self._ring_segs[area] = (list(zip(r[:-1, 0].tolist(), r[:-1, 1].tolist(), r[1:, 0].tolist(),
+                                                     r[1:, 1].tolist(), strict=True))
+                                            if len(r) <= RING_PY else [])
+        if segs:  # the numpy pass below as a plain loop (a small ring: most areas have about 12 vertices)
+            inside = False
+            for x0, y0, x1, y1 in segs:
+                # crossing edges only: there y1 != y0, and the xs below is the numpy pass's value
+                if (y0 > y) != (y1 > y) and x < x0 + (y - y0) * (x1 - x0) / (y1 - y0):
+                    inside = not inside
+            return inside
         x0, y0, x1, y1 = r[:-1, 0], r[:-1, 1], r[1:, 0], r[1:, 1]
         cond = (y0 > y) != (y1 > y)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -250,19 +309,29 @@ class Placer:
             if self.topo.area_networks[a] & self.networks and self.inside_area(a, x, y):
                 return Fix("area", a, 0.0, x, y, 0.0), math.inf
         if len(t.rows) <= PY_ROWS:
-            return self._near_py(t, x, y, preferred, self.switch_margin if margin is None else margin)
+            return self._near_py(t, x, y, preferred, self.switch_margin if margin is None else margin, edge)
         return self._near_np(t, x, y, preferred, margin)
 
     def _near_py(self, t: _SegTable, x: float, y: float, preferred: set[int] | frozenset[int],
-                 margin: float) -> tuple[Fix, float]:
+                 margin: float, edge: int | None = None) -> tuple[Fix, float]:
         """`near` as a plain loop: the same operations per segment as the numpy pass, first minimum wins
-        (a preferred segment's cost d + 0.0 is d itself, d being a square root >= +0.0)."""
+        (a preferred segment's cost d + 0.0 is d itself, d being a square root >= +0.0).
+
+        Whole edges are skipped when the box of their vertices is farther than the best cost so far (plus
+        the margin for an edge that is not preferred), or for a preferred edge farther than the best preferred
+        distance: such a segment cannot be the first minimum nor lower the best preferred distance. The
+        bounds start from `edge`'s own segments (an answer any later minimum can only improve on)."""
         sqrt = math.sqrt
-        best_cost = best_pref = math.inf
-        best = -1
-        bu = bd = 0.0
-        if preferred:
-            for k, (ax, ay, dx, dy, il2, e) in enumerate(t.rows):
+        rows = t.rows
+        if not preferred:
+            margin = 0.0  # no preferred edges: every cost is d itself
+        # upper bounds of the final best cost and best preferred distance: costs of `edge`'s segments
+        ub_cost = ub_pref = math.inf
+        g = t.group_of.get(edge) if edge is not None else None
+        if g is not None:
+            pref = edge in preferred
+            for k in range(g[5], g[6]):
+                ax, ay, dx, dy, il2, _e = rows[k]
                 rx = x - ax
                 ry = y - ay
                 u = (rx * dx + ry * dy) * il2
@@ -270,7 +339,39 @@ class Placer:
                 ex = rx - u * dx
                 ey = ry - u * dy
                 d = sqrt(ex * ex + ey * ey)
-                if e in preferred:
+                if pref:
+                    if d < ub_pref:
+                        ub_pref = d
+                    if d < ub_cost:
+                        ub_cost = d
+                elif d + margin < ub_cost:
+                    ub_cost = d + margin
+        best_cost = best_pref = math.inf
+        best = -1
+        bu = bd = 0.0
+        slack = PRUNE_SLACK
+        for e, bx0, by0, bx1, by1, k0, k1 in t.groups:
+            gx = bx0 - x if x < bx0 else (x - bx1 if x > bx1 else 0.0)
+            gy = by0 - y if y < by0 else (y - by1 if y > by1 else 0.0)
+            lb = (gx if gx > gy else gy) - slack  # below every computed distance to the edge's segments
+            if e in preferred:
+                is_pref = True
+                if lb > best_pref or lb > ub_pref:
+                    continue
+            else:
+                is_pref = False
+                if lb + margin > best_cost or lb + margin > ub_cost:
+                    continue
+            for k in range(k0, k1):
+                ax, ay, dx, dy, il2, _e = rows[k]
+                rx = x - ax
+                ry = y - ay
+                u = (rx * dx + ry * dy) * il2
+                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+                ex = rx - u * dx
+                ey = ry - u * dy
+                d = sqrt(ex * ex + ey * ey)
+                if is_pref:
                     cost = d
                     if d < best_pref:
                         best_pref = d
@@ -278,20 +379,9 @@ class Placer:
                     cost = d + margin
                 if cost < best_cost:
                     best_cost, best, bu, bd = cost, k, u, d
-        else:
-            for k, (ax, ay, dx, dy, il2, _e) in enumerate(t.rows):
-                rx = x - ax
-                ry = y - ay
-                u = (rx * dx + ry * dy) * il2
-                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
-                ex = rx - u * dx
-                ey = ry - u * dy
-                d = sqrt(ex * ex + ey * ey)
-                if d < best_cost:
-                    best_cost, best, bu, bd = d, k, u, d
         if best < 0:  # no segment beat inf: let numpy's argmin decide
             return self._near_np(t, x, y, preferred, margin)
-        ax, ay, dx, dy, _il2, e = t.rows[best]
+        ax, ay, dx, dy, _il2, e = rows[best]
         return Fix("edge", e, t.cum0_py[best] + bu * t.slen_py[best], ax + bu * dx, ay + bu * dy, bd), best_pref
 
     def _near_np(self, t: _SegTable, x: float, y: float, preferred: set[int] | frozenset[int],
@@ -324,10 +414,10 @@ class Placer:
         if segs is None:
             segs = self._segs[edge] = self._edge_segs(edge)
         best_d = math.inf
-        best = None
+        found = False
         hypot = math.hypot
-        for seg in segs:
-            ax, ay, dx, dy, l2 = seg[0], seg[1], seg[2], seg[3], seg[4]
+        bu = bc0 = bsl = bpx = bpy = 0.0
+        for ax, ay, dx, dy, l2, c0, sl in segs:
             if l2 <= 0.0:
                 u = 0.0
             else:
@@ -336,11 +426,10 @@ class Placer:
             px, py = ax + u * dx, ay + u * dy
             dd = hypot(x - px, y - py)
             if dd < best_d:
-                best_d, best = dd, (seg, u, px, py)
-        if best is None:
+                best_d, found, bu, bc0, bsl, bpx, bpy = dd, True, u, c0, sl, px, py
+        if not found:
             return Fix("edge", edge, 0.0, 0.0, 0.0, math.inf)
-        seg, u, px, py = best
-        return Fix("edge", edge, seg[5] + u * seg[6], px, py, best_d)
+        return _new_fix(Fix, ("edge", edge, bc0 + bu * bsl, bpx, bpy, best_d))
 
     def _edge_segs(self, edge: int) -> list[tuple[float, ...]]:
         """(ax, ay, dx, dy, l2, cum0, seg_len) of each segment of an edge: the per-fix projection's table,

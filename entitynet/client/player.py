@@ -18,13 +18,15 @@ only the world-frame models work and no cells are published.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Sequence
 
 from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
+from entitynet.client.frozen import maker
 from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
-from entitynet.client.occupation import Occupation, occupy, occupy_area, wire_validity
+from entitynet.client.occupation import Occupation, make_occupation, occupy, occupy_area, wire_validity
 from entitynet.client.path import Path, follow
 from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.placement import Fix, Placer, ring_distance
@@ -40,7 +42,10 @@ ALONG_SCALE = 3.0
 
 def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
     """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
-    return Occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+    return make_occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+_make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
 
 
 def _wire(occ: Occupation) -> Occupation:
@@ -65,6 +70,8 @@ def placer_for(net: NetView, networks: int) -> Placer:
 
 
 class Player:
+    FAST_TRACK = True  # `_track_on` for the usual fix (False: the general code below it, the test's reference)
+
     def __init__(
         self,
         topo,
@@ -335,10 +342,16 @@ class Player:
             return "path"
         # on an edge
         path, kf = self.path, self.kf
-        dt = t - kf.t if t > kf.t else 0.0
+        kt = kf.t
+        dt = t - kt if t > kt else 0.0
         s_pred = kf.s + kf.v * dt + 0.5 * kf.a * dt * dt
-        k_cur = path.index(s_pred)
-        e_cur = path.edges[k_cur][0]
+        edges = path.edges
+        k_cur = bisect_right(path.cum, s_pred) - 1  # `path.index` written out
+        if k_cur < 0:
+            k_cur = 0
+        elif k_cur >= len(edges):
+            k_cur = len(edges) - 1
+        e_cur = edges[k_cur][0]
         net = self.net
         # fast path: a fix within the switch margin of the current edge, away from its ends, cannot be won
         # by another edge (they all start `switch_margin` behind), so the neighbourhood search is skipped
@@ -346,6 +359,8 @@ class Player:
         margin = placer.switch_margin if self.switch_margin is None else self.switch_margin
         if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
                 and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
+            if cur.distance <= placer.reacquire and self.FAST_TRACK:
+                return self._track_on(cur, e_cur, k_cur, s_pred, t, r)
             fix, best_pref = cur, cur.distance
             preferred = None
         else:
@@ -399,7 +414,8 @@ class Player:
         # consistency: fixes that stay far from the edge we hold mean we hold the wrong one (a first fix on
         # the wrong street, or the hysteresis kept us there): ask the placement index again
         self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
-        if self.dist_ema > 1.5 * math.sqrt(r) and reason is None:
+        # (a fix within the margin cannot be beaten by g.distance + margin, g.distance >= 0: no need to ask)
+        if self.dist_ema > 1.5 * math.sqrt(r) and reason is None and fix.distance > margin:
             g = self._first(x, y)
             if g is not None and g.kind == "area":  # inside an area the neighbourhood search does not see
                 self._init_at(g, t, r)
@@ -430,6 +446,55 @@ class Player:
             self._reverse()
             reason = reason or "path"
         self._maintain_path()
+        return reason
+
+    def _track_on(self, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float, r: float) -> str | None:
+        """The rest of `_track` for the usual fix (on the predicted edge, inside the switch margin, within
+        `reacquire`): the same steps with `_s_of`'s first case and the bookkeeping written out."""
+        self.pending = (-1, 0)
+        self.last_fix = fix
+        # the consistency check of `_track` cannot jump here: it needs g.distance + margin < fix.distance, and
+        # this fix is within the margin (so the placement index is not asked)
+        self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
+        path = self.path
+        # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs within 3 edges
+        if path.edge_ids()[k_cur - 3 if k_cur > 3 else 0 : k_cur + 4].count(e_cur) == 1:
+            off = fix.offset
+            s_meas = path.cum[k_cur] + (off if path.edges[k_cur][1] > 0 else self.net.edge_len[e_cur] - off)
+        else:
+            s_meas = self._s_of(fix, s_pred, k_cur)
+        placer = self.placer
+        if abs(s_meas - s_pred) > placer.reacquire:
+            self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
+            self.last_fix = fix
+            return "jump"
+        recent_s = self.recent_s
+        recent_s.append(s_meas)
+        if len(recent_s) > 5:
+            del recent_s[0]
+        kf = self.kf
+        kf.update(s_meas, t, r)
+        v = kf.v
+        if v > self.vpeak or t - self.vpeak_t > 120.0:
+            self.vpeak, self.vpeak_t = v, t
+        reason = None
+        if self.route:
+            self.reverse_count = 0
+        else:
+            backwards = v < -self.etype.v_start and v + kf.speed_sigma() < 0.0
+            self.reverse_count = self.reverse_count + 1 if backwards else 0
+            if self.reverse_count >= 3:
+                self._reverse()
+                reason = "path"
+        # `_maintain_path` changes nothing unless the path is to be trimmed or is short of what is needed ahead
+        path = self.path
+        cum = path.cum
+        s = kf.s
+        v = kf.v
+        if ((len(cum) > 2 and s - (self.body + self.margin + 50.0) > cum[1])
+                or (cum[-1] < s + self.lookahead + self.margin + 80.0 + 15.0 * (v if v > 0.0 else 0.0)
+                    and len(path.edges) < MAX_PATH_EDGES and path.edges[-1] != self.dead_end)):
+            self._maintain_path()
         return reason
 
     def _reverse(self) -> None:
@@ -564,12 +629,16 @@ class Player:
             return math.inf
         known = self._known_until(path, s)
         k = path.index(s)
-        while k < len(path.edges) and path.cum[k] <= known:
-            e, d = path.edges[k]
-            for off in sorted(self.stops.get(e, ()), reverse=d < 0):
-                sp = path.cum[k] + self.net.dist_of((e, d), off)
-                if sp > s + 2.0 and sp <= known:
-                    return sp
+        edges, cum, stops = path.edges, path.cum, self.stops
+        n = len(edges)
+        while k < n and cum[k] <= known:
+            e, d = edges[k]
+            offs = stops.get(e)
+            if offs:  # the same steps as before, on the few edges that have stops
+                for off in sorted(offs, reverse=d < 0):
+                    sp = cum[k] + self.net.dist_of((e, d), off)
+                    if sp > s + 2.0 and sp <= known:
+                        return sp
             k += 1
         return math.inf
 
@@ -585,10 +654,16 @@ class Player:
         if memo is not None and memo[0] is path and memo[1] == k0:
             return memo[2]
         k = k0
-        if path.edges[k] not in self.route_first:
+        edges = path.edges
+        i = self.route_first.get(edges[k])
+        if i is None:
             out = 0.0
+        elif edges[k:] == self.route[i : i + len(edges) - k]:
+            # the rest of the path is a stretch of the route (the usual case): all its pairs are route pairs,
+            # so the walk below would reach the path's end
+            out = path.cum[len(edges)]
         else:
-            edges, pairs = path.edges, self.route_pairs
+            pairs = self.route_pairs
             n = len(edges)
             while k + 1 < n and (edges[k], edges[k + 1]) in pairs:
                 k += 1
@@ -687,7 +762,7 @@ class Player:
         self.published = True
         validity_ms = int(self.occupation.validity * 1000.0) if self.occupation else int(self.max_validity * 1000)
         cells = self.occupation.cells[:MAX_PUBLISH_CELLS] if self.occupation else ()
-        return Publish(self.entity, self.seq, tuple(cells), validity_ms, payload)
+        return _make_publish(self.entity, self.seq, tuple(cells), validity_ms, payload)
 
     def _build_model(self, t: float, from_ghost: bool) -> Model:
         et = self.etype
