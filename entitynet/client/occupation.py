@@ -230,9 +230,11 @@ def occupy(
 
 
 def wire_validity(validity: float) -> float:
-    """The validity as a PUBLISH carries it (whole milliseconds, `int(validity * 1000)`), as seconds that
-    encode back to the same milliseconds. The player expires its occupation with this value, so it re-publishes
-    exactly when the receivers' copy runs out, not up to a millisecond after it."""
+    """The validity as a PUBLISH carries it, in seconds q with `int(q * 1000) / 1000 == q`: whole milliseconds
+    that the wire carries and decodes back to exactly q. q is the validity cut to the millisecond, or one
+    millisecond less where ms / 1000 would encode to ms - 1 (binary fractions; about 0.6 % of values). The
+    player expires its occupation with q, so it re-publishes exactly when the receivers' copy runs out, never
+    after it."""
     ms = int(validity * 1000.0)
     q = ms / 1000.0
     while ms > 0 and int(q * 1000.0) < ms:  # ms / 1000 may encode one below ms (binary fractions)

@@ -35,6 +35,7 @@ from entitynet.protocol import Publish, Unpublish
 MODELS = ("network", "fpw", "fvw", "periodic")
 MAX_PUBLISH_CELLS = 64
 MAX_PATH_EDGES = 48
+DOPPLER_MOVING = 1.0  # m/s: a Doppler velocity at least this fast has a direction worth checking
 # choosing among the path's edges: an along-path jump of ALONG_SCALE metres from the prediction costs as
 # much as one metre off the way (the prediction is good to a few metres; the fix only to its accuracy)
 ALONG_SCALE = 3.0
@@ -248,6 +249,8 @@ class Player:
         """(vx, vy, variance per axis) of a reported Doppler velocity, or None when there is none."""
         if speed is None:
             return None
+        if heading is None and speed == 0.0:
+            heading = 0.0  # receivers give no course when standing still; none is needed
         if heading is None:
             raise FixRejected("a fix's speed needs its heading (degrees clockwise from north)")
         if not (math.isfinite(speed) and speed >= 0.0 and math.isfinite(heading)):
@@ -258,15 +261,24 @@ class Player:
         return speed * math.sin(h), speed * math.cos(h), speed_accuracy * speed_accuracy
 
     def _fuse_velocity(self, vel: tuple[float, float, float]) -> None:
-        """The network state takes the velocity's component along the path (areas: both components)."""
+        """The network state takes the velocity's component along the path where the fix landed (areas: both
+        components). A moving velocity mostly across the path (a turn, or the path's other leg where it passes
+        the same place twice) says nothing reliable about the speed along it and is left out; so is one against
+        an a-priori route, which the entity does not reverse on."""
         vx, vy, rv = vel
         if self.mode == "edge" and self.model == "network":
-            path, s = self.path, self.kf.s
+            path = self.path
+            s = self.recent_s[-1] if self.recent_s else self.kf.s
             hx, hy = path.xy(min(s + 1.0, path.length))
             bx, by = path.xy(max(s - 1.0, 0.0))
             n = math.hypot(hx - bx, hy - by)
-            if n > 0.0:
-                self.kf.update_speed((vx * (hx - bx) + vy * (hy - by)) / n, rv)
+            if not n > 0.0:
+                return
+            along = (vx * (hx - bx) + vy * (hy - by)) / n
+            speed = math.hypot(vx, vy)
+            if speed >= DOPPLER_MOVING and (abs(along) < 0.7 * speed or (self.route and along < 0.0)):
+                return
+            self.kf.update_speed(along, rv)
         elif self.mode == "area" and self.model == "network":
             self.kx.update_speed(vx, rv)
             self.ky.update_speed(vy, rv)

@@ -35,8 +35,8 @@ def test_doppler_makes_the_speed_estimate_and_the_ghost_last_longer():
     assert drifts_aided < drifts_plain, (aided.stats, plain.stats)
 
 
-def _standing_with(heading: float) -> Player:
-    p = Player(cross(arm=400.0), 1, "car", threshold=5.0)
+def _standing_with(heading: float, route=None) -> Player:
+    p = Player(cross(arm=400.0), 1, "car", threshold=5.0, route=route)
     for i in range(8):
         p.feed(-300.0, 0.0, float(i), speed=5.0, heading=heading, speed_accuracy=0.2)
     return p
@@ -55,6 +55,22 @@ def test_the_velocity_counts_by_its_component_along_the_path():
     assert abs(north.kf.v) < 0.5  # across the street: no speed along it
 
 
+def test_a_route_follower_ignores_a_velocity_against_its_route():
+    """Where a route passes the same place twice (a terminus loop), the estimate may sit on the other leg:
+    a velocity against the route then says nothing about the speed along it."""
+    free = _standing_with(270.0)
+    on_route = _standing_with(270.0, route=[(0, 1), (1, 1)])  # W -> C -> E: eastwards
+    assert free.kf.v * _path_direction_x(free) < -2.0
+    assert abs(on_route.kf.v) < 0.5
+
+
+def test_a_standing_receiver_may_omit_the_heading():
+    p = Player(cross(), 1, "car")
+    p.feed(-50.0, 0.0, 0.0, speed=0.0)
+    p.feed(-50.0, 0.0, 1.0, speed=0.0)
+    assert p.last_t == 1.0 and abs(p.kf.v) < 0.5
+
+
 def test_world_models_take_both_components():
     p = Player(None, 1, "car", model="fpw")
     for i in range(5):
@@ -64,7 +80,7 @@ def test_world_models_take_both_components():
 
 
 @pytest.mark.parametrize("kw", [dict(speed=math.nan, heading=0.0), dict(speed=-1.0, heading=0.0),
-                                dict(speed=math.inf, heading=0.0), dict(speed=3.0),
+                                dict(speed=math.inf, heading=0.0), dict(speed=3.0), dict(speed=math.nan),
                                 dict(speed=3.0, heading=math.nan), dict(speed=3.0, heading=0.0, speed_accuracy=0.0),
                                 dict(speed=3.0, heading=0.0, speed_accuracy=math.inf)])
 def test_bad_doppler_is_rejected_and_changes_nothing(kw):
