@@ -692,11 +692,6 @@ class Player:
     def _validity(self) -> float:
         return self.occupation.validity if self.occupation is not None else self.max_validity
 
-    def _est_speed(self) -> float:
-        if self.model == "network" and self.mode == "edge":
-            return self.kf.v
-        return math.hypot(self.kx.v, self.ky.v)
-
     def _decide(self, t: float) -> str | None:
         if not self.published or self.ghost is None:
             return "first"
@@ -706,7 +701,7 @@ class Player:
             return self._expiry_or_heartbeat(t)
         g = self.ghost
         edge = self.model == "network" and self.mode == "edge"
-        v_est = self.kf.v if edge else math.hypot(self.kx.v, self.ky.v)  # `_est_speed`
+        v_est = self.kf.v if edge else math.hypot(self.kx.v, self.ky.v)
         still = self._still
         if still is not None and still[0] is g:
             gx, gy, gv = still[1]

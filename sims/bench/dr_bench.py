@@ -186,7 +186,7 @@ def car_trace() -> Entity | None:
 
 
 # ---- running -----------------------------------------------------------------------------------------------
-def run_entity(topo, ent: Entity, model: str, threshold: float, np_rng: np.random.Generator, acc: dict,
+def run_entity(topo, ent: Entity, model: str, threshold: float, acc: dict,
                noisy: bool = True, player=None, doppler: float | None = None) -> None:
     """Feed one entity's fixes to a player (`noisy`: 5 m GPS on the truth; else the truth are the fixes) and
     add its updates, errors and occupation to `acc`. `doppler`: the fixes also carry the receiver's Doppler
@@ -336,7 +336,7 @@ def estimation_bounds(topo, ents: list[Entity], threshold: float) -> dict[str, f
             s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ent.xy, axis=0).T))])
             v = np.gradient(s, ent.t)
             truth = (float(ent.t[0]), ent.xy, v, np.gradient(v, ent.t))
-            run_entity(topo, ent, "network", threshold, None, acc,
+            run_entity(topo, ent, "network", threshold, acc,
                        player=lambda e=ent, tr=truth, a=st, b=tt: _TruthPlayer(
                            topo, 1, e.etype, model="network", route=e.route, stops=e.stops, threshold=threshold,
                            truth=tr, true_state=a, true_test=b))
@@ -407,7 +407,6 @@ def run(args, progress) -> dict:
     quick = bool(args.quick)
     thresholds = (5.0,) if quick else THRESHOLDS
     rng = random.Random(20260221)
-    np_rng = np.random.default_rng(20260221)
     table: list[dict] = []
     notes = []
     results: dict = {}
@@ -425,7 +424,7 @@ def run(args, progress) -> dict:
             for th in ((5.0,) if model == "periodic" else thresholds):
                 acc = _new_acc()
                 for ent in ents:
-                    run_entity(topo, ent, model, th, np_rng, acc)
+                    run_entity(topo, ent, model, th, acc)
                 row = _row(name, model, th if model != "periodic" else None, acc)
                 if model == "network" and acc["checked"]:
                     row["wrong_edge_rate"] = round(acc["wrong"] / acc["checked"], 4)
@@ -439,7 +438,7 @@ def run(args, progress) -> dict:
         for model in ("periodic", "fpw", "fvw"):
             for th in ((5.0,) if model == "periodic" else thresholds):
                 acc = _new_acc()
-                run_entity(None, car, model, th, np_rng, acc, noisy=False)
+                run_entity(None, car, model, th, acc, noisy=False)
                 table.append(_row("munich-car", model, th if model != "periodic" else None, acc))
     else:
         notes.append("../shared/data/traces absent: no car trace")
@@ -467,7 +466,7 @@ def run(args, progress) -> dict:
         for model in ("fpw", "fvw", "network"):
             acc = _new_acc()
             for ent in datasets["vehicles"]:
-                run_entity(topo, ent, model, 5.0, np_rng, acc, doppler=DOPPLER)
+                run_entity(topo, ent, model, 5.0, acc, doppler=DOPPLER)
             row = _row("vehicles", model, 5.0, acc)
             aided[model] = {k: row[k] for k in ("updates_per_entity_min", "error_mean_m", "error_p95_m",
                                                 "occupation_error", "reasons")}
@@ -494,7 +493,7 @@ def run(args, progress) -> dict:
     for seed in HELD_OUT_SEEDS[:1] if quick else HELD_OUT_SEEDS:
         acc = _new_acc()
         for ent in pedestrians(topo, 6 if quick else MAIN_PEDESTRIANS, random.Random(seed), held_out=f"s{seed} "):
-            run_entity(topo, ent, "network", 5.0, np_rng, acc)
+            run_entity(topo, ent, "network", 5.0, acc)
         row = _row("pedestrians", "network", 5.0, acc)
         held[str(seed)] = {k: row[k] for k in ("occupation_error", "updates_per_entity_min", "error_p95_m",
                                                "cells_published_per_true_cell")}
