@@ -3,17 +3,25 @@
 Only a SHA-256 of each token is stored, so a leaked database does not leak usable tokens. Tokens are
 random (secrets.token_urlsafe); a user may hold several. Lookups are one indexed SELECT, cheap enough to run
 on the server's event loop at handshake time.
+
+The file holds who may connect, so it is private to its owner: a new store is created 0600 (and the folder
+0700 when we create it); an existing store that others can read is reported with a warning, not changed.
+A server watches `data_version()` to notice `entitynet users remove` from another process and re-check the
+tokens of its open connections (entitynet.switchboard.access.revalidate).
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import re
 import secrets
 import sqlite3
 import time
 from pathlib import Path
+
+log = logging.getLogger("entitynet.auth")
 
 USER_RE = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
 
@@ -31,16 +39,39 @@ def _hash(token: str) -> str:
     return hashlib.sha256(token.encode("utf-8")).hexdigest()
 
 
+def _create_private(path: Path) -> None:
+    """Create the store's folder (0700) and an empty file (0600) if they are missing, before SQLite opens it:
+    SQLite would create the file with the umask (usually world-readable), and its journal files copy the
+    database's mode, so getting the mode right at creation covers them too."""
+    parent = path.parent
+    if not parent.exists():
+        parent.parent.mkdir(parents=True, exist_ok=True)
+        parent.mkdir(mode=0o700, exist_ok=True)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except FileExistsError:
+        mode = path.stat().st_mode
+        if mode & 0o077:
+            log.warning("token store %s is readable by others (mode %o); chmod 600 it", path, mode & 0o777)
+        return
+    os.close(fd)
+
+
 class TokenStore:
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        _create_private(self.path)
         self._db = sqlite3.connect(str(self.path), check_same_thread=False)
         self._db.execute(
             "CREATE TABLE IF NOT EXISTS tokens (hash TEXT PRIMARY KEY, user TEXT NOT NULL, created REAL NOT NULL)"
         )
         self._db.execute("CREATE INDEX IF NOT EXISTS tokens_user ON tokens(user)")
         self._db.commit()
+
+    def data_version(self) -> int:
+        """SQLite's change counter: differs from the last value when another connection (another process, e.g.
+        `entitynet users remove`) committed a change since. One cheap PRAGMA, fine to poll every second."""
+        return int(self._db.execute("PRAGMA data_version").fetchone()[0])
 
     def close(self) -> None:
         self._db.close()

@@ -70,6 +70,7 @@ class ErrorCode(IntEnum):
     TOPOLOGY_MISMATCH = 201
     AUTH_FAILED = 202
     HANDSHAKE_REQUIRED = 203
+    AUTH_THROTTLED = 204  # too many failed logins from this address: retry after the time in the text
     NOT_OWNER = 300
     NO_SUCH_CELL = 301
     NO_SUCH_ENTITY = 302
@@ -94,6 +95,7 @@ FATAL_ERRORS = frozenset(
         ErrorCode.TOPOLOGY_MISMATCH,
         ErrorCode.AUTH_FAILED,
         ErrorCode.HANDSHAKE_REQUIRED,
+        ErrorCode.AUTH_THROTTLED,
         ErrorCode.SLOW_CONSUMER,
         ErrorCode.SERVER_FULL,
         ErrorCode.SHUTTING_DOWN,

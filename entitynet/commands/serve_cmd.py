@@ -19,7 +19,9 @@ def register(sub) -> None:
     p.add_argument("--tls-key", metavar="PEM", help="TLS private key")
     p.add_argument("--open", action="store_true",
                    help="accept any token (local use only; said loudly in the log)")
-    p.add_argument("--users-db", metavar="FILE", help="token store (default: see `entitynet users`)")
+    from entitynet.commands.users_cmd import add_users_db_option
+
+    add_users_db_option(p, "token store, alias --db (default: see `entitynet users`)")
     p.add_argument("--flush-ms", type=float, default=10.0, help="outbound batching window (default 10 ms)")
     p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
     p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")

@@ -1,4 +1,9 @@
-"""`entitynet users add NAME | list | remove NAME`: the server's auth tokens (SQLite)."""
+"""`entitynet users add NAME | list | remove NAME`: the server's auth tokens (SQLite).
+
+The store is named with `--users-db FILE` (alias `--db`), the same spelling as `entitynet serve`, and it is
+accepted before or after the action (`users --db F add x` and `users add x --db F`): people type it where they
+think of it.
+"""
 
 from __future__ import annotations
 
@@ -11,24 +16,33 @@ from entitynet.cli import CommandError
 def register(sub) -> None:
     from entitynet.auth import default_db_path
 
+    help_db = f"token store (default: $ENTITYNET_USERS_DB or {default_db_path()})"
     p = sub.add_parser("users", help="manage auth tokens of the switchboard server")
-    p.add_argument("--db", metavar="FILE", help=f"token store (default: $ENTITYNET_USERS_DB or {default_db_path()})")
+    add_users_db_option(p, help_db)
     usub = p.add_subparsers(dest="users_command", metavar="ACTION", required=True)
     a = usub.add_parser("add", help="create a token for NAME and print it (shown only once)")
     a.add_argument("name")
     a.set_defaults(func=run_add)
     ls = usub.add_parser("list", help="users and how many tokens each holds")
     ls.set_defaults(func=run_list)
-    r = usub.add_parser("remove", help="revoke all tokens of NAME")
+    r = usub.add_parser("remove", help="revoke all tokens of NAME (the server closes their connections)")
     r.add_argument("name")
     r.set_defaults(func=run_remove)
+    for action in (a, ls, r):
+        # after the action too; SUPPRESS keeps a value given before the action when it is not repeated
+        add_users_db_option(action, help_db, default=argparse.SUPPRESS)
+
+
+def add_users_db_option(parser: argparse.ArgumentParser, help_text: str, default=None) -> None:
+    """`--users-db FILE` with its alias `--db`, the one spelling of `users` and `serve`."""
+    parser.add_argument("--users-db", "--db", dest="users_db", metavar="FILE", default=default, help=help_text)
 
 
 def _store(args: argparse.Namespace):
     from entitynet.auth import TokenStore, default_db_path
 
     try:
-        return TokenStore(args.db or default_db_path())
+        return TokenStore(args.users_db or default_db_path())
     except Exception as exc:  # sqlite3.Error, OSError: a bad path or a file that is not a database
         raise CommandError(f"cannot open token store: {exc}") from None
 

@@ -28,13 +28,11 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server import logs
-from entitynet.server.config import ServerConfig
+from entitynet.server.config import ConfigError, ServerConfig
 from entitynet.server.metrics import Metrics
+from entitynet.server.peers import peer_address, throttle_key
+from entitynet.server.tokens import TokenWatch
 from entitynet.switchboard import Outbox, Switchboard, SwitchConfig
-
-
-class ConfigError(ValueError):
-    """The server cannot start with this configuration (message says why)."""
 
 
 @dataclass
@@ -55,7 +53,7 @@ class _Conn:
     closed: bool = False
 
 
-def switch_config_from(config: ServerConfig) -> SwitchConfig:
+def switch_config_from(config: ServerConfig, tokens: TokenWatch | None = None) -> SwitchConfig:
     """Digest and cell count from the topology artifact or the config; auth from the token store."""
     digest, n_cells = config.digest, config.n_cells
     if config.topology:
@@ -70,9 +68,7 @@ def switch_config_from(config: ServerConfig) -> SwitchConfig:
         raise ConfigError("give a topology artifact (or digest and n_cells)")
     authenticate = None
     if not config.open_mode:
-        from entitynet.auth import TokenStore, default_db_path
-
-        authenticate = TokenStore(config.users_db or default_db_path()).authenticate
+        authenticate = (tokens or TokenWatch(config)).authenticate
     return SwitchConfig(n_cells=n_cells, digest=digest, authenticate=authenticate, open_mode=config.open_mode,
                         **config.switch)
 
@@ -96,7 +92,8 @@ class Server:
     def __init__(self, config: ServerConfig):
         self.config = config
         self.clock = config.clock
-        self.sb = Switchboard(switch_config_from(config), now=self.clock())
+        self.tokens = None if config.open_mode else TokenWatch(config)  # revocations close connections
+        self.sb = Switchboard(switch_config_from(config, self.tokens), now=self.clock())
         self.metrics = Metrics()
         self.ssl = _ssl_context(config)
         self.conns: dict[int, _Conn] = {}
@@ -181,11 +178,8 @@ class Server:
         if self._stopping or await self._refuse_full(lambda payload: stream.send_all(P.frame(payload))):
             await stream.aclose()
             return
-        try:
-            peer = str(stream.socket.getpeername()) if hasattr(stream, "socket") else "tls"
-        except OSError:
-            peer = "?"
-        conn = self._open(stream, "tcp", peer)
+        addr = peer_address(stream)
+        conn = self._open(stream, "tcp", str(addr) if addr else "?", addr)
         if isinstance(stream, trio.SocketStream):
             conn.fd = stream.socket.fileno()
             if self.config.sndbuf:
@@ -211,7 +205,7 @@ class Server:
         if await self._refuse_full(ws.send_message):
             await ws.aclose()
             return
-        conn = self._open(ws, "ws", str(ws.remote))
+        conn = self._open(ws, "ws", str(ws.remote), peer_address(ws))
         try:
             async with trio.open_nursery() as n:
                 conn.scope = n.cancel_scope
@@ -222,8 +216,8 @@ class Server:
         finally:
             await self._close(conn)
 
-    def _open(self, stream, kind: str, peer: str) -> _Conn:
-        cid = self.sb.connect(self.clock())
+    def _open(self, stream, kind: str, peer: str, addr: tuple[str, int] | None = None) -> _Conn:
+        cid = self.sb.connect(self.clock(), peer=throttle_key(addr[0] if addr else None))  # login back-off
         conn = _Conn(cid, kind, peer, stream, trio.Event(), self.sb.outbox(cid), opened_at=time.monotonic())
         self.conns[cid] = conn
         self.metrics.connections.inc()
@@ -461,9 +455,15 @@ class Server:
         m, sb = self.metrics, self.sb
         seen_errors: dict[int, int] = {}
         pushed_msgs = pushed_frames = 0
+        next_auth = time.monotonic() + self.config.auth_recheck
         while True:
             await trio.sleep(0.1)
             self._check_stalls()
+            if self.tokens is not None and time.monotonic() >= next_auth:
+                next_auth = time.monotonic() + self.config.auth_recheck
+                for cid in self.tokens.poll(sb):  # revoked tokens: AUTH_FAILED queued, the writer closes
+                    if cid in self.conns:
+                        self._try_write(self.conns[cid])
             sb.expire(self.clock())
             counts = sb.counts()
             m.entities.set(counts["entities"])

@@ -8,6 +8,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 
+class ConfigError(ValueError):
+    """The server cannot start with this configuration (message says why)."""
+
+
 @dataclass
 class ServerConfig:
     """Everything `serve()` needs. Ports of 0 pick a free port (see the started `Server`'s ports).
@@ -27,6 +31,7 @@ class ServerConfig:
     n_cells: int | None = None
     open_mode: bool = False
     users_db: str | None = None  # None = entitynet.auth.default_db_path()
+    auth_recheck: float = 1.0  # how often (s) to look for changes of the token store and re-check connections
     flush_interval: float = 0.01  # outbound batching window (s): one write per connection per flush
     stall_timeout: float = 5.0  # a write blocked this long (client not reading) drops the client
     max_batch: int = 20_000  # messages per written frame

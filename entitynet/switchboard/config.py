@@ -14,6 +14,7 @@ class SwitchConfig:
 
     `authenticate(token) -> user id or None` maps auth tokens to users (entitynet.auth); with `open_mode`
     every token is accepted (local use) and the token itself, or `anon-<session>`, is the user id.
+    Failed logins are throttled per peer address (`auth_fail_*`, see ratelimit.FailureThrottle).
     """
 
     n_cells: int
@@ -31,6 +32,9 @@ class SwitchConfig:
     max_pending: int = 50_000  # coalesced entity states waiting for one client; beyond -> slow consumer
     max_control: int = 1000  # non-coalescible messages (errors, pongs, results) waiting for one client
     codec: CodecLimits = CodecLimits()
+    auth_fail_free: int = 3  # failed logins per peer address before the back-off starts ...
+    auth_fail_base_s: float = 1.0  # ... blocking it this long, doubling with every further failure ...
+    auth_fail_cap_s: float = 60.0  # ... up to this
     seed: int | None = None  # for the opaque entity ids; None = unpredictable
 
     def __post_init__(self) -> None:

@@ -24,9 +24,10 @@ import msgpack
 
 from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
+from entitynet.switchboard import access
 from entitynet.switchboard.config import SwitchConfig
 from entitynet.switchboard.outbox import Outbox
-from entitynet.switchboard.privacy import identity_shown
+from entitynet.switchboard.privacy import claim_refused, identity_shown
 from entitynet.switchboard.ratelimit import TokenBucket
 from entitynet.switchboard.timers import ExpiryHeap
 
@@ -38,12 +39,14 @@ _packb = msgpack.Packer(use_bin_type=True).pack
 class ClientState:
     __slots__ = (
         "cid", "session", "user_id", "identity", "audience", "ready", "closing", "subs", "follows",
-        "entities", "bucket", "outbox",
+        "entities", "bucket", "outbox", "peer", "token",
     )
 
-    def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket):
+    def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket, peer: str = ""):
         self.cid = cid
         self.session = session
+        self.peer = peer  # the address failed logins are throttled by (access.admit)
+        self.token: str | None = None  # kept to re-check it after a revocation (access.revalidate)
         self.user_id = f"anon-{session}"
         self.identity: str | None = None
         self.audience: frozenset[str] | None = None
@@ -96,18 +99,20 @@ class Switchboard:
         self._valid_from = 0  # viewer sets computed before this tick are void (shutdown)
         self._next_cid = 1
         self._rng = random.Random(config.seed)
+        self.auth_throttle = access.throttle_for(config)
         self._shut = False
         self.stats: Counter[str] = Counter()
         self.errors: Counter[int] = Counter()
         self._start = now
 
     # ------------------------------------------------------------------------------------------ connections
-    def connect(self, now: float) -> int:
+    def connect(self, now: float, peer: str = "") -> int:
+        """A new connection; `peer` keys the failed-login back-off (the shell passes the client's address)."""
         cid = self._next_cid
         self._next_cid += 1
         session = self._rng.randrange(1, P.MAX_INT)
         ob = Outbox(self.config.max_pending, self.config.max_control)
-        c = ClientState(cid, session, ob, TokenBucket(self.config.query_rate, self.config.query_burst, now))
+        c = ClientState(cid, session, ob, TokenBucket(self.config.query_rate, self.config.query_burst, now), peer)
         self.clients[cid] = c
         self._states[cid] = ob.states
         self.stats["connections"] += 1
@@ -225,26 +230,13 @@ class Switchboard:
     # ------------------------------------------------------------------------------------------ handshake
     def _hello(self, c: ClientState, m: P.Hello, now: float) -> None:
         cfg = self.config
-        if m.version != P.PROTOCOL_VERSION:
-            self._error(
-                c, ErrorCode.VERSION_MISMATCH,
-                f"server speaks protocol v{P.PROTOCOL_VERSION}, not v{m.version}",
-            )
+        user, err = access.admit(cfg, self.auth_throttle, m, c.peer, c.session, now)
+        if user is None:
+            self._error(c, err.code, err.text)
             return
-        if m.digest != cfg.digest:
-            self._error(
-                c, ErrorCode.TOPOLOGY_MISMATCH,
-                f"topology digest mismatch: server has {cfg.digest[:16]}, client has {m.digest[:16]}",
-            )
-            return
-        if cfg.open_mode:
-            user = m.token or f"anon-{c.session}"
-        else:
-            user = cfg.authenticate(m.token) if cfg.authenticate and m.token else None
-            if user is None:
-                self._error(c, ErrorCode.AUTH_FAILED, "unknown or missing auth token")
-                return
         c.user_id = user
+        if not cfg.open_mode:
+            c.token = m.token
         c.ready = True
         self._control(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), cfg.wire_limits()))
 
@@ -545,6 +537,10 @@ class Switchboard:
         self._control(c, P.QueryResult(m.query_id, tuple(found[:limit])))
 
     def _privacy(self, c: ClientState, m: P.Privacy) -> None:
+        refused = claim_refused(c.user_id, m.identity, self.config.open_mode)
+        if refused:
+            self._error(c, ErrorCode.NOT_OWNER, refused)
+            return
         if c.identity is not None:
             s = self.by_identity.get(c.identity)
             if s is not None:
