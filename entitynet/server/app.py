@@ -108,6 +108,7 @@ class Server:
         self._nursery: trio.Nursery | None = None
         self._stopping = False
         self.admission = fdlimit.Admission(config.max_clients, config.fd_reserve)
+        self.http: HttpServer | None = None  # the metrics (and later viewer) HTTP server
         self.written = 0  # messages written
         self.frames = 0  # frames written
         self._lat_n = 0
@@ -125,8 +126,9 @@ class Server:
         try:
             async with trio.open_nursery() as nursery:
                 self._nursery = nursery
+                self.http = self._http_server()
                 listen = Listeners(cfg, self.ssl, self.admission, tcp_handler=self._handle_tcp,
-                                   ws_handler=self._handle_ws, http=self._http_server(),
+                                   ws_handler=self._handle_ws, http=self.http,
                                    max_message=self.sb.config.codec.max_frame, stopping=lambda: self._stopping)
                 await listen.open(nursery)
                 self.port, self.ws_port, self.metrics_port = listen.port, listen.ws_port, listen.http_port

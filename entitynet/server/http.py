@@ -161,6 +161,10 @@ class HttpServer:
                     deadline = min(deadline, trio.current_time() + lim.header_timeout)
                 conn.receive_data(data)
             elif isinstance(event, h11.Request):
+                # h11 bounds only a head still incomplete in its buffer; one that arrived whole is measured here
+                size = len(event.method) + len(event.target) + sum(len(k) + len(v) + 4 for k, v in event.headers)
+                if size > lim.max_request_bytes:
+                    await self._fail(conn, stream, 431, "request head too large")
                 request = event
             elif isinstance(event, h11.Data):
                 body += len(event.data)

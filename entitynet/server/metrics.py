@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Gauge, Histogram, generate_latest
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client.exposition import choose_encoder
 
 
 class Metrics:
@@ -26,10 +27,13 @@ class Metrics:
 
 
 def metrics_handler(registry: CollectorRegistry):
-    """The /metrics route of the server's HTTP listener: the registry in Prometheus text format."""
+    """The /metrics route of the server's HTTP listener: the registry in the format the scraper accepts
+    (Prometheus text, or OpenMetrics when asked for), negotiated as prometheus_client's own server does."""
     from entitynet.server.http import Response
 
-    def handle(_request) -> Response:
-        return Response(200, generate_latest(registry), CONTENT_TYPE_LATEST)
+    def handle(request) -> Response:
+        accept = next((v.decode("latin-1") for k, v in request.headers if k == b"accept"), "")
+        encode, content_type = choose_encoder(accept)
+        return Response(200, encode(registry), content_type)
 
     return handle
