@@ -132,6 +132,7 @@ class Server:
                                    max_message=self.sb.config.codec.max_frame, stopping=lambda: self._stopping)
                 await listen.open(nursery)
                 self.port, self.ws_port, self.metrics_port = listen.port, listen.ws_port, listen.http_port
+                self.admission.measure()  # the (raised) limit and what is open besides clients: listeners, ...
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
