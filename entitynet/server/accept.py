@@ -79,8 +79,16 @@ def peer_of(stream: trio.abc.Stream) -> str:
     return str(addr)
 
 
+class HandshakeLog:
+    """The log lines of failed TLS handshakes, throttled (a flood of them is one line a second, counted)."""
+
+    def __init__(self) -> None:
+        self.timed_out = Throttled("TLS handshake timed out", logging.INFO)
+        self.failed = Throttled("TLS handshake failed", logging.INFO)
+
+
 async def tls_handshake(stream: trio.SocketStream, context: ssl.SSLContext, timeout: float,
-                        peer: str) -> trio.SSLStream | None:
+                        peer: str, log: HandshakeLog) -> trio.SSLStream | None:
     """Wrap and handshake within `timeout`; the TLS stream, or None (logged, socket left to the caller)."""
     tls = trio.SSLStream(stream, context, server_side=True, https_compatible=False)
     with trio.move_on_after(timeout):
@@ -88,8 +96,8 @@ async def tls_handshake(stream: trio.SocketStream, context: ssl.SSLContext, time
             await tls.do_handshake()
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as exc:
             cause = exc.__cause__ or exc
-            logs.event("TLS handshake failed", logging.INFO, peer=peer, reason=str(cause) or type(cause).__name__)
+            log.failed(peer=peer, reason=str(cause) or type(cause).__name__)
             return None
         return tls
-    logs.event("TLS handshake timed out", logging.INFO, peer=peer, timeout_s=f"{timeout:g}")
+    log.timed_out(peer=peer, timeout_s=f"{timeout:g}")
     return None

@@ -23,12 +23,11 @@ import trio
 import trio_websocket
 
 from entitynet import protocol as P
-from entitynet.server import logs
-from entitynet.server.accept import Throttled, accept_loop, peer_of, tls_handshake
+from entitynet.server.accept import HandshakeLog, Throttled, accept_loop, peer_of, tls_handshake
 from entitynet.server.config import ServerConfig
 from entitynet.server.fdlimit import Admission
 from entitynet.server.http import HttpServer, error_bytes
-from entitynet.server.wsgate import HandoffListener, PrefixedStream, read_upgrade_head
+from entitynet.server.wsgate import CLOSED, HandoffListener, PrefixedStream, read_upgrade_head
 
 REFUSAL_TIMEOUT = 1.0  # seconds to spend telling a refused client why
 
@@ -52,7 +51,11 @@ class Listeners:
         self.ws_port: int | None = None
         self.http_port: int | None = None
         self._gate: HandoffListener | None = None
+        # one line a second for each of these, whatever the flood (`more=N` counts the folded ones)
         self._refused = Throttled("connection refused")
+        self._tls_log = HandshakeLog()
+        self._upgrade_timed_out = Throttled("WebSocket upgrade timed out", logging.INFO)
+        self._upgrade_refused = Throttled("WebSocket upgrade refused", logging.INFO)
 
     async def open(self, nursery: trio.Nursery) -> None:
         """Bind every configured port (errors surface here) and start accepting."""
@@ -89,7 +92,7 @@ class Listeners:
         try:
             if self.ssl is not None:
                 timeout = self.config.handshake_timeout if reason is None else REFUSAL_TIMEOUT
-                stream = await tls_handshake(sock, self.ssl, timeout, peer)
+                stream = await tls_handshake(sock, self.ssl, timeout, peer, self._tls_log)
                 if stream is None:
                     return
             if self._refusing(reason, peer) is not None:
@@ -109,7 +112,8 @@ class Listeners:
         timeout = self.config.handshake_timeout
         try:
             if self.ssl is not None:
-                stream = await tls_handshake(sock, self.ssl, timeout if reason is None else REFUSAL_TIMEOUT, peer)
+                stream = await tls_handshake(sock, self.ssl, timeout if reason is None else REFUSAL_TIMEOUT, peer,
+                                             self._tls_log)
                 if stream is None:
                     return
             why = self._refusing(reason, peer)
@@ -120,12 +124,11 @@ class Listeners:
             with trio.move_on_after(timeout) as cs:
                 raw, request = await read_upgrade_head(stream)
             if cs.cancelled_caught:
-                logs.event("WebSocket upgrade timed out", logging.INFO, peer=peer, timeout_s=f"{timeout:g}")
+                self._upgrade_timed_out(peer=peer, timeout_s=f"{timeout:g}")
                 return
             if not isinstance(request, h11.Request):
-                level = logging.DEBUG if not raw else logging.INFO
-                logs.event("WebSocket upgrade refused", level, peer=peer, reason=request)
-                if raw:
+                if request != CLOSED:  # a client that went away is no news
+                    self._upgrade_refused(peer=peer, reason=request)
                     await _send_quietly(stream, error_bytes(400, request))
                 return
             assert self._gate is not None

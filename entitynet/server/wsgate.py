@@ -15,6 +15,7 @@ import h11
 import trio
 
 MAX_HEAD = 16_384  # bytes of an upgrade request's head (request line and headers)
+CLOSED = "closed before the upgrade"
 
 
 class PrefixedStream(trio.abc.Stream):
@@ -95,9 +96,9 @@ async def read_upgrade_head(stream: trio.abc.Stream, max_head: int = MAX_HEAD) -
             except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
                 data = b""
             if not data:
-                return bytes(raw), "closed before the upgrade"
+                return bytes(raw), CLOSED
             raw += data
             conn.receive_data(data)
         else:  # ConnectionClosed and the like
-            return bytes(raw), "closed before the upgrade"
+            return bytes(raw), CLOSED
 
