@@ -27,9 +27,11 @@ import trio
 import trio_websocket
 
 from entitynet import protocol as P
-from entitynet.server import logs
+from entitynet.server import fdlimit, logs
 from entitynet.server.config import ConfigError, ServerConfig
-from entitynet.server.metrics import Metrics
+from entitynet.server.http import HttpLimits, HttpServer, Router
+from entitynet.server.listen import Listeners
+from entitynet.server.metrics import Metrics, metrics_handler
 from entitynet.server.peers import peer_address, throttle_key
 from entitynet.server.tokens import TokenWatch
 from entitynet.switchboard import Outbox, Switchboard, SwitchConfig
@@ -102,7 +104,8 @@ class Server:
         self.metrics_port: int | None = None
         self._nursery: trio.Nursery | None = None
         self._stopping = False
-        self._http = None
+        self.admission = fdlimit.Admission(config.max_clients, config.fd_reserve)
+        self.http: HttpServer | None = None  # the metrics (and later viewer) HTTP server
         self.written = 0  # messages written
         self.frames = 0  # frames written
         self._lat_n = 0
@@ -115,39 +118,36 @@ class Server:
         cfg = self.config
         if cfg.open_mode:
             logs.event("OPEN MODE: any token is accepted; use only for local testing", logging.WARNING)
+        if cfg.raise_nofile:
+            fdlimit.raise_soft_limit()
         try:
             async with trio.open_nursery() as nursery:
                 self._nursery = nursery
-                if cfg.port is not None:
-                    listeners = await trio.open_tcp_listeners(cfg.port, host=cfg.host)
-                    self.port = listeners[0].socket.getsockname()[1]
-                    if self.ssl:
-                        listeners = [trio.SSLListener(li, self.ssl, https_compatible=False) for li in listeners]
-                    nursery.start_soon(trio.serve_listeners, self._handle_tcp, listeners)
-                if cfg.ws_port is not None:
-                    ws = await nursery.start(
-                        lambda task_status: trio_websocket.serve_websocket(
-                            self._handle_ws, cfg.host, cfg.ws_port, self.ssl,
-                            max_message_size=self.sb.config.codec.max_frame, task_status=task_status,
-                        )
-                    )
-                    self.ws_port = ws.port
-                if cfg.metrics_port is not None:
-                    from prometheus_client import start_http_server
-
-                    self._http, _ = start_http_server(cfg.metrics_port, cfg.host, registry=self.metrics.registry)
-                    self.metrics_port = self._http.server_port
+                self.http = self._http_server()
+                listen = Listeners(cfg, self.ssl, self.admission, tcp_handler=self._handle_tcp,
+                                   ws_handler=self._handle_ws, http=self.http,
+                                   max_message=self.sb.config.codec.max_frame, stopping=lambda: self._stopping)
+                await listen.open(nursery)
+                self.port, self.ws_port, self.metrics_port = listen.port, listen.ws_port, listen.http_port
+                self.admission.measure()  # the (raised) limit and what is open besides clients: listeners, ...
+                nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
                 logs.event("listening", host=cfg.host, port=self.port, ws_port=self.ws_port,
                            metrics_port=self.metrics_port, n_cells=self.sb.config.n_cells,
-                           digest=self.sb.config.digest[:16], tls=bool(self.ssl))
+                           digest=self.sb.config.digest[:16], tls=bool(self.ssl), fd_limit=self.admission.limit)
                 task_status.started(self)
         finally:
-            if self._http is not None:
-                self._http.shutdown()
-                self._http.server_close()
             logs.event("stopped")
+
+    def _http_server(self) -> HttpServer:
+        """The HTTP listener's routes: /metrics now (a viewer's static files can be added to the router)."""
+        cfg = self.config
+        router = Router()
+        router.add("/metrics", metrics_handler(self.metrics.registry))
+        limits = HttpLimits(header_timeout=cfg.http_header_timeout, idle_timeout=cfg.http_idle_timeout,
+                            max_connections=cfg.http_max_connections, max_request_bytes=cfg.http_max_request)
+        return HttpServer(router, limits, self.admission, name="metrics")
 
     async def stop(self) -> None:
         """Graceful shutdown: tell every client SHUTTING_DOWN, let writers flush briefly, then cancel."""
@@ -163,23 +163,9 @@ class Server:
         self._nursery.cancel_scope.cancel()
 
     # ------------------------------------------------------------------------------------------ connections
-    async def _refuse_full(self, send) -> bool:
-        if len(self.conns) < self.config.max_clients:
-            return False
-        logs.event("connection refused: server full", logging.WARNING, clients=len(self.conns))
-        with trio.move_on_after(1.0):
-            try:
-                await send(P.encode_payload([P.Error(int(P.ErrorCode.SERVER_FULL), "server full; try later")]))
-            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError, trio_websocket.ConnectionClosed):
-                pass
-        return True
-
-    async def _handle_tcp(self, stream) -> None:
-        if self._stopping or await self._refuse_full(lambda payload: stream.send_all(P.frame(payload))):
-            await stream.aclose()
-            return
-        addr = peer_address(stream)
-        conn = self._open(stream, "tcp", str(addr) if addr else "?", addr)
+    async def _handle_tcp(self, stream, peer: str) -> None:
+        """A TCP (or TLS, handshake done) client admitted by `Listeners`; the caller closes the stream."""
+        conn = self._open(stream, "tcp", peer, peer_address(stream))
         if isinstance(stream, trio.SocketStream):
             conn.fd = stream.socket.fileno()
             if self.config.sndbuf:
@@ -201,10 +187,7 @@ class Server:
         if self._stopping:
             await request.reject(503)
             return
-        ws = await request.accept()
-        if await self._refuse_full(ws.send_message):
-            await ws.aclose()
-            return
+        ws = await request.accept()  # admitted (counted) and its upgrade read by `Listeners`
         conn = self._open(ws, "ws", str(ws.remote), peer_address(ws))
         try:
             async with trio.open_nursery() as n:

@@ -38,7 +38,13 @@ class ServerConfig:
     read_size: int = 65_536
     sndbuf: int | None = 131_072  # cap the kernel send buffer: backlog then waits in the coalescing outbox
     handshake_timeout: float = 10.0  # a connection without HELLO this long is closed (HANDSHAKE_REQUIRED)
-    max_clients: int = 20_000  # connections beyond this are refused with SERVER_FULL
+    max_clients: int = 20_000  # connections beyond this are refused with SERVER_FULL (pending TLS/upgrades count)
+    fd_reserve: int = 64  # refuse new connections while fewer descriptors than this are left (fdlimit.py)
+    raise_nofile: bool = True  # raise the soft RLIMIT_NOFILE to the hard limit at start
+    http_header_timeout: float = 5.0  # metrics HTTP: a request must arrive within this (http.py)
+    http_idle_timeout: float = 15.0  # metrics HTTP: a kept-alive connection idle this long is closed
+    http_max_connections: int = 64  # metrics HTTP: connections beyond this get 503
+    http_max_request: int = 16_384  # metrics HTTP: bytes of a request head (or body)
     shutdown_grace: float = 1.0  # time to flush SHUTTING_DOWN to everyone before closing
     switch: dict[str, Any] = field(default_factory=dict)  # SwitchConfig overrides (limits)
     clock: Callable[[], float] = time.time  # the server clock reported in WELCOME/PONG and used for expiry

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client.exposition import choose_encoder
 
 
 class Metrics:
@@ -23,3 +24,16 @@ class Metrics:
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5),
             registry=r,
         )
+
+
+def metrics_handler(registry: CollectorRegistry):
+    """The /metrics route of the server's HTTP listener: the registry in the format the scraper accepts
+    (Prometheus text, or OpenMetrics when asked for), negotiated as prometheus_client's own server does."""
+    from entitynet.server.http import Response
+
+    def handle(request) -> Response:
+        accept = next((v.decode("latin-1") for k, v in request.headers if k == b"accept"), "")
+        encode, content_type = choose_encoder(accept)
+        return Response(200, encode(registry), content_type)
+
+    return handle

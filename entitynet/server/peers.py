@@ -15,6 +15,11 @@ def peer_address(stream) -> tuple[str, int] | None:
     remote = getattr(stream, "remote", None)  # trio_websocket.WebSocketConnection: an Endpoint
     if remote is not None and hasattr(remote, "address"):
         return str(remote.address), int(remote.port)
+    if isinstance(remote, str):  # a WebSocket over a stream that is not a socket: "host:port" or "[v6]:port"
+        host, sep, port = remote.rpartition(":")
+        if sep and port.isdigit() and host:
+            return host.strip("[]"), int(port)
+        return None
     while not hasattr(stream, "socket") and hasattr(stream, "transport_stream"):
         stream = stream.transport_stream
     sock = getattr(stream, "socket", None)
