@@ -28,8 +28,9 @@ class ServerConfig:
     open_mode: bool = False
     users_db: str | None = None  # None = entitynet.auth.default_db_path()
     flush_interval: float = 0.01  # outbound batching window (s): one write per connection per flush
-    stall_timeout: float = 5.0  # a write blocked this long (client not reading) drops the client
-    max_batch: int = 20_000  # messages per written frame
+    stall_timeout: float = 5.0  # a write blocked this long without progress (client not reading) drops it
+    max_batch: int = 20_000  # messages per written frame (and at most the codec's max_frame bytes)
+    feed_slice: int = 256  # messages of one frame fed to the core between checkpoints (others served between)
     read_size: int = 65_536
     sndbuf: int | None = 131_072  # cap the kernel send buffer: backlog then waits in the coalescing outbox
     handshake_timeout: float = 10.0  # a connection without HELLO this long is closed (HANDSHAKE_REQUIRED)
