@@ -60,7 +60,10 @@ LENGTH_PREFIX = struct.Struct(">I")
 class ErrorCode(IntEnum):
     """Numbered errors. 1xx: malformed input (connection closed); 2xx: handshake refused (closed);
     3xx: a request refers to something that is not yours or does not exist (request dropped);
-    4xx: a limit was exceeded (request dropped; 404 and 405 close); 5xx: server side."""
+    4xx: a limit was exceeded (request dropped; 404 and 405 close); 5xx: server side.
+
+    406 LIMIT_CHURN: a SUBSCRIBE over the client's budget of subscription churn (cells added + removed per
+    second); 407 TOO_MANY_REQUESTS: the requests of one frame beyond what one frame may ask replies for."""
 
     MALFORMED = 100
     FRAME_TOO_LARGE = 101
@@ -80,6 +83,8 @@ class ErrorCode(IntEnum):
     LIMIT_ENTITIES = 403
     SLOW_CONSUMER = 404
     SERVER_FULL = 405
+    LIMIT_CHURN = 406
+    TOO_MANY_REQUESTS = 407
     SHUTTING_DOWN = 500
     INTERNAL = 501
 
@@ -299,6 +304,14 @@ def payload_from_encoded(encoded: Sequence[bytes]) -> bytes:
 def array_header(n: int) -> bytes:
     """The msgpack array header of a payload of `n` messages (a writer may send it apart from the body)."""
     return _array_header(n)
+
+
+def encode_query_result(query_id: int, encoded_updates: Sequence[bytes]) -> bytes:
+    """A QUERY_RESULT from already encoded UPDATE messages (the switch bounds the result by their sizes)."""
+    return (
+        b"\x93" + msgpack.packb(QUERY_RESULT) + msgpack.packb(query_id) + _array_header(len(encoded_updates))
+        + b"".join(encoded_updates)
+    )
 
 
 def frame_head(payload_size: int) -> bytes:

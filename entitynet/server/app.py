@@ -10,13 +10,19 @@ non-blocking socket (no task switch: that is what makes a thousand viewers cheap
 take goes to that connection's writer task; while it waits, the outbox keeps coalescing, so a slow reader gets
 fewer, newer states and never holds up anyone else. A client whose outbox overflows the core's bounds is sent
 SLOW_CONSUMER and closed; a client whose write stays blocked for `stall_timeout` (it stopped reading and the
-socket buffers are full) is closed without a goodbye, since its stream is mid-frame.
+socket buffers are full) is closed without a goodbye, since its stream is mid-frame. The stall counts only time
+the loop could have observed progress (entitynet.server.stall): the server's own freezes are not the client's.
+Every frame written stays within the codec's `max_frame` (the limit announced in WELCOME): a larger backlog goes
+out as several frames.
+
+Reading: a frame is fed to the core in slices (a SUBSCRIBE or QUERY, whose cost grows with the entities in its
+cells, ends a slice), with a checkpoint between slices, so one client's big frame never keeps the others
+waiting for long.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import signal
 import socket
 import ssl
@@ -33,7 +39,9 @@ from entitynet.server.http import HttpLimits, HttpServer, Router
 from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
 from entitynet.server.peers import peer_address, throttle_key
+from entitynet.server.stall import StallClock
 from entitynet.server.tokens import TokenWatch
+from entitynet.server.writing import WritingMixin
 from entitynet.switchboard import Outbox, Switchboard, SwitchConfig
 
 
@@ -49,7 +57,8 @@ class _Conn:
     scope: trio.CancelScope | None = None
     rest: bytes | None = None  # what the writer task still has to send
     busy: bool = False  # a write is in progress in the writer task
-    write_started: float | None = None
+    writing: bool = False  # the writer task holds bytes the kernel has not taken yet ...
+    stalled: float = 0.0  # ... and has observed no progress for this long (entitynet.server.stall)
     opened_at: float = 0.0
     dirty_since: float | None = None
     closed: bool = False
@@ -88,7 +97,7 @@ def _ssl_context(config: ServerConfig) -> ssl.SSLContext | None:
     return ctx
 
 
-class Server:
+class Server(WritingMixin):
     """One shard server. Start it with `await nursery.start(serve, config)` or `entitynet serve`."""
 
     def __init__(self, config: ServerConfig):
@@ -112,6 +121,14 @@ class Server:
         # frames of up to this many states take the short path in _try_write (beyond the outbox bound the
         # long path drops the client)
         self._fast_batch = min(config.max_batch, self.sb.config.max_pending)
+        # every frame's payload stays within the announced max_frame: the body (the joined messages) gets at
+        # most this many bytes, leaving room for the array header; below `_sure_fit` messages a batch of
+        # states fits whatever their sizes (an encoded UPDATE is bounded by the codec limits)
+        codec = self.sb.config.codec
+        self._max_body = codec.max_frame - 5
+        max_update = 64 + codec.max_payload + 5 * codec.max_publish_cells + 4 * codec.max_str
+        self._sure_fit = max(1, self._max_body // max_update)
+        self._stall_clock = StallClock(max_credit=0.25)
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -224,14 +241,31 @@ class Server:
                 pass
         logs.event("disconnect", logging.DEBUG, cid=conn.cid, kind=conn.kind)
 
-    def _feed(self, conn: _Conn, msgs: list[P.Message]) -> None:
+    async def _feed(self, conn: _Conn, msgs: list[P.Message]) -> None:
+        """Feed one frame to the core in slices, serving the other clients between slices: a slice ends after
+        `feed_slice` messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells)."""
         sb = self.sb
-        before = sb.stats["updates_in"]
-        sb.receive(conn.cid, msgs, self.clock())
-        self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
-        ob = sb.outbox(conn.cid)
-        if ob is not None and (ob.control or ob.close_after):
-            self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
+        step = self.config.feed_slice
+        start, n = 0, len(msgs)
+        while start < n:
+            end = start
+            limit = min(n, start + step)
+            while end < limit:
+                t = type(msgs[end])
+                end += 1
+                if t is P.Subscribe or t is P.Query:
+                    break
+            before = sb.stats["updates_in"]
+            sb.receive(conn.cid, msgs[start:end] if start or end < n else msgs, self.clock(), frame_end=end >= n)
+            self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
+            ob = sb.outbox(conn.cid)
+            if ob is not None and (ob.control or ob.close_after):
+                self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
+            if ob is None or ob.close_after:
+                return
+            start = end
+            if start < n:
+                await trio.lowlevel.checkpoint()  # the others' frames and the flusher run here
 
     def _reject(self, conn: _Conn, err: P.ProtocolError) -> None:
         logs.event("protocol error", logging.INFO, cid=conn.cid, peer=conn.peer, code=int(err.code),
@@ -255,7 +289,7 @@ class Server:
             dec.receive_data(data)
             try:
                 while (msgs := dec.next_messages()) is not None:
-                    self._feed(conn, msgs)
+                    await self._feed(conn, msgs)
             except P.ProtocolError as err:
                 self._reject(conn, err)
                 return
@@ -275,7 +309,7 @@ class Server:
                 self._reject(conn, P.ProtocolError(P.ErrorCode.MALFORMED, "send binary WebSocket messages"))
                 return
             try:
-                self._feed(conn, P.decode_payload(data, limits))
+                await self._feed(conn, P.decode_payload(data, limits))
             except P.ProtocolError as err:
                 self._reject(conn, err)
                 return
@@ -283,142 +317,10 @@ class Server:
             if ob is None or ob.close_after:
                 return
 
-    def _try_write(self, conn: _Conn) -> None:
-        """Drain the outbox into one frame and write what the socket takes now; the writer task gets the rest."""
-        if conn.busy or conn.closed:
-            return
-        ob = conn.outbox
-        states = ob.states
-        n = len(states)
-        if (conn.fd is not None and 0 < n <= self._fast_batch and not ob.control and not ob.close_after
-                and not ob.overflow):
-            # the common case, kept short (it runs once per frame): only coalesced states, a plain socket
-            body = b"".join(states.values())
-            states.clear()  # in place: the core holds a reference to this dict
-            head = P.frame_prefix(n, len(body))
-            self.written += n
-            self.frames += 1
-            sent = self._writev(conn, head, body)
-            if sent is None:
-                return
-            if sent == len(head) + len(body):
-                if conn.dirty_since is not None:
-                    self._written(conn)
-                return
-            conn.rest = (head + body)[sent:]
-            conn.busy = True
-            conn.wake.set()
-            return
-        if len(ob.states) > ob.max_states or ob.overflow or len(ob.control) > ob.max_control:
-            self.sb.check_outbox(conn.cid, ob)  # drops it: SLOW_CONSUMER is now the only thing queued
-        states = ob.states
-        if not ob.control and 0 < len(states) <= self.config.max_batch:
-            msgs = list(states.values())  # the common case of Outbox.drain, inlined
-            states.clear()
-        else:
-            msgs = ob.drain(self.config.max_batch)
-        if not msgs:
-            if ob.close_after:
-                conn.busy = True
-                conn.wake.set()  # the writer closes the connection
-            return
-        # the messages are copied once (one join); array header and length prefix go in front via writev
-        body = b"".join(msgs)
-        head = P.array_header(len(msgs))
-        self.written += len(msgs)  # pushed to the Prometheus counters by the housekeeping task
-        self.frames += 1
-        if conn.fd is None:  # WebSocket (one message per payload) or TLS (framed): the writer task sends
-            data = head + body if conn.kind == "ws" else P.frame_head(len(head) + len(body)) + head + body
-        else:
-            head = P.frame_head(len(head) + len(body)) + head
-            n = self._writev(conn, head, body)
-            if n is None:
-                return
-            if n == len(head) + len(body):
-                self._written(conn)
-                if ob.states or ob.control or ob.close_after:
-                    conn.busy = True
-                    conn.wake.set()
-                return
-            data = (head + body)[n:]
-        conn.rest = data
-        conn.busy = True
-        conn.wake.set()
-
-    @staticmethod
-    def _writev(conn: _Conn, head: bytes, body: bytes) -> int | None:
-        """Write what the non-blocking socket takes now: bytes sent, or None when the peer is gone."""
-        try:
-            return os.writev(conn.fd, (head, body))
-        except BlockingIOError:
-            return 0
-        except OSError:
-            if conn.scope is not None:
-                conn.scope.cancel()  # peer gone: the handler closes and disconnects
-            return None
-
-    def _written(self, conn: _Conn) -> None:
-        if conn.dirty_since is not None:
-            self._lat_n += 1
-            if self._lat_n % 16 == 0:  # a sample: Histogram.observe costs more than the write itself
-                self.metrics.latency.observe(max(0.0, time.monotonic() - conn.dirty_since))
-            conn.dirty_since = None
-
-    async def _writer(self, conn: _Conn) -> None:
-        """Finishes the writes `_try_write` could not, and closes the connection when the core says so."""
-        while True:
-            await conn.wake.wait()
-            conn.wake = trio.Event()
-            rest, conn.rest = conn.rest, None
-            if rest:
-                conn.write_started = time.monotonic()
-                try:
-                    if conn.kind == "ws":
-                        await conn.stream.send_message(rest)
-                    else:
-                        await conn.stream.send_all(rest)
-                except (trio.BrokenResourceError, trio.ClosedResourceError, OSError,
-                        trio_websocket.ConnectionClosed):
-                    conn.scope.cancel()
-                    return
-                conn.write_started = None
-                self._written(conn)
-            conn.busy = False
-            ob = self.sb.outbox(conn.cid)
-            if ob is None:
-                return
-            if len(ob):
-                self._try_write(conn)
-            elif ob.close_after:
-                conn.scope.cancel()
-                return
-
-    def _wake_dirty(self) -> None:
-        conns = self.conns
-        t = time.monotonic()
-        for cid in self.sb.take_dirty(check=False):
-            conn = conns.get(cid)
-            if conn is not None:
-                if conn.dirty_since is None:
-                    conn.dirty_since = t
-                self._try_write(conn)
-
-    async def _flusher(self) -> None:
-        """Flush every `flush_interval`, but after a flush that took W seconds wait at least W: under load the
-        batches grow instead of the flusher eating the whole CPU (writes cost per frame, not per message), so
-        reading and forwarding keep at least half of the time."""
-        interval = self.config.flush_interval
-        deadline = trio.current_time()
-        while True:
-            await trio.sleep_until(deadline)
-            t0 = trio.current_time()
-            self._wake_dirty()
-            t1 = trio.current_time()
-            deadline = max(deadline + interval, t1 + (t1 - t0))
-
     def _check_stalls(self) -> None:
         t = time.monotonic()
         limit = self.config.stall_timeout
+        credit = self._stall_clock.tick(t)  # a late tick (a frozen loop) credits at most 0.25 s
         hello_by = t - self.config.handshake_timeout
         for conn in list(self.conns.values()):
             if conn.opened_at < hello_by and not conn.closed:
@@ -427,17 +329,19 @@ class Server:
                     self.sb.protocol_error(conn.cid, P.ProtocolError(
                         P.ErrorCode.HANDSHAKE_REQUIRED, f"no HELLO within {self.config.handshake_timeout:g} s"))
                     self._try_write(conn)
-            if conn.write_started is not None and t - conn.write_started > limit and conn.scope is not None:
-                self.metrics.drops.inc()
-                self.sb.slow_consumer(conn.cid, f"write blocked for {limit:g} s")
+            if not conn.writing:
+                continue
+            conn.stalled += credit
+            if conn.stalled > limit and conn.scope is not None:
+                self.sb.slow_consumer(conn.cid, f"write blocked for {limit:g} s")  # counted with the others
                 logs.event("slow consumer dropped", logging.WARNING, cid=conn.cid, peer=conn.peer)
-                conn.write_started = None
+                conn.writing = False
                 conn.scope.cancel()
 
     async def _housekeeping(self) -> None:
         m, sb = self.metrics, self.sb
         seen_errors: dict[int, int] = {}
-        pushed_msgs = pushed_frames = 0
+        pushed_msgs = pushed_frames = pushed_drops = 0
         next_auth = time.monotonic() + self.config.auth_recheck
         while True:
             await trio.sleep(0.1)
@@ -455,6 +359,9 @@ class Server:
             m.deliveries.inc(self.written - pushed_msgs)
             m.frames_out.inc(self.frames - pushed_frames)
             pushed_msgs, pushed_frames = self.written, self.frames
+            drops = sb.stats["slow_consumers"]  # every drop: outbox bounds and blocked writes alike
+            m.drops.inc(drops - pushed_drops)
+            pushed_drops = drops
             for code, n in sb.errors.items():
                 if n > seen_errors.get(code, 0):
                     m.errors.labels(str(code)).inc(n - seen_errors.get(code, 0))

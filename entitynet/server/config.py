@@ -33,8 +33,9 @@ class ServerConfig:
     users_db: str | None = None  # None = entitynet.auth.default_db_path()
     auth_recheck: float = 1.0  # how often (s) to look for changes of the token store and re-check connections
     flush_interval: float = 0.01  # outbound batching window (s): one write per connection per flush
-    stall_timeout: float = 5.0  # a write blocked this long (client not reading) drops the client
-    max_batch: int = 20_000  # messages per written frame
+    stall_timeout: float = 5.0  # a write blocked this long without progress (client not reading) drops it
+    max_batch: int = 20_000  # messages per written frame (and at most the codec's max_frame bytes)
+    feed_slice: int = 256  # messages of one frame fed to the core between checkpoints (others served between)
     read_size: int = 65_536
     sndbuf: int | None = 131_072  # cap the kernel send buffer: backlog then waits in the coalescing outbox
     handshake_timeout: float = 10.0  # a connection without HELLO this long is closed (HANDSHAKE_REQUIRED)

@@ -28,7 +28,14 @@ class SwitchConfig:
     max_entities: int = 1_000_000
     query_rate: float = 2.0  # queries per second per client (token bucket) ...
     query_burst: float = 5.0  # ... with this burst
-    max_query_results: int = 1000
+    max_query_results: int = 1000  # and at most what fits in one frame (codec.max_frame)
+    # subscription churn (cells added + removed by SUBSCRIBE) per second per client (token bucket): what one
+    # client can make the switch do, since every changed cell costs snapshots or LEAVEs of its entities ...
+    churn_rate: float = 10_000.0
+    churn_burst: float = 40_000.0  # ... with this burst (a first full subscription, or replacing it, passes)
+    # replies (PONG, QUERY_RESULT, ERROR) one frame may ask for; the frame's further requests are refused with
+    # one TOO_MANY_REQUESTS error (must stay below max_control, which bounds what waits for a slow reader)
+    max_replies_per_frame: int = 500
     max_pending: int = 50_000  # coalesced entity states waiting for one client; beyond -> slow consumer
     max_control: int = 1000  # non-coalescible messages (errors, pongs, results) waiting for one client
     codec: CodecLimits = CodecLimits()
@@ -42,6 +49,10 @@ class SwitchConfig:
             raise ValueError("n_cells must be >= 0")
         if not (self.grace_s >= 0 and self.query_rate >= 0 and self.query_burst >= 1):
             raise ValueError("grace_s, query_rate must be >= 0 and query_burst >= 1")
+        if not (self.churn_rate >= 0 and self.churn_burst >= 1):
+            raise ValueError("churn_rate must be >= 0 and churn_burst >= 1")
+        if not 1 <= self.max_replies_per_frame < self.max_control:
+            raise ValueError("max_replies_per_frame must be >= 1 and below max_control")
 
     def wire_limits(self) -> dict[str, int]:
         """The limits a client is told in WELCOME."""
@@ -54,4 +65,8 @@ class SwitchConfig:
             "max_payload": self.codec.max_payload,
             "n_cells": self.n_cells,
             "grace_ms": int(self.grace_s * 1000),
+            "max_query_results": self.max_query_results,
+            "churn_rate": int(self.churn_rate),
+            "churn_burst": int(self.churn_burst),
+            "max_replies_per_frame": self.max_replies_per_frame,
         }

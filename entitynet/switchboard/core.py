@@ -16,7 +16,6 @@ and a neighbouring shard would be just another client subscribing with the same 
 
 from __future__ import annotations
 
-import logging
 import random
 from collections import Counter
 
@@ -26,12 +25,12 @@ from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
 from entitynet.switchboard import access
 from entitynet.switchboard.config import SwitchConfig
+from entitynet.switchboard.outbound import OutboundMixin
 from entitynet.switchboard.outbox import Outbox
 from entitynet.switchboard.privacy import claim_refused, identity_shown
 from entitynet.switchboard.ratelimit import TokenBucket
+from entitynet.switchboard.subscribing import SubscriptionsMixin
 from entitynet.switchboard.timers import ExpiryHeap
-
-log = logging.getLogger("entitynet.switchboard")
 
 _packb = msgpack.Packer(use_bin_type=True).pack
 
@@ -39,10 +38,11 @@ _packb = msgpack.Packer(use_bin_type=True).pack
 class ClientState:
     __slots__ = (
         "cid", "session", "user_id", "identity", "audience", "ready", "closing", "subs", "follows",
-        "entities", "bucket", "outbox", "peer", "token",
+        "entities", "bucket", "churn", "outbox", "replies", "refused", "peer", "token",
     )
 
-    def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket, peer: str = ""):
+    def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket, churn: TokenBucket,
+                 peer: str = ""):
         self.cid = cid
         self.session = session
         self.peer = peer  # the address failed logins are throttled by (access.admit)
@@ -56,7 +56,10 @@ class ClientState:
         self.follows: set[int] = set()
         self.entities: dict[int, int] = {}  # local id -> server id
         self.bucket = bucket
+        self.churn = churn  # subscription churn budget (cells added + removed)
         self.outbox = outbox
+        self.replies = 0  # replies queued for the current frame ...
+        self.refused = 0  # ... and requests refused because the frame asked for too many
 
 
 class EntityState:
@@ -81,7 +84,9 @@ class EntityState:
         self.viewers_tick = -1
 
 
-class Switchboard:
+class Switchboard(SubscriptionsMixin, OutboundMixin):
+    """The master tables and forwarding (subscriptions in `subscribing.py`, replies and bounds in `outbound.py`)."""
+
     def __init__(self, config: SwitchConfig, now: float = 0.0):
         self.config = config
         self.clients: dict[int, ClientState] = {}
@@ -112,7 +117,9 @@ class Switchboard:
         self._next_cid += 1
         session = self._rng.randrange(1, P.MAX_INT)
         ob = Outbox(self.config.max_pending, self.config.max_control)
-        c = ClientState(cid, session, ob, TokenBucket(self.config.query_rate, self.config.query_burst, now), peer)
+        cfg = self.config
+        c = ClientState(cid, session, ob, TokenBucket(cfg.query_rate, cfg.query_burst, now),
+                        TokenBucket(cfg.churn_rate, cfg.churn_burst, now), peer)
         self.clients[cid] = c
         self._states[cid] = ob.states
         self.stats["connections"] += 1
@@ -133,40 +140,6 @@ class Switchboard:
     def outbox(self, cid: int) -> Outbox | None:
         c = self.clients.get(cid)
         return c.outbox if c else None
-
-    def take_dirty(self, check: bool = True) -> set[int]:
-        """Clients with something new to write since the last call. With `check`, also enforces the outbox
-        bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
-        dirty = self._dirty
-        self._dirty = set()
-        if not check:
-            return dirty
-        for cid in dirty:
-            c = self.clients.get(cid)
-            if c is None:
-                continue
-            ob = c.outbox
-            if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
-                self.slow_consumer(cid, "outbound queue limit")
-        return dirty
-
-    def check_outbox(self, cid: int, ob: Outbox) -> bool:
-        """False (and the client is being dropped as a slow consumer) when its outbox is beyond its bounds."""
-        if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
-            self.slow_consumer(cid, "outbound queue limit")
-            return False
-        return True
-
-    def slow_consumer(self, cid: int, why: str) -> None:
-        """Drop what is pending for a client that does not keep up, tell it, and close it."""
-        c = self.clients.get(cid)
-        if c is None or c.closing:
-            return
-        c.outbox.states.clear()
-        c.outbox.control.clear()
-        c.outbox.overflow = False
-        self.stats["slow_consumers"] += 1
-        self._error(c, ErrorCode.SLOW_CONSUMER, f"too far behind ({why}); disconnecting")
 
     def protocol_error(self, cid: int, err: P.ProtocolError) -> None:
         """The shell could not decode this client's bytes."""
@@ -192,14 +165,20 @@ class Switchboard:
         self._shut = True
 
     # ------------------------------------------------------------------------------------------ messages in
-    def receive(self, cid: int, msgs: list[P.Message], now: float) -> None:
+    def receive(self, cid: int, msgs: list[P.Message], now: float, frame_end: bool = True) -> None:
+        """Handle messages of one client. A shell may feed one frame in several slices (serving other clients
+        in between); `frame_end=False` on all but the last, since the reply bound counts per frame."""
         c = self.clients.get(cid)
         if c is None:
             return
+        cap = self.config.max_replies_per_frame
         for m in msgs:
             if c.closing:
                 return
             t = type(m)
+            if (t is P.Ping or t is P.Query) and c.replies >= cap and c.ready:
+                c.refused += 1  # not answered, not executed: the frame asked for too many replies
+                continue
             if not c.ready:
                 if t is P.Hello:
                     self._hello(c, m, now)
@@ -209,7 +188,7 @@ class Switchboard:
             if t is P.Publish:
                 self._publish(c, m, now)
             elif t is P.Subscribe:
-                self._subscribe(c, m)
+                self._subscribe(c, m, now)
             elif t is P.Ping:
                 self._control(c, P.Pong(m.client_ms, P.now_ms(max(now, 0.0))))
             elif t is P.Unpublish:
@@ -226,6 +205,8 @@ class Switchboard:
                 self._error(c, ErrorCode.BAD_FIELD, "HELLO sent twice")
             else:
                 self._error(c, ErrorCode.UNKNOWN_TYPE, f"{t.__name__} is a server-to-client message")
+        if frame_end:
+            self._end_frame(c)
 
     # ------------------------------------------------------------------------------------------ handshake
     def _hello(self, c: ClientState, m: P.Hello, now: float) -> None:
@@ -341,9 +322,6 @@ class Switchboard:
             e.enc_ident = _packb([P.UPDATE, e.eid, e.seq, e.cells, e.validity_ms, e.payload, ident])
         return e.enc_ident
 
-    def _update_msg(self, e: EntityState, viewer: ClientState) -> P.Update:
-        return P.Update(e.eid, e.seq, e.cells, e.validity_ms, e.payload, identity_shown(e.owner, viewer))
-
     def _leave(self, eid: int, clients: set[int]) -> None:
         enc = _packb([P.LEAVE, eid])
         states = self._states
@@ -404,110 +382,6 @@ class Switchboard:
     def next_deadline(self) -> float | None:
         return self.timers.next_deadline()
 
-    # ------------------------------------------------------------------------------------------ subscribing
-    def _subscribe(self, c: ClientState, m: P.Subscribe) -> None:
-        n = self.config.n_cells
-        for cell in (*m.added, *m.removed):
-            if cell >= n:
-                self._error(c, ErrorCode.NO_SUCH_CELL, f"cell {cell} does not exist (this map has {n})")
-                return
-        old = c.subs
-        new = (old - set(m.removed)) | set(m.added)
-        if len(new) > self.config.max_subscriptions:
-            self._error(
-                c, ErrorCode.LIMIT_SUBSCRIPTIONS,
-                f"{len(new)} cells > limit {self.config.max_subscriptions}; subscription unchanged",
-            )
-            return
-        removed = old - new
-        added = new - old
-        cid = c.cid
-        subs = self.subscribers
-        if removed or added:
-            self._tick += 1
-            tick = self._tick
-            cell_tick = self._cell_tick
-        for cell in removed:
-            s = subs[cell]
-            s.discard(cid)
-            if not s:
-                del subs[cell]
-            cell_tick[cell] = tick
-        for cell in added:
-            s = subs.get(cell)
-            if s is None:
-                subs[cell] = {cid}
-            else:
-                s.add(cid)
-            cell_tick[cell] = tick
-        c.subs = new
-        occ = self.occupants
-        ents = self.entities
-        if removed:
-            cand: set[int] = set()
-            for cell in removed:
-                o = occ.get(cell)
-                if o:
-                    cand |= o
-            gone = [
-                eid for eid in cand
-                if cid in ents[eid].viewers and cid not in ents[eid].followers
-                and new.isdisjoint(ents[eid].cells)
-            ]
-            for eid in gone:
-                ents[eid].viewers.discard(cid)
-                self._leave(eid, {cid})
-        if added:
-            cand = set()
-            for cell in added:
-                o = occ.get(cell)
-                if o:
-                    cand |= o
-            states = c.outbox.states
-            n_snap = 0
-            for eid in cand:
-                e = ents[eid]
-                if cid in e.viewers or e.owner is c:
-                    continue
-                e.viewers.add(cid)
-                states[eid] = self._encoded_for(e, c)
-                n_snap += 1
-            if n_snap:
-                self._dirty.add(cid)
-                self.stats["snapshots"] += n_snap
-
-    def _follow(self, c: ClientState, m: P.Follow) -> None:
-        e = self.entities.get(m.entity)
-        if e is None:
-            self._error(c, ErrorCode.NO_SUCH_ENTITY, f"no entity {m.entity}")
-            return
-        if m.entity in c.follows:
-            return
-        if len(c.follows) >= self.config.max_follows:
-            self._error(c, ErrorCode.LIMIT_FOLLOWS, f"at most {self.config.max_follows} direct subscriptions")
-            return
-        c.follows.add(m.entity)
-        e.followers.add(c.cid)
-        e.viewers_tick = -1
-        if c.cid not in e.viewers and e.owner is not c:
-            e.viewers.add(c.cid)
-            c.outbox.states[e.eid] = self._encoded_for(e, c)
-            self._dirty.add(c.cid)
-
-    def _unfollow(self, c: ClientState, m: P.Unfollow) -> None:
-        if m.entity not in c.follows:
-            self._error(c, ErrorCode.NO_SUCH_ENTITY, f"you do not follow {m.entity}")
-            return
-        c.follows.discard(m.entity)
-        e = self.entities.get(m.entity)
-        if e is None:
-            return
-        e.followers.discard(c.cid)
-        e.viewers_tick = -1
-        if c.cid in e.viewers and c.subs.isdisjoint(e.cells):
-            e.viewers.discard(c.cid)
-            self._leave(e.eid, {c.cid})
-
     # ------------------------------------------------------------------------------------------ queries
     def _query(self, c: ClientState, m: P.Query, now: float) -> None:
         if not c.bucket.take(now):
@@ -515,15 +389,14 @@ class Switchboard:
             rate = self.config.query_rate
             self._error(c, ErrorCode.QUERY_RATE, f"query {m.query_id} refused: over {rate}/s")
             return
-        limit = self.config.max_query_results
-        found: list[P.Update] = []
+        found: list[EntityState] = []
         if m.kind == P.QUERY_IDENTITY:
             for ocid in self.by_identity.get(m.arg, ()):
                 owner = self.clients[ocid]
                 if identity_shown(owner, c) is None:
                     continue  # the buddy rule: not in the audience, or the asker shows no identity itself
                 for eid in owner.entities.values():
-                    found.append(self._update_msg(self.entities[eid], c))
+                    found.append(self.entities[eid])
         else:
             n = self.config.n_cells
             seen: set[int] = set()
@@ -532,9 +405,20 @@ class Switchboard:
                     self._error(c, ErrorCode.NO_SUCH_CELL, f"cell {cell} does not exist (this map has {n})")
                     return
                 seen |= self.occupants.get(cell, set())
-            found = [self._update_msg(self.entities[eid], c) for eid in seen]
+            found = [self.entities[eid] for eid in seen]
+        # at most max_query_results, and at most what fits in one frame with room for its headers: the result
+        # is one message (clients wait for one), so it is cut rather than split
+        room = self.config.codec.max_frame - 64
+        encoded: list[bytes] = []
+        for e in found[: self.config.max_query_results]:
+            enc = self._encoded_for(e, c)
+            room -= len(enc)
+            if room < 0:
+                self.stats["query_results_cut"] += 1
+                break
+            encoded.append(enc)
         self.stats["queries"] += 1
-        self._control(c, P.QueryResult(m.query_id, tuple(found[:limit])))
+        self._reply(c, P.encode_query_result(m.query_id, encoded))
 
     def _privacy(self, c: ClientState, m: P.Privacy) -> None:
         refused = claim_refused(c.user_id, m.identity, self.config.open_mode)
@@ -555,24 +439,6 @@ class Switchboard:
             self.entities[eid].enc_ident = None
 
     # ------------------------------------------------------------------------------------------ helpers
-    def _control(self, c: ClientState, msg: P.Message) -> None:
-        c.outbox.put_control(P.encode_message(msg))
-        self._dirty.add(c.cid)
-
-    def _error(self, c: ClientState, code: ErrorCode, text: str) -> None:
-        self.errors[int(code)] += 1
-        if code in P.FATAL_ERRORS:
-            if c.closing:
-                return
-            c.outbox.control.append(P.encode_message(P.Error(int(code), text)))  # beyond the bound: last word
-            c.closing = True
-            c.outbox.close_after = True
-            self._detach(c)
-            log.info("closing client", extra={"cid": c.cid, "code": int(code), "reason": text})
-        else:
-            c.outbox.put_control(P.encode_message(P.Error(int(code), text)))
-        self._dirty.add(c.cid)
-
     def _detach(self, c: ClientState) -> None:
         """Remove a client's entities, subscriptions and follows from the tables (it keeps its outbox)."""
         for eid in list(c.entities.values()):

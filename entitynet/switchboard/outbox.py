@@ -36,21 +36,40 @@ class Outbox:
             return
         self.control.append(encoded)
 
-    def drain(self, max_messages: int | None = None) -> list[bytes]:
-        """Take queued messages (control first, then entity states in first-queued order)."""
-        out = self.control
+    def drain(self, max_messages: int | None = None, max_bytes: int | None = None) -> list[bytes]:
+        """Take queued messages for one frame: control first, then entity states in first-queued order.
+
+        At most `max_messages` messages totalling at most `max_bytes` bytes (at least one message, so a single
+        oversized one cannot block the queue; the core keeps every message far below a frame). The returned
+        list is always a new list: the control FIFO stays the outbox's own, so what was taken is never sent
+        again (and never counted against `max_control`)."""
+        control = self.control
         states = self.states
-        if out:
-            self.control = []
-        if max_messages is None or len(out) + len(states) <= max_messages:
-            if out:
-                out.extend(states.values())
-            else:
-                out = list(states.values())
+        self.control = []
+        if max_messages is None and max_bytes is None:
+            control.extend(states.values())
             states.clear()  # in place: the core holds a reference to this dict
-            return out
-        room = max(0, max_messages - len(out))
-        keys = list(self.states)[:room]
-        for k in keys:
-            out.append(self.states.pop(k))
+            return control
+        n_max = len(control) + len(states) if max_messages is None else max(1, max_messages)
+        b_max = -1 if max_bytes is None else max_bytes
+        out: list[bytes] = []
+        size = 0
+        for i, m in enumerate(control):
+            if len(out) >= n_max or (out and b_max >= 0 and size + len(m) > b_max):
+                self.control = control[i:]
+                return out
+            out.append(m)
+            size += len(m)
+        taken: list[int] = []
+        for k, m in states.items():
+            if len(out) >= n_max or (out and b_max >= 0 and size + len(m) > b_max):
+                break
+            out.append(m)
+            size += len(m)
+            taken.append(k)
+        if len(taken) == len(states):
+            states.clear()
+        else:
+            for k in taken:
+                del states[k]
         return out

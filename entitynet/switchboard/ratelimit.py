@@ -1,4 +1,5 @@
-"""Rate limits: a token bucket for per-client request rates (queries), and a back-off for failed logins per peer."""
+"""Rate limits: token buckets for per-client request rates (queries, subscription churn), and a back-off for failed
+logins per peer."""
 
 from __future__ import annotations
 
@@ -12,13 +13,13 @@ class TokenBucket:
         self.tokens = burst
         self.last = now
 
-    def take(self, now: float) -> bool:
-        """Spend one token if there is one. Time going backwards refills nothing."""
+    def take(self, now: float, n: float = 1.0) -> bool:
+        """Spend `n` tokens if there are that many (all or nothing). Time going backwards refills nothing."""
         if now > self.last:
             self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
             self.last = now
-        if self.tokens >= 1.0:
-            self.tokens -= 1.0
+        if self.tokens >= n:
+            self.tokens -= n
             return True
         return False
 

@@ -1,0 +1,193 @@
+"""The server's writing path: draining outboxes into frames, the synchronous first write, the writer tasks, the
+flusher.
+
+A mixin of `Server` (entitynet.server.app), split off to keep each module to one job. Why it looks like this:
+the core coalesces into each client's outbox, and every `flush_interval` the flusher drains each client with
+news into one frame and writes it at once, synchronously, on the non-blocking socket (no task switch: that is
+what makes a thousand viewers cheap). Whatever the kernel does not take goes to that connection's writer task.
+Every frame stays within the codec's `max_frame` (the limit announced in WELCOME; a client's decoder refuses
+anything larger): a backlog larger than one frame leaves as several. The writer reports progress as it goes,
+so that the stall timer counts only the time a client does not read.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import TYPE_CHECKING
+
+import trio
+import trio_websocket
+
+from entitynet import protocol as P
+
+if TYPE_CHECKING:
+    from entitynet.server.app import _Conn
+
+
+class WritingMixin:
+    """Outbound half of `Server`; uses its `sb`, `config`, `metrics`, `conns` and counters."""
+
+    def _try_write(self, conn: _Conn) -> None:
+        """Drain the outbox into one frame and write what the socket takes now; the writer task gets the rest."""
+        if conn.busy or conn.closed:
+            return
+        ob = conn.outbox
+        states = ob.states
+        n = len(states)
+        if (conn.fd is not None and 0 < n <= self._fast_batch and not ob.control and not ob.close_after
+                and not ob.overflow):
+            # the common case, kept short (it runs once per frame): only coalesced states, a plain socket
+            if n <= self._sure_fit or sum(map(len, states.values())) <= self._max_body:
+                self._write_states(conn, states, n)
+                return
+        if len(ob.states) > ob.max_states or ob.overflow or len(ob.control) > ob.max_control:
+            self.sb.check_outbox(conn.cid, ob)  # drops it: SLOW_CONSUMER is now the only thing queued
+        states = ob.states
+        if not ob.control and 0 < len(states) <= min(self.config.max_batch, self._sure_fit):
+            msgs = list(states.values())  # the common case of Outbox.drain, inlined
+            states.clear()
+        else:
+            msgs = ob.drain(self.config.max_batch, self._max_body)  # one frame; the rest stays queued
+        self._write_msgs(conn, msgs)
+
+    def _write_states(self, conn: _Conn, states: dict[int, bytes], n: int) -> None:
+        """The short path of `_try_write`: all `n` pending states (known to fit one frame) to a plain socket."""
+        body = b"".join(states.values())
+        states.clear()  # in place: the core holds a reference to this dict
+        head = P.frame_prefix(n, len(body))
+        self.written += n
+        self.frames += 1
+        sent = self._writev(conn, head, body)
+        if sent is None:
+            return
+        if sent == len(head) + len(body):
+            if conn.dirty_since is not None:
+                self._written(conn)
+            return
+        conn.rest = (head + body)[sent:]
+        conn.busy = True
+        conn.wake.set()
+
+    def _write_msgs(self, conn: _Conn, msgs: list[bytes]) -> None:
+        """One frame of drained messages: written now as far as the socket takes it, the rest by the writer."""
+        ob = conn.outbox
+        if not msgs:
+            if ob.close_after:
+                conn.busy = True
+                conn.wake.set()  # the writer closes the connection
+            return
+        # the messages are copied once (one join); array header and length prefix go in front via writev
+        body = b"".join(msgs)
+        head = P.array_header(len(msgs))
+        self.written += len(msgs)  # pushed to the Prometheus counters by the housekeeping task
+        self.frames += 1
+        if conn.fd is None:  # WebSocket (one message per payload) or TLS (framed): the writer task sends
+            data = head + body if conn.kind == "ws" else P.frame_head(len(head) + len(body)) + head + body
+        else:
+            head = P.frame_head(len(head) + len(body)) + head
+            n = self._writev(conn, head, body)
+            if n is None:
+                return
+            if n == len(head) + len(body):
+                self._written(conn)
+                if ob.states or ob.control or ob.close_after:
+                    conn.busy = True
+                    conn.wake.set()
+                return
+            data = (head + body)[n:]
+        conn.rest = data
+        conn.busy = True
+        conn.wake.set()
+
+    @staticmethod
+    def _writev(conn: _Conn, head: bytes, body: bytes) -> int | None:
+        """Write what the non-blocking socket takes now: bytes sent, or None when the peer is gone."""
+        try:
+            return os.writev(conn.fd, (head, body))
+        except BlockingIOError:
+            return 0
+        except OSError:
+            if conn.scope is not None:
+                conn.scope.cancel()  # peer gone: the handler closes and disconnects
+            return None
+
+    def _written(self, conn: _Conn) -> None:
+        if conn.dirty_since is not None:
+            self._lat_n += 1
+            if self._lat_n % 16 == 0:  # a sample: Histogram.observe costs more than the write itself
+                self.metrics.latency.observe(max(0.0, time.monotonic() - conn.dirty_since))
+            conn.dirty_since = None
+
+    async def _writer(self, conn: _Conn) -> None:
+        """Finishes the writes `_try_write` could not, and closes the connection when the core says so."""
+        while True:
+            await conn.wake.wait()
+            conn.wake = trio.Event()
+            rest, conn.rest = conn.rest, None
+            if rest:
+                conn.writing = True
+                conn.stalled = 0.0
+                try:
+                    if conn.kind == "ws":
+                        await conn.stream.send_message(rest)
+                    elif conn.fd is not None:
+                        await self._send_observed(conn, rest)
+                    else:
+                        await conn.stream.send_all(rest)
+                except (trio.BrokenResourceError, trio.ClosedResourceError, OSError,
+                        trio_websocket.ConnectionClosed):
+                    conn.scope.cancel()
+                    return
+                conn.writing = False
+                self._written(conn)
+            conn.busy = False
+            ob = self.sb.outbox(conn.cid)
+            if ob is None:
+                return
+            if len(ob):
+                self._try_write(conn)
+            elif ob.close_after:
+                conn.scope.cancel()
+                return
+
+    @staticmethod
+    async def _send_observed(conn: _Conn, data: bytes) -> None:
+        """send_all on the plain socket, resetting the connection's stall whenever the kernel takes bytes: only
+        time without progress counts against the client."""
+        view = memoryview(data)
+        sock = conn.stream.socket
+        while view:
+            try:
+                n = os.write(conn.fd, view)
+            except BlockingIOError:
+                n = 0
+            if n:
+                view = view[n:]
+                conn.stalled = 0.0
+            else:
+                await trio.lowlevel.wait_writable(sock)
+        await trio.lowlevel.checkpoint()
+
+    def _wake_dirty(self) -> None:
+        conns = self.conns
+        t = time.monotonic()
+        for cid in self.sb.take_dirty(check=False):
+            conn = conns.get(cid)
+            if conn is not None:
+                if conn.dirty_since is None:
+                    conn.dirty_since = t
+                self._try_write(conn)
+
+    async def _flusher(self) -> None:
+        """Flush every `flush_interval`, but after a flush that took W seconds wait at least W: under load the
+        batches grow instead of the flusher eating the whole CPU (writes cost per frame, not per message), so
+        reading and forwarding keep at least half of the time."""
+        interval = self.config.flush_interval
+        deadline = trio.current_time()
+        while True:
+            await trio.sleep_until(deadline)
+            t0 = trio.current_time()
+            self._wake_dirty()
+            t1 = trio.current_time()
+            deadline = max(deadline + interval, t1 + (t1 - t0))

@@ -1,0 +1,105 @@
+"""Outbound bookkeeping of the switchboard core: replies and errors, the per-frame reply bound, outbox bounds
+and slow consumers.
+
+A mixin of `Switchboard` (entitynet.switchboard.core), split off to keep each module to one job. A frame may
+ask for at most `max_replies_per_frame` replies (PONG, QUERY_RESULT, ERROR): its further requests are refused
+with one TOO_MANY_REQUESTS error at the end of the frame, so a client that reads promptly is never dropped as a
+slow consumer for what one frame asked (the reply bound stays below `max_control`, the outbox bound for a
+client that does not read).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from entitynet import protocol as P
+from entitynet.protocol import ErrorCode
+from entitynet.switchboard.outbox import Outbox
+
+if TYPE_CHECKING:
+    from entitynet.switchboard.core import ClientState
+
+log = logging.getLogger("entitynet.switchboard")
+
+
+class OutboundMixin:
+    """What the core queues for a client besides forwarded states; uses the tables of `Switchboard`."""
+
+    def take_dirty(self, check: bool = True) -> set[int]:
+        """Clients with something new to write since the last call. With `check`, also enforces the outbox
+        bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
+        dirty = self._dirty
+        self._dirty = set()
+        if not check:
+            return dirty
+        for cid in dirty:
+            c = self.clients.get(cid)
+            if c is None:
+                continue
+            ob = c.outbox
+            if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
+                self.slow_consumer(cid, "outbound queue limit")
+        return dirty
+
+    def check_outbox(self, cid: int, ob: Outbox) -> bool:
+        """False (and the client is being dropped as a slow consumer) when its outbox is beyond its bounds."""
+        if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
+            self.slow_consumer(cid, "outbound queue limit")
+            return False
+        return True
+
+    def slow_consumer(self, cid: int, why: str) -> None:
+        """Drop what is pending for a client that does not keep up, tell it, and close it."""
+        c = self.clients.get(cid)
+        if c is None or c.closing:
+            return
+        c.outbox.states.clear()
+        c.outbox.control.clear()
+        c.outbox.overflow = False
+        self.stats["slow_consumers"] += 1
+        self._error(c, ErrorCode.SLOW_CONSUMER, f"too far behind ({why}); disconnecting")
+
+    def _end_frame(self, c: ClientState) -> None:
+        if c.refused and not c.closing:
+            cap = self.config.max_replies_per_frame
+            self.errors[int(ErrorCode.TOO_MANY_REQUESTS)] += 1
+            c.outbox.put_control(P.encode_message(P.Error(
+                int(ErrorCode.TOO_MANY_REQUESTS),
+                f"{c.refused} requests of one frame refused: at most {cap} replies (PONG, QUERY_RESULT, ERROR) "
+                "per frame",
+            )))
+            self._dirty.add(c.cid)
+        c.replies = c.refused = 0
+
+    def _control(self, c: ClientState, msg: P.Message) -> None:
+        self._reply(c, P.encode_message(msg))
+
+    def _reply(self, c: ClientState, encoded: bytes) -> None:
+        """Queue a reply, unless this frame already asked for `max_replies_per_frame` (then count it refused:
+        one TOO_MANY_REQUESTS at the end of the frame says so, instead of the outbox overflowing)."""
+        if c.replies >= self.config.max_replies_per_frame:
+            c.refused += 1
+            return
+        c.replies += 1
+        c.outbox.put_control(encoded)
+        self._dirty.add(c.cid)
+
+    def _error(self, c: ClientState, code: ErrorCode, text: str) -> None:
+        if code in P.FATAL_ERRORS:
+            self.errors[int(code)] += 1
+            if c.closing:
+                return
+            c.outbox.control.append(P.encode_message(P.Error(int(code), text)))  # beyond the bound: last word
+            c.closing = True
+            c.outbox.close_after = True
+            self._detach(c)
+            log.info("closing client", extra={"cid": c.cid, "code": int(code), "reason": text})
+        elif c.replies >= self.config.max_replies_per_frame:
+            c.refused += 1
+            return
+        else:
+            self.errors[int(code)] += 1
+            c.replies += 1
+            c.outbox.put_control(P.encode_message(P.Error(int(code), text)))
+        self._dirty.add(c.cid)

@@ -1,0 +1,67 @@
+"""The stall timer counts only what the client fails to read, not the server's own freezes (issue 9, item 4)."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import trio
+
+from entitynet import protocol as P
+from entitynet.server.stall import StallClock
+from tests.entitynet.server_helpers import DIGEST, Raw, running
+
+
+def test_stall_clock_credits_late_ticks_only_up_to_the_cap():
+    clock = StallClock(max_credit=0.25)
+    assert clock.tick(100.0) == 0.0  # first tick: nothing to credit yet
+    assert abs(clock.tick(100.1) - 0.1) < 1e-9
+    assert clock.tick(107.1) == 0.25  # a 7 s freeze of the loop counts 0.25 s
+    assert clock.tick(107.0) == 0.0  # time going back credits nothing
+    stalled = sum(clock.tick(107.0 + 0.1 * k) for k in range(1, 51))  # 5 s of regular ticks count fully
+    assert abs(stalled - 5.0) < 1e-6
+
+
+async def test_a_server_freeze_does_not_drop_a_viewer_that_reads_promptly():
+    async with running(stall_timeout=1.0) as server:
+        pub = await Raw.connect(server)
+        big = b"z" * 2000
+        await pub.send(*[P.Publish(i, 1, (1,), 60_000, big) for i in range(400)])
+        await pub.send(P.Ping(1))
+        await pub.expect(P.Pong)
+        # a viewer with a small receive buffer that has not read its 800 KB snapshot yet: the write blocks
+        sock = trio.socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        await sock.connect(("127.0.0.1", server.port))
+        view = Raw(trio.SocketStream(sock))
+        await view.send(P.Hello(P.PROTOCOL_VERSION, "", DIGEST), P.Subscribe((1,), ()))
+        with trio.fail_after(5):
+            while not any(c.busy for c in server.conns.values()):
+                await trio.sleep(0.005)
+        time.sleep(3.0)  # the whole loop freezes (server included), as while one huge frame is processed
+        seen: set[int] = set()
+        with trio.fail_after(10):  # from now on the viewer reads promptly
+            while len(seen) < 400:
+                msgs = await view.read()
+                assert msgs is not None, "the viewer was dropped"
+                assert not [m for m in msgs if isinstance(m, P.Error)], msgs
+                seen.update(m.entity for m in msgs if isinstance(m, P.Update))
+        await view.send(P.Ping(2))
+        await view.expect(P.Pong)
+        assert server.sb.stats["slow_consumers"] == 0
+
+
+async def test_a_viewer_that_stops_reading_is_still_dropped():
+    async with running(stall_timeout=0.5) as server:
+        pub = await Raw.connect(server)
+        big = b"z" * 2000
+        await pub.send(*[P.Publish(i, 1, (1,), 60_000, big) for i in range(400)])
+        sock = trio.socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        await sock.connect(("127.0.0.1", server.port))
+        lazy = Raw(trio.SocketStream(sock))
+        await lazy.send(P.Hello(P.PROTOCOL_VERSION, "", DIGEST), P.Subscribe((1,), ()))
+        with trio.fail_after(10):
+            while server.sb.stats["slow_consumers"] == 0:
+                await trio.sleep(0.02)
+        assert len(server.sb.clients) == 1
