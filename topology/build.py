@@ -6,6 +6,7 @@ networkx and shapely are used here, at build time only; the result is compact nu
 from __future__ import annotations
 
 import time
+import warnings
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -33,6 +34,9 @@ class BuildConfig:
     clean: CleanParams = field(default_factory=CleanParams)
     cells: CellParams = field(default_factory=CellParams)
     crs: str | None = None
+    #: build even where the CRS is wrong for the map's place (outside its area of use, lengths stretched):
+    #: warn instead of refusing
+    force_crs: bool = False
     #: a topology.pvs.PvsConfig, or None to skip the PVS
     pvs: Any = None
 
@@ -45,6 +49,8 @@ def read_map(path: str | Path | None, crs: str | None = None, bbox: tuple[float,
     from topology.osm_reader import MapReadError, read_osm
 
     path = Path(path) if path is not None else BUNDLED_MAP
+    if crs is not None:
+        _check_metric(crs)  # before reading: degrees would only fail much later, and misleadingly
     try:
         if path.suffix.lower() in (".geojson", ".json"):
             if bbox is not None:
@@ -57,10 +63,67 @@ def read_map(path: str | Path | None, crs: str | None = None, bbox: tuple[float,
         raise BuildError(f"{path}: {exc}") from None
 
 
+def _check_metric(crs: str) -> None:
+    from topology.projection import CrsError, check_metric
+
+    try:
+        check_metric(crs)
+    except CrsError as exc:
+        raise BuildError(str(exc)) from None
+
+
+def map_extent(raw: RawMap) -> tuple[float, float, float, float] | None:
+    """(lon_min, lat_min, lon_max, lat_max) of the map's ways, areas and buildings, or None when it has none."""
+    from topology.projection import LocalProjection
+
+    boxes = [np.concatenate([np.asarray(w.xy).min(axis=0), np.asarray(w.xy).max(axis=0)]) for w in raw.ways
+             if len(w.xy)]
+    boxes += [np.asarray(f.polygon.bounds) for f in (*raw.areas, *raw.buildings) if not f.polygon.is_empty]
+    if not boxes:
+        return None
+    b = np.asarray(boxes)
+    x0, y0, x1, y1 = b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()
+    corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    ll = LocalProjection(raw.crs, tuple(raw.origin)).to_wgs84(corners)
+    return float(ll[:, 0].min()), float(ll[:, 1].min()), float(ll[:, 0].max()), float(ll[:, 1].max())
+
+
+def check_crs(raw: RawMap, force: bool = False, warn: Progress | None = None) -> None:
+    """Refuse a map whose CRS is not projected in metres, and (unless `force`, which warns and counts it in the
+    build report) one whose CRS is wrong for the map's place: outside its area of use or stretching lengths
+    (EPSG:3067 on an American town made every length 9-26 % too long). A UTM zone that holds the map's centre
+    or a corner (the readers' default) is not judged by its area of use: a town across a zone boundary is
+    still well served by either zone."""
+    from topology.projection import placement_problem, utm_crs_for
+
+    _check_metric(raw.crs)
+    extent = map_extent(raw)
+    if extent is None:
+        return
+    lon0, lat0, lon1, lat1 = extent
+    places = (((lon0 + lon1) / 2.0, (lat0 + lat1) / 2.0), (lon0, lat0), (lon1, lat0), (lon1, lat1), (lon0, lat1))
+    for lon, lat in places:
+        try:
+            if raw.crs == utm_crs_for(lon, lat):
+                return  # the UTM zone of (a part of) the map: what the reader chose, or as good
+        except ValueError:
+            pass  # beyond the UTM zones (polar): judge the CRS as any other
+    problem = placement_problem(raw.crs, *extent)
+    if problem is None:
+        return
+    if not force:
+        raise BuildError(f"{problem}; choose a CRS made for this place (leave out --crs for the map's UTM "
+                         "zone), or give --force to build anyway")
+    raw.report["warning:crs_not_for_this_place"] += 1
+    (warn or (lambda m: warnings.warn(m, stacklevel=3)))(f"{problem} (building anyway: --force)")
+
+
 def build(raw: RawMap, config: BuildConfig | None = None, progress: Progress | None = None,
-          source: str = "") -> Topology:  # fmt: skip
+          source: str = "", warn: Progress | None = None) -> Topology:  # fmt: skip
+    """`warn`: where CRS warnings go (default: `warnings.warn`)."""
     config = config or BuildConfig()
     say = progress or (lambda _msg: None)
+    check_crs(raw, config.force_crs, warn)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     say(f"cleaning {len(raw.ways)} ways, {len(raw.areas)} areas")

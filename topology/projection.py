@@ -6,7 +6,58 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from pyproj import CRS, Transformer
+from pyproj import CRS, Proj, Transformer
+
+MAX_SCALE_ERROR = 0.01  # a CRS that stretches lengths at the map by more than this is refused without force
+
+
+class CrsError(ValueError):
+    """A CRS the topology cannot be built in: unknown, not projected in metres, or wrong for the map's place."""
+
+
+def check_metric(crs: str) -> CRS:
+    """The CRS, if it is projected with metre axes; else a CrsError that says what is wrong and what to use.
+
+    Degrees taken as metres shrink a town to a few hundred "metres" of noise and the cleaning then drops every
+    street: the old symptom was a misleading "no streets left after cleaning"."""
+    try:
+        c = CRS.from_user_input(crs)
+    except Exception as exc:
+        raise CrsError(f"unknown CRS {crs!r}: {exc}") from None
+    units = sorted({a.unit_name for a in c.axis_info[:2]})
+    if not c.is_projected or units != ["metre"]:
+        kind = "geographic (degrees)" if c.is_geographic else f"{'projected' if c.is_projected else 'not projected'}"
+        raise CrsError(
+            f"CRS {crs} ({c.name}) is {kind} with axes in {', '.join(units) or 'no units'}: a topology needs a "
+            "projected CRS in metres (leave out --crs for the map's UTM zone, or e.g. EPSG:3067 in Finland)"
+        )
+    return c
+
+
+def placement_problem(crs: str, lon_min: float, lat_min: float, lon_max: float, lat_max: float) -> str | None:
+    """Why this metric CRS is wrong for a map with this WGS84 extent, or None: the extent is not inside the
+    CRS's area of use, or lengths at the map's centre are stretched by more than MAX_SCALE_ERROR (EPSG:3857,
+    whose area of use is the world, doubles lengths in Helsinki). A CRS without a recorded area of use is
+    judged by its scale alone."""
+    c = check_metric(crs)
+    lon_c, lat_c = (lon_min + lon_max) / 2.0, (lat_min + lat_max) / 2.0
+    try:
+        f = Proj(c).get_factors(lon_c, lat_c)
+        scale = max(abs(f.meridional_scale - 1.0), abs(f.parallel_scale - 1.0))
+    except Exception:
+        scale = math.nan
+    stretch = f"; lengths there are {scale:.1%} off" if math.isfinite(scale) else ""
+    extent = f"lon {lon_min:.4f}..{lon_max:.4f}, lat {lat_min:.4f}..{lat_max:.4f}"
+    area = c.area_of_use
+    if area is not None:
+        west, south, east, north = area.bounds
+        lon_ok = west <= lon_min and lon_max <= east if west <= east else lon_min >= west or lon_max <= east
+        if not (lon_ok and south <= lat_min and lat_max <= north):
+            return (f"the map ({extent}) is not inside the area of use of {crs} ({area.name}: lon {west}..{east}, "
+                    f"lat {south}..{north}){stretch}")
+    if math.isfinite(scale) and scale > MAX_SCALE_ERROR:
+        return f"{crs} stretches lengths at the map ({extent}) by {scale:.1%}"
+    return None
 
 
 def utm_crs_for(lon: float, lat: float) -> str:
@@ -30,10 +81,7 @@ class LocalProjection:
     ):
         lon_c, lat_c = (lon_min + lon_max) / 2.0, (lat_min + lat_max) / 2.0
         crs = crs or utm_crs_for(lon_c, lat_c)
-        try:
-            CRS.from_user_input(crs)
-        except Exception as exc:
-            raise ValueError(f"unknown CRS {crs!r}: {exc}") from None
+        check_metric(crs)
         fwd = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
         x, y = fwd.transform(lon_c, lat_c)
         if not (math.isfinite(x) and math.isfinite(y)):

@@ -2,7 +2,9 @@
 
 An entity whose cells become invisible is *kept* until its validity period runs out, so that it reappears at
 once if its cells become visible again (the viewpoint bobbing above the roofs); it is dropped when the period
-expires, on LEAVE, or when a newer UPDATE replaces it. Out-of-order updates (lower seq) are ignored.
+expires, on LEAVE, or when a newer UPDATE replaces it. Out-of-order updates (lower seq) are ignored. A ghost
+lives at most `limits.HORIZON` seconds after its UPDATE whatever validity it claims, and its model never
+extrapolates past the horizon nor faster than its type's cap (entitynet/client/limits.py).
 Undecodable payloads are counted and skipped, never raised into the viewer.
 """
 
@@ -11,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from entitynet.client.limits import HORIZON
 from entitynet.client.motion import Model
 from entitynet.client.network import NetView
 from entitynet.client.payload import PayloadError, decode
@@ -51,8 +54,8 @@ class GhostStore:
         except PayloadError:
             self.bad_payloads += 1
             return
-        self.ghosts[msg.entity] = Ghost(msg.entity, msg.seq, tuple(msg.cells), now + msg.validity_ms / 1000.0,
-                                        model, msg.identity)
+        life = min(msg.validity_ms / 1000.0, HORIZON)
+        self.ghosts[msg.entity] = Ghost(msg.entity, msg.seq, tuple(msg.cells), now + life, model, msg.identity)
 
     def set_visible(self, cells) -> None:
         """The cells the viewer currently sees (its PVS)."""

@@ -8,7 +8,9 @@
 - `WorldModel`: the DIS baselines in the world frame: FPW (first order: position + velocity), FVW (second
   order: + acceleration), and the zero-order hold used by periodic updates (velocity 0).
 
-All models answer `xy_at(t)`; `t < t0` answers the state at t0 (receivers never extrapolate backwards).
+All models answer `xy_at(t)`; `t < t0` answers the state at t0 (receivers never extrapolate backwards), and
+`t > t0 + HORIZON` the state at t0 + HORIZON, standing; no model moves faster than its entity type's
+`max_speed` (entitynet/client/limits.py: a guess carried across a fix gap stays a bounded guess).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from dataclasses import dataclass
 
 from entitynet.client.frozen import maker
 from entitynet.client.kinematics import A_EPS, INF, advance, brake_plan, time_to_travel
+from entitynet.client.limits import HORIZON, capped_velocity, horizon_dt, max_speed, world_state
 from entitynet.client.path import Path
 
 KIND_NETWORK, KIND_AREA, KIND_WORLD = 1, 2, 3
@@ -51,6 +54,8 @@ class NetworkModel:
         return sum(self.parts)
 
     def _state(self, dt: float) -> tuple[float, float]:
+        if dt > HORIZON:  # past the horizon the model stands where it got to
+            return self._state(HORIZON)[0], 0.0
         tb, sb, vb, b = self.plan
         if dt <= tb:
             ds, v = advance(self.v, self.a, self.vmax, dt)
@@ -68,11 +73,13 @@ class NetworkModel:
 
     def time_to(self, d: float) -> float:
         """Seconds after t0 until the front has advanced `d` metres (math.inf if never): the inverse of
-        s_at, used for validity periods so that they match the extrapolation exactly."""
+        s_at, used for validity periods so that they match the extrapolation exactly (never past HORIZON)."""
         tb, sb, _vb, _b = self.plan
         if not math.isfinite(tb) or self.s0 + d <= sb:
-            return time_to_travel(d, self.v, self.a, self.vmax)
-        return self._brake_time(d)
+            t = time_to_travel(d, self.v, self.a, self.vmax)
+        else:
+            t = self._brake_time(d)
+        return t if t <= HORIZON else INF
 
     def _brake_time(self, d: float) -> float:
         tb, sb, vb, b = self.plan
@@ -86,6 +93,9 @@ class NetworkModel:
     def xy_speed_at(self, t: float) -> tuple[float, float, float]:
         """(x, y, speed) at t in one evaluation (the player's per-fix check; `_state` written out)."""
         dt = t - self.t0
+        beyond = dt > HORIZON
+        if beyond:
+            dt = HORIZON
         tb, sb, vb, b = self.plan
         if dt <= tb:
             v, a = self.v, self.a
@@ -102,7 +112,7 @@ class NetworkModel:
         path = self.path
         length = path.cum[-1]
         x, y = path.xy(length if length < s else s)  # min(s, length)
-        return x, y, v
+        return x, y, 0.0 if beyond else v
 
     def parts_xy_at(self, t: float) -> list[tuple[float, float]]:
         """Front, articulation(s) and aft points, following the path (for drawing a two-part tram)."""
@@ -127,12 +137,15 @@ class AreaModel:
     kind = KIND_AREA
 
     def xy_at(self, t: float) -> tuple[float, float]:
-        dt = max(t - self.t0, 0.0)
-        return self.x + self.vx * dt, self.y + self.vy * dt
+        dt = horizon_dt(t - self.t0)
+        vx, vy = capped_velocity(self.vx, self.vy, max_speed(self.etype))
+        return self.x + vx * dt, self.y + vy * dt
 
     def xy_speed_at(self, t: float) -> tuple[float, float, float]:
         x, y = self.xy_at(t)
-        return x, y, math.hypot(self.vx, self.vy)
+        if t - self.t0 > HORIZON:
+            return x, y, 0.0
+        return x, y, min(math.hypot(self.vx, self.vy), max_speed(self.etype))
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,14 +162,25 @@ class WorldModel:
     kind = KIND_WORLD
 
     def xy_at(self, t: float) -> tuple[float, float]:
-        dt = max(t - self.t0, 0.0)
-        h = 0.5 * dt * dt
-        return self.x + self.vx * dt + self.ax * h, self.y + self.vy * dt + self.ay * h
+        dt = horizon_dt(t - self.t0)
+        vx, vy, ax, ay = self.vx, self.vy, self.ax, self.ay
+        cap2 = max_speed(self.etype) ** 2
+        wx, wy = vx + ax * dt, vy + ay * dt
+        # the speed along a constant acceleration is convex in time: under the cap at both ends, under it
+        # throughout (the usual case, computed as without a cap)
+        if vx * vx + vy * vy <= cap2 and wx * wx + wy * wy <= cap2:
+            h = 0.5 * dt * dt
+            return self.x + vx * dt + ax * h, self.y + vy * dt + ay * h
+        dx, dy, _, _ = world_state(vx, vy, ax, ay, math.sqrt(cap2), dt)
+        return self.x + dx, self.y + dy
 
     def xy_speed_at(self, t: float) -> tuple[float, float, float]:
-        dt = max(t - self.t0, 0.0)
         x, y = self.xy_at(t)
-        return x, y, math.hypot(self.vx + self.ax * dt, self.vy + self.ay * dt)
+        if t - self.t0 > HORIZON:
+            return x, y, 0.0
+        dt = max(t - self.t0, 0.0)
+        _, _, wx, wy = world_state(self.vx, self.vy, self.ax, self.ay, max_speed(self.etype), dt)
+        return x, y, math.hypot(wx, wy)
 
 
 Model = NetworkModel | AreaModel | WorldModel

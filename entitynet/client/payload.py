@@ -16,6 +16,7 @@ import math
 
 import msgpack
 
+from entitynet.client.limits import max_speed
 from entitynet.client.motion import (
     KIND_AREA,
     KIND_NETWORK,
@@ -183,6 +184,8 @@ def decode(data: bytes, net: NetView | None) -> Model:
             raise PayloadError("a network payload needs the topology")
         if not signed or v < 0 or vmax < 0 or brake <= 0 or stop < -1 or any(p < 0 for p in parts):
             raise PayloadError("malformed network payload values")
+        cap = round(max_speed(etype) * 1000.0)  # a publisher's speed beyond its type's cap is not believed
+        v, vmax = min(v, cap), min(vmax, cap)
         try:
             path = Path(net, [(abs(x) - 1, 1 if x > 0 else -1) for x in signed if x != 0])
         except ValueError as exc:

@@ -8,7 +8,10 @@ own published model exactly as every receiver does (its ghost: the decoded paylo
 - `stop` / `start`: emergent behaviour the extrapolation cannot know;
 - `path`: the entity left the predicted path (turned at a junction, reversed, entered or left an area);
 - `expiry`: the occupation's validity period ran out;
-- `heartbeat`: nothing else was sent for `heartbeat` seconds.
+- `heartbeat`: nothing else was sent for `heartbeat` seconds;
+- `gap`: no fix for `max_gap` seconds: the guess stops where it got to and a standing model is published
+  (and re-published standing on expiry); after `lost_after` seconds without a fix the entity is unpublished
+  (defaults per entity type; entitynet/client/limits.py says why).
 
 `model` selects what is published: "network" (path-constrained dead reckoning, the default), or the
 world-frame baselines "fpw", "fvw" and "periodic" (a position every `period` seconds). With no topology
@@ -24,6 +27,7 @@ from collections.abc import Sequence
 from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
 from entitynet.client.frozen import maker
+from entitynet.client.limits import HORIZON, max_speed
 from entitynet.client.motion import AreaModel, Model, NetworkModel, WorldModel
 from entitynet.client.network import DirEdge, NetView, netview
 from entitynet.client.occupation import Occupation, make_occupation, occupy, occupy_area, wire_validity
@@ -96,12 +100,24 @@ class Player:
         confirm: int = 1,
         filter_q: float | None = None,
         filter_accel: bool | None = None,
+        max_gap: float | None = None,
+        lost_after: float | None = None,
     ) -> None:
         if model not in MODELS:
             raise ValueError(f"unknown model {model!r} (known: {', '.join(MODELS)})")
         if topo is None and model == "network":
             raise ValueError("the network model needs a topology")
         self.etype = entity_type(etype)
+        for name, value in (("heartbeat", heartbeat), ("max_validity", max_validity)):
+            if not (0.0 < value <= HORIZON):
+                raise ValueError(f"{name} must be in (0, {HORIZON:g}] s (the models' horizon), got {value!r}")
+        if self.etype.vmax > max_speed(self.etype.code):
+            raise ValueError(f"entity type {self.etype.name!r}: vmax {self.etype.vmax} exceeds the speed cap "
+                             f"{max_speed(self.etype.code)} m/s that receivers apply to its code")
+        self.max_gap = self.etype.max_gap if max_gap is None else float(max_gap)
+        self.lost_after = self.etype.lost_after if lost_after is None else float(lost_after)
+        if not (0.0 < self.max_gap <= self.lost_after < math.inf):
+            raise ValueError(f"need 0 < max_gap <= lost_after < inf, got {self.max_gap!r}, {self.lost_after!r}")
         self.body = self.etype.length  # sum of the parts, once (a property on the type)
         self.entity = entity
         self.model = model
@@ -161,6 +177,7 @@ class Player:
         self.pub_t = -math.inf
         self.off_since: float | None = None
         self.published = False
+        self.halted = False  # a fix gap stopped the published guess (the `gap` update)
         self.stats: dict[str, int] = {}
         self.last_fix: Fix | None = None
 
@@ -210,6 +227,7 @@ class Player:
         self._check(x, y, t, acc)
         vel = self._velocity(speed, heading, speed_accuracy)
         self.last_t = t
+        self.halted = False
         self.measured = (x, y, t)
         r = acc * acc
         reason = None
@@ -283,16 +301,41 @@ class Player:
             self.kx.update_speed(vx, rv)
             self.ky.update_speed(vy, rv)
 
-    def tick(self, now: float) -> list[Publish]:
-        """Time passes without a fix: re-publish when the validity period or the heartbeat runs out."""
+    def tick(self, now: float) -> list[Publish | Unpublish]:
+        """Time passes without a fix: re-publish when the validity period or the heartbeat runs out; `max_gap`
+        seconds after the last fix publish the guess standing where it got to then, and `lost_after` seconds
+        after it unpublish (a later fix publishes afresh)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
+        if self.last_t is not None and now < self.last_t:
+            raise ValueError(f"now {now!r} is before the last fix at {self.last_t!r}")
         if not self.published or self.ghost is None:
             return []
+        gap = now - self.last_t if self.last_t is not None else 0.0
+        if gap >= self.lost_after:
+            self.stats["lost"] = self.stats.get("lost", 0) + 1
+            self._forget()
+            return self.leave()
+        stop_at = self.last_t + self.max_gap if gap >= self.max_gap else None
+        if stop_at is not None and not self.halted:
+            self.halted = True
+            return [self._publish(now, "gap", from_ghost=True, stop_at=stop_at)]
         if now >= self.pub_t + self._validity() or now - self.pub_t >= self.heartbeat:
             reason = "expiry" if now >= self.pub_t + self._validity() else "heartbeat"
-            return [self._publish(now, reason, from_ghost=True)]
+            return [self._publish(now, reason, from_ghost=True, stop_at=stop_at)]
         return []
+
+    def _forget(self) -> None:
+        """Drop the tracking state of a lost entity: its next fix is placed and published afresh."""
+        self.mode = None
+        self.path = None
+        self.kf = self.kx = self.ky = None
+        self.ghost = None
+        self._still = None
+        self.occupation = None
+        self.recent.clear()
+        self.recent_s.clear()
+        self.halted = False
 
     def leave(self) -> list[Unpublish]:
         was = self.published
@@ -749,7 +792,9 @@ class Player:
         return None
 
     # ---- publishing ----------------------------------------------------------------------------------------
-    def _publish(self, t: float, reason: str, from_ghost: bool = False) -> Publish:
+    def _publish(self, t: float, reason: str, from_ghost: bool = False, stop_at: float | None = None) -> Publish:
+        """`from_ghost`: continue the published model (no fix to go on); `stop_at`: and stand where that model
+        was at this time (a fix gap, `tick`)."""
         self.stats[reason] = self.stats.get(reason, 0) + 1
         self.over = 0
         if (not from_ghost and self.mode == "edge" and not self.route and self.kf is not None
@@ -758,9 +803,9 @@ class Player:
             self._maintain_path()
         # ghost == decode(payload, net), without the round trip
         if self.model == "network" and self.mode == "edge":
-            payload, ghost = encode_network(*self._network_fields(t, from_ghost))
+            payload, ghost = encode_network(*self._network_fields(t, from_ghost, stop_at))
         else:
-            payload, ghost = encode_quantized(self._build_model(t, from_ghost))
+            payload, ghost = encode_quantized(self._build_model(t, from_ghost, stop_at))
         self.reposition = False
         self.ghost = ghost
         self.occupation = self._occupation(t, ghost)
@@ -771,10 +816,15 @@ class Player:
         cells = self.occupation.cells[:MAX_PUBLISH_CELLS] if self.occupation else ()
         return _make_publish(self.entity, self.seq, tuple(cells), validity_ms, payload)
 
-    def _build_model(self, t: float, from_ghost: bool) -> Model:
+    def _build_model(self, t: float, from_ghost: bool, stop_at: float | None = None) -> Model:
         et = self.etype
         if self.model == "network" and self.mode == "edge":
-            return NetworkModel(*self._network_fields(t, from_ghost))
+            return NetworkModel(*self._network_fields(t, from_ghost, stop_at))
+        if stop_at is not None and from_ghost and isinstance(self.ghost, (AreaModel, WorldModel)):
+            x, y = self.ghost.xy_at(stop_at)
+            if isinstance(self.ghost, AreaModel):
+                return AreaModel(t, self.ghost.area, x, y, 0.0, 0.0, et.code)
+            return WorldModel(t, x, y, 0.0, 0.0, 0.0, 0.0, et.code)
         if self.model == "network" and self.mode == "area":
             vx, vy = self.kx.v, self.ky.v
             if math.hypot(vx, vy) < et.v_stop:
@@ -793,12 +843,16 @@ class Player:
             vx = vy = ax = ay = 0.0
         return WorldModel(t, self.kx.s, self.ky.s, vx, vy, ax, ay, et.code)
 
-    def _network_fields(self, t: float, from_ghost: bool) -> tuple:
-        """The NetworkModel's fields (t0, path, s0, v, a, vmax, etype, parts, stop_s, brake) to publish."""
+    def _network_fields(self, t: float, from_ghost: bool, stop_at: float | None = None) -> tuple:
+        """The NetworkModel's fields (t0, path, s0, v, a, vmax, etype, parts, stop_s, brake) to publish
+        (`stop_at`: from the ghost, standing where it was at that time)."""
         et = self.etype
         if from_ghost and isinstance(self.ghost, NetworkModel):
             g = self.ghost
-            s_abs, v, a = g.s_at(t), g.speed_at(t), g.a
+            if stop_at is not None:
+                s_abs, v, a = g.s_at(stop_at), 0.0, 0.0
+            else:
+                s_abs, v, a = g.s_at(t), g.speed_at(t), g.a
             path, s = g.path, s_abs
         else:
             s, v, a = self.kf.s, self.kf.v, self.kf.a

@@ -21,7 +21,9 @@ def register(sub) -> None:
     src.add_argument("--osm", metavar="FILE", help="OpenStreetMap .pbf, .osm or .osm.bz2")
     src.add_argument("--geojson", metavar="FILE", help="GeoJSON streets/areas/buildings")
     b.add_argument("--out", metavar="FILE", help="artifact to write (default: <map name>.enttopo)")
-    b.add_argument("--crs", help="metric CRS, e.g. EPSG:3067 (default: the UTM zone of the map)")
+    b.add_argument("--crs", help="projected CRS in metres, e.g. EPSG:3067 (default: the UTM zone of the map)")
+    b.add_argument("--force", action="store_true",
+                   help="build even where --crs is not made for the map's place (outside its area of use); warns")
     b.add_argument(
         "--bbox",
         nargs=4,
@@ -121,6 +123,7 @@ def cmd_build(args: argparse.Namespace) -> int:
             max_street_cell_m=_positive(args.max_cell_length, "--max-cell-length"),
         ),
         crs=args.crs,
+        force_crs=args.force,
     )
     config.pvs = None
     if not args.no_pvs:
@@ -136,7 +139,8 @@ def cmd_build(args: argparse.Namespace) -> int:
             raise CommandError("--bbox wants LON_MIN LAT_MIN LON_MAX LAT_MAX with min < max")
         raw = read_map(path, args.crs, tuple(args.bbox) if args.bbox else None)
         topo = build(
-            raw, config, progress=say, source=Path(path).name if path else "helsinki.osm.pbf (bundled)"
+            raw, config, progress=say, source=Path(path).name if path else "helsinki.osm.pbf (bundled)",
+            warn=lambda msg: print(f"entitynet: warning: {msg}", file=sys.stderr, flush=True),
         )
     except BuildError as exc:
         raise CommandError(str(exc)) from None

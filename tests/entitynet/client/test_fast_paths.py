@@ -18,6 +18,7 @@ from entitynet.client import netview
 from entitynet.client.filters import Kinematic1D
 from entitynet.client.frozen import maker
 from entitynet.client.kinematics import advance
+from entitynet.client.limits import HORIZON
 from entitynet.client.motion import AreaModel, NetworkModel, WorldModel, network_model
 from entitynet.client.occupation import (
     Occupation,
@@ -413,8 +414,12 @@ def test_shared_choice_search_equals_the_two_loops(ti, data):
 
 
 def _xy_speed_at_reference(g, t):
-    """`NetworkModel.xy_speed_at` as it was: `_state` written out, `advance` called in every case."""
+    """`NetworkModel.xy_speed_at` as it was: `_state` written out, `advance` called in every case (standing
+    after the horizon)."""
     dt = t - g.t0
+    if dt > HORIZON:
+        x, y, _ = _xy_speed_at_reference(g, g.t0 + HORIZON)
+        return x, y, 0.0
     tb, sb, vb, b = g.plan
     if dt <= tb:
         ds, v = advance(g.v, g.a, g.vmax, dt)
