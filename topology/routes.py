@@ -289,15 +289,44 @@ def _place_stops(lines: np.ndarray, edges: list[list[int]], raw_stops, max_dist:
     return stops
 
 
-def _orient_by_stops(chains: list[np.ndarray], raw_stops) -> list[np.ndarray]:
-    """A single chain runs the way its stops are listed (relations whose members are unsorted lose their
-    direction when chained; the ordered stops keep it)."""
-    if len(chains) != 1 or len(raw_stops) < 2:
+def _gaps(chains: list[np.ndarray]) -> float:
+    return sum(math.dist(a[-1], b[0]) for a, b in zip(chains, chains[1:], strict=False))
+
+
+def order_chains(chains: list[np.ndarray], raw_stops) -> list[np.ndarray]:
+    """Chains in travel order. A single chain runs the way its stops are listed (an unsorted relation loses
+    its direction when chained; the ordered stops keep it). Several chains are put in nearest-neighbour order
+    from the chain of the first stop, each turned to start near the previous one's end, when that order has
+    less than half the gaps of the members' order (an unsorted relation with a missing way)."""
+    if not chains:
         return chains
-    line = shapely.LineString(chains[0])
-    first = line.line_locate_point(shapely.Point(raw_stops[0].xy))
-    last = line.line_locate_point(shapely.Point(raw_stops[-1].xy))
-    return [chains[0][::-1]] if last < first else chains
+    if len(chains) == 1:
+        if len(raw_stops) >= 2:
+            line = shapely.LineString(chains[0])
+            first = line.line_locate_point(shapely.Point(raw_stops[0].xy))
+            last = line.line_locate_point(shapely.Point(raw_stops[-1].xy))
+            if last < first:
+                return [chains[0][::-1]]
+        return chains
+    lines = [shapely.LineString(c) for c in chains]
+    k0 = 0
+    if raw_stops:
+        p0 = shapely.Point(raw_stops[0].xy)
+        k0 = int(np.argmin([ln.distance(p0) for ln in lines]))
+    rest = [c for k, c in enumerate(chains) if k != k0]
+    first = chains[k0]
+    # the first chain points at the nearest end of the others
+    others = np.vstack([np.vstack([c[0], c[-1]]) for c in rest])
+    if np.hypot(*(others - first[0]).T).min() < np.hypot(*(others - first[-1]).T).min():
+        first = first[::-1]
+    out = [first]
+    while rest:
+        end = out[-1][-1]
+        d = [(min(math.dist(end, c[0]), math.dist(end, c[-1])), k) for k, c in enumerate(rest)]
+        _, k = min(d)
+        c = rest.pop(k)
+        out.append(c if math.dist(end, c[0]) <= math.dist(end, c[-1]) else c[::-1])
+    return out if _gaps(out) < 0.5 * _gaps(chains) else chains
 
 
 def network_graph(topo, networks: int) -> nx.MultiGraph:
@@ -317,7 +346,7 @@ def build_routes(topo, raw_routes, raw_way_xy: dict[int, np.ndarray], report: Co
     out = []
     for rr in raw_routes:
         bits = TRAM if rr.mode == "tram" else VEHICLE
-        chains = _orient_by_stops(chain_ways([raw_way_xy[w] for w in rr.way_ids if w in raw_way_xy]), rr.stops)
+        chains = order_chains(chain_ways([raw_way_xy[w] for w in rr.way_ids if w in raw_way_xy]), rr.stops)
         parts: list[list[list[int]]] = []
         for xy in chains:
             best = match_corridor(topo, xy, bits)
