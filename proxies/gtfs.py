@@ -2,7 +2,12 @@
 
 Only the standard library reads the feed (csv + zipfile, streamed); pyproj projects to the artifact's CRS and
 origin; the shapes that run over the map are clipped to it and map-matched onto the tram or vehicle network
-by a shortest path through the corridor around each shape (`match_corridor`).
+by a shortest path through the corridor around each shape (`topology.routes.match_corridor`).
+
+Files: routes.txt, trips.txt, stops.txt and stop_times.txt are required (a feed without one is refused with a
+`GtfsError` naming it); shapes.txt and every other file are optional. A trip without a shape (no shapes.txt,
+no shape_id, or a shape_id that shapes.txt lacks) is routed from stop to stop on the network: shortest paths
+between the nodes nearest its consecutive stops. Malformed rows are skipped and counted in `Feed.report`.
 """
 
 from __future__ import annotations
@@ -10,13 +15,22 @@ from __future__ import annotations
 import csv
 import io
 import zipfile
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 
 import numpy as np
 
 from topology.raw import TRAM, VEHICLE
+from topology.routes import match_corridor, network_graph
+
+REQUIRED_FILES = ("routes.txt", "trips.txt", "stops.txt", "stop_times.txt")
+#: shape ids made for trips without a shape: their polyline is the trip's stops
+STOP_SHAPE = "stops:"
+
+
+class GtfsError(ValueError):
+    """The feed cannot be read (not a zip, a required file missing): a clear message for the user."""
 
 #: GTFS route_type -> our mode (basic types and the HSL extended bus types 700-704)
 MODE_OF_TYPE = {0: "tram", 900: "tram", 3: "bus", 700: "bus", 701: "bus", 702: "bus", 704: "bus"}
@@ -30,6 +44,8 @@ class Feed:
     shapes: dict[str, np.ndarray]  # shape_id -> (n, 2) lon, lat in sequence order
     stops: dict[str, tuple[str, float, float]]  # stop_id -> (name, lon, lat)
     path: str = ""
+    #: "skipped:<file>_bad_row", "read:trips_without_shape", ...
+    report: Counter = field(default_factory=Counter)
 
 
 @dataclass
@@ -48,46 +64,96 @@ def _rows(zf: zipfile.ZipFile, name: str):
         yield from csv.DictReader(io.TextIOWrapper(fh, encoding="utf-8-sig", newline=""))
 
 
+def _open(path: str | FsPath) -> zipfile.ZipFile:
+    try:
+        zf = zipfile.ZipFile(path)
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise GtfsError(f"{path}: not a readable GTFS zip ({exc})") from None
+    missing = [n for n in REQUIRED_FILES if n not in zf.namelist()]
+    if missing:
+        zf.close()
+        raise GtfsError(f"{path}: not a complete GTFS feed, required file(s) missing: {', '.join(missing)}")
+    return zf
+
+
 def read_feed(path: str | FsPath, modes: tuple[str, ...] = ("tram", "bus")) -> Feed:
-    """Routes, shapes, one trip per shape and the stops of the given modes."""
-    with zipfile.ZipFile(path) as zf:
+    """Routes, shapes, one trip per shape and the stops of the given modes.
+
+    Trips without a usable shape get one made of their stops (`STOP_SHAPE` + trip id; one trip per route and
+    direction), which `match_shapes` routes from stop to stop on the network."""
+    report: Counter = Counter()
+    with _open(path) as zf:
         routes = {}
         for r in _rows(zf, "routes.txt"):
             try:
                 mode = MODE_OF_TYPE.get(int(r["route_type"]), "")
-            except ValueError:
-                mode = ""
-            routes[r["route_id"]] = (mode, r.get("route_short_name", ""))
+                routes[r["route_id"]] = (mode, r.get("route_short_name") or "")
+            except (KeyError, TypeError, ValueError):
+                report["skipped:routes_bad_row"] += 1
         shape_route: dict[str, str] = {}
         shape_trip: dict[str, str] = {}
+        shapeless: dict[tuple[str, str], str] = {}  # (route, direction) -> one trip without a shape
         for t in _rows(zf, "trips.txt"):
-            sid = t.get("shape_id", "")
-            if sid and sid not in shape_route and routes.get(t["route_id"], ("", ""))[0] in modes:
-                shape_route[sid] = t["route_id"]
-                shape_trip[sid] = t["trip_id"]
+            try:
+                rid, tid = t["route_id"], t["trip_id"]
+            except KeyError:
+                report["skipped:trips_bad_row"] += 1
+                continue
+            if routes.get(rid, ("", ""))[0] not in modes or not tid:
+                continue
+            sid = t.get("shape_id") or ""
+            if sid:
+                if sid not in shape_route:
+                    shape_route[sid] = rid
+                    shape_trip[sid] = tid
+            else:
+                shapeless.setdefault((rid, t.get("direction_id") or ""), tid)
         pts: dict[str, list[tuple[int, float, float]]] = defaultdict(list)
-        for s in _rows(zf, "shapes.txt"):
-            sid = s["shape_id"]
-            if sid in shape_route:
-                pts[sid].append((int(s["shape_pt_sequence"]), float(s["shape_pt_lon"]), float(s["shape_pt_lat"])))
+        if "shapes.txt" in zf.namelist():
+            for s in _rows(zf, "shapes.txt"):
+                sid = s.get("shape_id") or ""
+                if sid in shape_route:
+                    try:
+                        pts[sid].append((int(s["shape_pt_sequence"]), float(s["shape_pt_lon"]),
+                                         float(s["shape_pt_lat"])))
+                    except (KeyError, TypeError, ValueError):
+                        report["skipped:shapes_bad_row"] += 1
         shapes = {sid: np.array([(lon, lat) for _q, lon, lat in sorted(p)], dtype=np.float64)
-                  for sid, p in pts.items()}
+                  for sid, p in pts.items() if len(p) >= 2}
+        for sid in list(shape_route):  # a shape_id that shapes.txt lacks: route its trip by its stops
+            if sid not in shapes:
+                rid = shape_route.pop(sid)
+                shapeless.setdefault((rid, sid), shape_trip.pop(sid))
         stops = {}
         for s in _rows(zf, "stops.txt"):
             try:
-                stops[s["stop_id"]] = (s["stop_name"], float(s["stop_lon"]), float(s["stop_lat"]))
-            except (KeyError, ValueError):
-                continue
-    return Feed(routes, shape_route, shape_trip, shapes, stops, str(path))
+                stops[s["stop_id"]] = (s.get("stop_name") or "", float(s["stop_lon"]), float(s["stop_lat"]))
+            except (KeyError, TypeError, ValueError):
+                report["skipped:stops_bad_row"] += 1
+    if shapeless:
+        report["read:trips_without_shape"] += len(shapeless)
+        seqs = trip_stops(path, set(shapeless.values()), report)
+        for (rid, _d), tid in sorted(shapeless.items()):
+            known = [stops[i] for i in seqs.get(tid, []) if i in stops]
+            if len(known) >= 2:
+                sid = STOP_SHAPE + tid
+                shape_route[sid], shape_trip[sid] = rid, tid
+                shapes[sid] = np.array([(k[1], k[2]) for k in known], dtype=np.float64)
+    return Feed(routes, shape_route, shape_trip, shapes, stops, str(path), report)
 
 
-def trip_stops(path: str | FsPath, trip_ids: set[str]) -> dict[str, list[str]]:
-    """Stop ids of the given trips in stop_sequence order (streams stop_times.txt once)."""
+def trip_stops(path: str | FsPath, trip_ids: set[str], report: Counter | None = None) -> dict[str, list[str]]:
+    """Stop ids of the given trips in stop_sequence order (streams stop_times.txt once; bad rows skipped)."""
     out: dict[str, list[tuple[int, str]]] = defaultdict(list)
-    with zipfile.ZipFile(path) as zf:
+    with _open(path) as zf:
         for r in _rows(zf, "stop_times.txt"):
-            if r["trip_id"] in trip_ids:
-                out[r["trip_id"]].append((int(r["stop_sequence"]), r["stop_id"]))
+            tid = r.get("trip_id")
+            if tid in trip_ids:
+                try:
+                    out[tid].append((int(r["stop_sequence"]), r["stop_id"]))
+                except (KeyError, TypeError, ValueError):
+                    if report is not None:
+                        report["skipped:stop_times_bad_row"] += 1
     return {t: [s for _q, s in sorted(v)] for t, v in out.items()}
 
 
@@ -106,50 +172,31 @@ def _inside_runs(xy: np.ndarray, bounds: tuple[float, float, float, float], pad:
     return runs
 
 
-def match_corridor(topo, xy: np.ndarray, networks: int, *, corridor: float = 25.0,
-                   scale: float = 6.0) -> list[tuple[int, int]]:
-    """Map-match a polyline by a shortest path through its corridor.
-
-    Every edge of `networks` within `corridor` metres of the polyline may be used, in the direction in which
-    it advances along the polyline, at a cost of length * (1 + (mean distance / scale)^2): the cheapest path
-    from the node nearest the polyline's start to the node nearest its end follows the polyline, and is
-    connected by construction (unlike snapping samples to the nearest edge, which flips between the two
-    tracks of a double-track tram line)."""
+def route_by_stops(topo, graph, xy: np.ndarray) -> list[tuple[int, int]]:
+    """A trip without a shape: shortest network paths between the nodes nearest its consecutive stops, one
+    connected route ([] when two stops are not connected on the network)."""
     import networkx as nx
-    import shapely
 
-    line = shapely.LineString(xy)
-    lines = shapely.from_ragged_array(shapely.GeometryType.LINESTRING, topo.edge_geom_xy,
-                                      (topo.edge_geom_offsets,))
-    cand = np.flatnonzero((topo.edge_networks & networks) != 0)
-    cand = cand[shapely.dwithin(lines[cand], line, corridor)]
-    if len(cand) == 0:
+    nodes = np.array(sorted(graph.nodes))
+    if len(nodes) == 0:
         return []
-    g = nx.DiGraph()
-    for e in cand.tolist():
-        geom = lines[e]
-        length = float(topo.edge_length[e])
-        n_s = max(2, int(length / 5.0) + 1)
-        pts = shapely.line_interpolate_point(geom, np.linspace(0.0, length, n_s))
-        d = float(shapely.distance(pts, line).mean())
-        pos = shapely.line_locate_point(line, pts[[0, -1]])
-        u, v = int(topo.edge_nodes[e][0]), int(topo.edge_nodes[e][1])
-        cost = length * (1.0 + (d / scale) ** 2)
-        fwd = (u, v, 1) if pos[1] >= pos[0] else (v, u, -1)
-        for a, b, dirn, c in ((*fwd, cost), (fwd[1], fwd[0], -fwd[2], cost * 20.0 + 50.0)):
-            if a == b:
-                continue
-            if not g.has_edge(a, b) or g[a][b]["cost"] > c:
-                g.add_edge(a, b, cost=c, edge=e, dir=dirn)
-    nodes = np.array(list(g.nodes))
     nxy = topo.node_xy[nodes]
-    start = int(nodes[np.argmin(np.hypot(*(nxy - xy[0]).T))])
-    end = int(nodes[np.argmin(np.hypot(*(nxy - xy[-1]).T))])
-    try:
-        route = nx.shortest_path(g, start, end, weight="cost")
-    except nx.NetworkXNoPath:
-        return []
-    return [(int(g[a][b]["edge"]), int(g[a][b]["dir"])) for a, b in zip(route, route[1:], strict=False)]
+    near = [int(nodes[np.argmin(np.hypot(*(nxy - p).T))]) for p in xy]
+    seq = [n for k, n in enumerate(near) if k == 0 or n != near[k - 1]]
+    out: list[tuple[int, int]] = []
+    for a, b in zip(seq, seq[1:], strict=False):
+        try:
+            path = nx.shortest_path(graph, a, b, weight="length")
+        except nx.NetworkXNoPath:
+            return []
+        for u, v in zip(path, path[1:], strict=False):
+            k = min(graph[u][v], key=lambda k: graph[u][v][k]["length"])
+            de = (int(k), 1 if int(topo.edge_nodes[k][0]) == u else -1)
+            if out and out[-1] == (de[0], -de[1]):  # a stop beside the street: no turning back on one edge
+                out.pop()
+            else:
+                out.append(de)
+    return out
 
 
 def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), min_length: float = 300.0,
@@ -157,8 +204,11 @@ def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), 
     """Shapes of `modes` that run over the map, clipped and matched to connected directed-edge routes.
 
     A matched route is kept if it is at least `min_length` metres long and within -20%/+25% of the clipped
-    shape's length (otherwise the match went astray and it is skipped)."""
+    shape's length (otherwise the match went astray and it is skipped). A trip without a shape is routed
+    from stop to stop (`route_by_stops`) and kept if it is at least `min_length` metres long."""
     from topology.projection import LocalProjection
+
+    graphs: dict[int, object] = {}
 
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
     bounds = tuple(topo.meta["bounds"])
@@ -176,10 +226,18 @@ def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), 
             seg = float(np.hypot(*np.diff(run, axis=0).T).sum())
             if seg < min_length:
                 continue
-            best = match_corridor(topo, run, bits)
-            length = float(sum(topo.edge_length[e] for e, _ in best))
-            if length < min_length or not 0.8 * seg <= length <= 1.25 * seg:
-                continue
+            if sid.startswith(STOP_SHAPE):
+                if bits not in graphs:
+                    graphs[bits] = network_graph(topo, bits)
+                best = route_by_stops(topo, graphs[bits], run)
+                length = float(sum(topo.edge_length[e] for e, _ in best))
+                if length < min_length:
+                    continue
+            else:
+                best = match_corridor(topo, run, bits)
+                length = float(sum(topo.edge_length[e] for e, _ in best))
+                if length < min_length or not 0.8 * seg <= length <= 1.25 * seg:
+                    continue
             out.append(MatchedShape(sid, route_id, mode, ref, run, best))
     if out:
         stops_of = trip_stops(feed.path, {feed.shape_trip[m.shape_id] for m in out})

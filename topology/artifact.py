@@ -91,7 +91,8 @@ class Topology:
 
     @property
     def routes(self) -> list[dict[str, Any]]:
-        """Transit routes: {id, mode, ref, name, edges: [[edge, +1|-1], ...], stops: [{name, edge, offset}]}."""
+        """Transit routes: {id, mode, ref, name, edges: [[edge, +1|-1], ...], stops: [{name, edge, offset}]},
+        each a connected path; a route stored in pieces has one entry per piece with the same id and `part`."""
         return self.meta.get("routes", [])
 
     # ---- run-time queries (pure numpy, no shapely) --------------------------------------------------------

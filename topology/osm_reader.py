@@ -47,6 +47,12 @@ class _Collector:
         self.routes: list[tuple[int, dict, list[int], list[int]]] = []  # id, tags, way ids, stop node ids
         self.node_lonlat: dict[int, tuple[float, float]] = {}
         self.node_names: dict[int, str] = {}
+        # polygon candidates (buildings and areas), to count the ones osmium never assembles
+        self.poly_ways: dict[int, tuple[str, str]] = {}  # way id -> (kind, why it cannot become a polygon)
+        self.poly_rels: dict[int, tuple[str, list[int]]] = {}  # relation id -> (kind, member way ids)
+        self.seen_ways: set[int] = set()
+        self.incomplete_ways: set[int] = set()  # ways with a node missing from the extract
+        self.built: set[tuple[bool, int]] = set()  # (from a way, original id) of every area osmium built
 
     def node(self, n) -> None:
         if n.tags and _is_stop_node(n.tags) and n.location.valid():
@@ -55,6 +61,12 @@ class _Collector:
 
     def way(self, w) -> None:
         tags = dict(w.tags)
+        self.seen_ways.add(w.id)
+        if any(not nr.location.valid() for nr in w.nodes):
+            self.incomplete_ways.add(w.id)
+        kind = _polygon_kind(tags)
+        if kind is not None:
+            self.poly_ways[w.id] = (kind, _why_no_polygon(w))
         bits = way_networks(tags)
         if not bits:
             if "highway" in tags or "railway" in tags:
@@ -78,6 +90,11 @@ class _Collector:
 
     def relation(self, r) -> None:
         tags = dict(r.tags)
+        if tags.get("type") in ("multipolygon", "boundary"):
+            kind = _polygon_kind(tags)
+            if kind is not None:
+                self.poly_rels[r.id] = (kind, [m.ref for m in r.members if m.type == "w"])
+            return
         if tags.get("type") != "route" or tags.get("route") not in ROUTE_MODES:
             return
         way_ids, stop_ids, platform_ids = [], [], []
@@ -98,13 +115,50 @@ class _Collector:
         if not is_building and akind is None:
             return
         kind = "building" if is_building else "area"
+        self.built.add((a.from_way(), a.orig_id()))
+        rings = 0
         try:
             for outer in a.outer_rings():
+                rings += 1
                 shell = [(n.lon, n.lat) for n in outer]
                 holes = [[(n.lon, n.lat) for n in inner] for inner in a.inner_rings(outer)]
                 self.polys.append((kind, a.orig_id(), Polygon(shell, holes), tags))
         except (osmium.InvalidLocationError, ValueError):
             self.report[f"dropped:{kind}_bad_geometry"] += 1
+            return
+        if rings == 0:  # osmium could not close a ring (a self-overlapping way, an open multipolygon)
+            self.report[f"dropped:{kind}_no_rings"] += 1
+
+    def count_unassembled(self) -> None:
+        """Buildings and areas that osmium never turned into an area are dropped too: count them by why."""
+        for wid, (kind, why) in self.poly_ways.items():
+            if (True, wid) not in self.built:
+                self.report[f"dropped:{kind}_{why}"] += 1
+        for rid, (kind, members) in self.poly_rels.items():
+            if (False, rid) not in self.built:
+                missing = not members or any(m not in self.seen_ways or m in self.incomplete_ways
+                                             for m in members)
+                self.report[f"dropped:{kind}_relation_members_missing" if missing
+                            else f"dropped:{kind}_relation_not_assembled"] += 1
+
+
+def _polygon_kind(tags: dict) -> str | None:
+    """"building", "area" or None: the tags that `_Collector.area` keeps."""
+    if ("building" in tags and tags.get("building") != "no") or "building:part" in tags:
+        return "building"
+    return "area" if area_kind(tags) is not None else None
+
+
+def _why_no_polygon(w) -> str:
+    """Why a polygon way would not become an area (checked only when osmium builds none from it)."""
+    nodes = w.nodes
+    if len(nodes) < 2:
+        return "one_node_way"
+    if any(not nr.location.valid() for nr in nodes):
+        return "missing_node_location"
+    if len(nodes) < 4 or nodes[0].ref != nodes[-1].ref:
+        return "way_not_closed"
+    return "not_assembled"
 
 
 def read_osm(
@@ -129,6 +183,7 @@ def read_osm(
                 col.area(obj)
     except RuntimeError as exc:
         raise MapReadError(f"{path}: not readable OpenStreetMap data ({exc})") from None
+    col.count_unassembled()
     if not col.ways and not col.polys:
         raise MapReadError(f"{path}: no streets, areas or buildings found (is this OpenStreetMap data?)")
     return _assemble(col, crs, bbox)
