@@ -336,7 +336,7 @@ class ClientSession:
                 del self._queries[qid]
                 out.append(Answer(qid, m))
             out.append(Deliver(m))
-        elif t is P.Redirect:
+        elif isinstance(m, P.Redirect):
             self._redirect(lk, m, now, out)
             out.append(Deliver(m))
         else:
