@@ -26,7 +26,8 @@ from entitynet.session.policy import Address, ReconnectPolicy, parse_address
 _CLIENT_ONLY = (P.Hello, P.Publish, P.Unpublish, P.Subscribe, P.Follow, P.Unfollow, P.Query, P.Privacy, P.Ping)
 #: errors that refuse the oldest pending query (the server answers queries in order)
 _QUERY_REFUSALS = (P.ErrorCode.QUERY_RATE, P.ErrorCode.NO_SUCH_CELL)
-REPLAY_CHUNK = 5000  # messages per replay frame, well inside the codec's 20,000 and 1 MiB
+REPLAY_CHUNK = 5000  # messages per replay frame at most, well inside the codec's 20,000 ...
+FRAME_ROOM = 64  # ... and bytes kept free below the frame limit for the array header and length prefix
 MAX_PINGS = 16  # unanswered pings remembered
 
 
@@ -48,6 +49,7 @@ class _Link:
     next_ping: float = math.inf
     throttle: float = 0.0  # extra wait an AUTH_THROTTLED refusal asked for
     pings: dict[int, float] = field(default_factory=dict)  # PING client_ms -> local send time
+    max_frame: int = P.DEFAULT_LIMITS.max_frame  # ours, or the server's from WELCOME when smaller
 
 
 class ClientSession:
@@ -292,11 +294,14 @@ class ClientSession:
         lk = self._links.get(addr)
         if lk is None or lk.phase != "open" or lk.dropping or not msgs:
             return []  # remembered; the replay after the (re)connect carries it
-        return [Send(lk.token, tuple(msgs))]
+        return [Send(lk.token, batch) for batch in _batches(msgs, lk.max_frame)]
 
     def _handshake(self, lk: _Link, m: P.Message, now: float, out: list[Action]) -> None:
         if type(m) is P.Welcome:
             lk.phase, lk.failures, lk.handshake_deadline = "open", 0, math.inf
+            announced = m.limits.get("max_frame")
+            if isinstance(announced, int) and announced > 0:
+                lk.max_frame = min(P.DEFAULT_LIMITS.max_frame, announced)
             self.connects += 1
             out.extend(self._replay(lk, now))
             if lk.address == self.home:
@@ -372,7 +377,7 @@ class ClientSession:
         elif dest.phase == "open" and not dest.dropping:
             msgs = self._viewer_state() if viewer else []
             msgs += self._entity_states(moving, now)
-            out.extend(Send(dest.token, tuple(msgs[i:i + REPLAY_CHUNK])) for i in range(0, len(msgs), REPLAY_CHUNK))
+            out.extend(Send(dest.token, batch) for batch in _batches(msgs, dest.max_frame))
         out.extend(self._prune())
 
     def _prune(self) -> list[Action]:
@@ -409,7 +414,7 @@ class ClientSession:
             msgs += self._viewer_state()
         mine = [e for e in self._published if self._where.get(e) == lk.address]
         msgs += self._entity_states(mine, now)
-        return [Send(lk.token, tuple(msgs[i:i + REPLAY_CHUNK])) for i in range(0, len(msgs), REPLAY_CHUNK)]
+        return [Send(lk.token, batch) for batch in _batches(msgs, lk.max_frame)]
 
     def _ping(self, lk: _Link, now: float) -> list[Action]:
         lk.next_ping = now + self.ping_interval
@@ -420,3 +425,31 @@ class ClientSession:
         while len(lk.pings) > MAX_PINGS:
             lk.pings.pop(next(iter(lk.pings)))
         return [Send(lk.token, (P.Ping(ms),))]
+
+
+def _batches(msgs: list[P.Message], max_frame: int) -> list[tuple[P.Message, ...]]:
+    """Cut messages into frames of at most REPLAY_CHUNK messages and `max_frame` bytes: a fleet of entities with
+    large payloads would otherwise exceed the server's frame limit and be refused whole on every reconnect."""
+    room = max_frame - FRAME_ROOM
+    out: list[tuple[P.Message, ...]] = []
+    batch: list[P.Message] = []
+    size = 0
+    for m in msgs:
+        n = _size_bound(m)
+        if batch and (size + n > room or len(batch) >= REPLAY_CHUNK):
+            out.append(tuple(batch))
+            batch, size = [], 0
+        batch.append(m)
+        size += n
+    if batch:
+        out.append(tuple(batch))
+    return out
+
+
+def _size_bound(m: P.Message) -> int:
+    """Encoded size of a message, or a bound above it for PUBLISH (the hot path: no encoding twice). A PUBLISH is
+    a 6-array of type, four integers of at most 9 bytes each, a cell array (at most 9 bytes a cell plus its
+    header) and a bin payload (at most 5 bytes of header)."""
+    if type(m) is P.Publish:
+        return 1 + 1 + 4 * 9 + 5 + 9 * len(m.cells) + 5 + len(m.payload)
+    return len(P.encode_message(m))

@@ -75,6 +75,22 @@ def test_replay_after_reconnect_shortens_validity_and_keeps_order():
     assert [m.validity_ms for m in _sent(acts, link3) if type(m) is P.Publish] == [0, 0]
 
 
+def test_replay_frames_stay_within_the_frame_limit():
+    """1,000 entities with 2 KiB payloads (about 2 MB) replay as several frames, each within the server's
+    announced max_frame: one frame of them all would be refused with FRAME_TOO_LARGE on every reconnect."""
+    s = _session()
+    for e in range(1000):
+        s.publish([P.Publish(e, 1, (e % 50,), 10_000, bytes(2048))], 0.0)
+    acts = s.start(0.0) + s.timers(0.0)
+    link = next(a.link for a in acts if type(a) is Connect)
+    s.connection_made(link, 0.0)
+    acts = s.receive(link, [P.Welcome(1, 1, 0, {"max_frame": 500_000})], 0.0)
+    frames = [a.msgs for a in acts if type(a) is Send and a.link == link]
+    sizes = [len(P.encode_payload(f)) for f in frames]
+    assert max(sizes) <= 500_000 and len(frames) >= 5
+    assert sorted(m.entity for f in frames for m in f if type(m) is P.Publish) == list(range(1000))
+
+
 def test_unpublished_entity_is_not_replayed():
     s = _session()
     link, _ = _open(s)
