@@ -350,3 +350,13 @@ def test_bad_settings_are_refused():
         ReconnectPolicy(math.nan, 1.0)
     with pytest.raises(ValueError):
         ClientSession(HOME, "d", ping_interval=0.0)
+
+
+@pytest.mark.parametrize("n_cells,payload", [(0, 0), (1, 1), (64, 0), (3, 70_000), (200, 255), (15, 65_536)])
+def test_publish_size_bound_is_never_below_the_encoded_size(n_cells, payload):
+    from entitynet.session.session import _size_bound
+
+    for big in (False, True):
+        v = 2**63 - 1 if big else 1
+        m = P.Publish(v, v, tuple([v] * n_cells), v, bytes(payload))
+        assert _size_bound(m) >= len(P.encode_message(m))
