@@ -25,7 +25,8 @@ import msgpack
 
 from entitynet import protocol as P
 from entitynet.switchboard import Switchboard, SwitchConfig
-from sims.bench.switch_bench import TICK, OursDriver, Walkers, pvs_viewer_cells, viewer_cells
+from sims.bench.switch_bench import TICK, OursDriver, pvs_viewer_cells, viewer_cells
+from sims.mobility import Walkers
 
 
 @dataclass(frozen=True)
