@@ -34,7 +34,7 @@ DOPPLER = 0.3  # RMS per axis (m/s) of the Doppler velocity in the aided runs (a
 
 
 def add_arguments(parser) -> None:  # pragma: no cover - optional hook
-    pass
+    """The suite takes no options beyond the common ones."""
 
 
 # ---- running -----------------------------------------------------------------------------------------------
@@ -247,6 +247,7 @@ def fixes_per_second(topo, ents: list[Entity], seconds: float = 3.0) -> tuple[fl
 
 
 def run(args, progress) -> dict:
+    """The suite: every dataset through every model and threshold, then the bounds, held-out sets and fixes/s."""
     from topology.artifact import load
 
     if args.topology:
@@ -403,6 +404,7 @@ def plot(report: dict, png: str) -> None:
 
 
 def markdown(report: dict) -> str:
+    """The report's table as Markdown, as docs/dead-reckoning.md shows it."""
     lines = ["| dataset | model | threshold (m) | updates / entity-min | error mean (m) | p95 (m) | max (m) | "
              "occupation error | published / true cells |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in report["results"]["table"]:

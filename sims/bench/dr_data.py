@@ -39,6 +39,7 @@ class Entity:
 
     @property
     def minutes(self) -> float:
+        """Duration of the truth in minutes (the denominator of updates per entity-minute)."""
         return (self.t[-1] - self.t[0]) / 60.0
 
 

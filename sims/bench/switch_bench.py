@@ -83,6 +83,8 @@ def viewer_cells(topo, n: int, radius: float, rng: random.Random) -> list[tuple[
 
 # ---------------------------------------------------------------------------------------------- drivers
 class OursDriver:
+    """The load generator speaking entitynet's protocol: HELLO, SUBSCRIBE and PUBLISH frames, UPDATE heads."""
+
     name = "entitynet"
     # an UPDATE's payload: bin8 of 48 bytes (c4 30), our 16-byte head, 32 zero bytes, identity nil (c0)
     pattern = rb"\xc4\x30(.{16})\x00{32}\xc0"
@@ -91,14 +93,17 @@ class OursDriver:
         self.port, self.digest = port, digest
 
     def publisher_hello(self) -> bytes:
+        """What a publisher connection sends first."""
         return P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "bench", self.digest)])
 
     def viewer_hello(self, cells) -> tuple[bytes, Ready]:
+        """A viewer's opening bytes and the marker that says its subscription is in place."""
         data = P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "bench", self.digest), P.Subscribe(tuple(cells), ()),
                                P.Ping(1)])
         return data, Ready(P.encode_message(P.Pong(1, 0))[:3], 1)  # the PONG after the subscription
 
     def publish_bytes(self, batch, now: float) -> bytes:
+        """One frame of PUBLISHes for (entity, seq, cells, validity_ms) items, stamped with `now`."""
         msgs = [msgpack.packb([P.PUBLISH, i, seq, cells, val, PAYLOAD.pack(now, i, seq) + PAD])
                 for i, seq, cells, val in batch]
         return P.frame(P.payload_from_encoded(msgs))
@@ -112,6 +117,8 @@ def _resp(*args: bytes) -> bytes:
 
 
 class RedisDriver:
+    """The same load against Redis pub/sub: one channel per cell, PUBLISH to every occupied cell."""
+
     name = "redis"
     # a pub/sub message: ... $48 CRLF, our 16-byte head, 32 zero bytes, CRLF
     pattern = rb"\$48\r\n(.{16})\x00{32}\r\n"
@@ -120,12 +127,15 @@ class RedisDriver:
         self.port = port
 
     def publisher_hello(self) -> bytes:
+        """Redis needs no handshake."""
         return b""
 
     def viewer_hello(self, cells) -> tuple[bytes, Ready]:
+        """SUBSCRIBE to the cells' channels; ready when every channel is acknowledged."""
         return _resp(b"SUBSCRIBE", *[b"c%d" % c for c in cells]), Ready(b"$9\r\nsubscribe\r\n", len(cells))
 
     def publish_bytes(self, batch, now: float) -> bytes:
+        """A pipeline of PUBLISH commands, one per occupied cell of each item."""
         out = []
         for i, seq, cells, _val in batch:
             payload = PAYLOAD.pack(now, i, seq) + PAD
@@ -318,6 +328,7 @@ def _topology_path(args, progress, quick: bool) -> str:
 
 
 def run(args, progress) -> dict[str, Any]:
+    """The suite: our server, then Redis, with the same viewers and walkers; the report body."""
     from topology.artifact import load
 
     quick = bool(getattr(args, "quick", False))

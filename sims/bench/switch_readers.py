@@ -42,9 +42,12 @@ class Tally:
         self.pending: list[tuple[int, list[bytes], float]] = []
 
     def add(self, v: int, heads: list[bytes], t_recv: float) -> None:
+        """Queue a read's payload heads; counted at the next `flush` (batching keeps the reader cheap)."""
         self.pending.append((v, heads, t_recv))
 
     def flush(self) -> None:
+        """Deduplicate and bin what was queued: a seq newer than the last seen per (viewer, entity), received
+        inside the window, counts once."""
         pending, self.pending = self.pending, []
         if not pending:
             return
@@ -74,6 +77,7 @@ class Tally:
             self.hist += np.bincount(b, minlength=LAT_BINS)
 
     def quantile(self, q: float) -> float | None:
+        """Latency quantile in ms from the histogram (bin centre); None before any delivery."""
         total = int(self.hist.sum())
         if not total:
             return None
@@ -92,6 +96,7 @@ class Scanner:
         self.keep = keep
 
     def feed(self, data: bytes) -> list[bytes]:
+        """The heads complete in what has arrived so far (a record split across reads is found next time)."""
         buf = self.buf + data if self.buf else data
         heads = self.re.findall(buf)
         if heads:
@@ -110,6 +115,7 @@ class Ready:
         self.marker, self.need, self.tail = marker, need, b""
 
     def feed(self, data: bytes) -> bool:
+        """True once `need` markers have arrived (a marker split across reads is still counted once)."""
         buf = self.tail + data
         self.need -= buf.count(self.marker) - self.tail.count(self.marker)
         self.tail = buf[-len(self.marker) :]
@@ -127,6 +133,7 @@ class ReaderLoop:
         self.stop = False
 
     def add(self, sock: socket.socket, handler) -> None:
+        """Watch a socket (non-blocking, no Nagle); `handler(data, t)` gets each read."""
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.socks.append(sock)
@@ -134,6 +141,7 @@ class ReaderLoop:
         self.ep.register(sock.fileno(), select.EPOLLIN)
 
     def viewer(self, v: int, pattern: bytes, ready: Ready):
+        """A read handler for viewer `v`: notes its subscription ack, then tallies the payload heads it reads."""
         scan = Scanner(pattern)
         state = {"ready": False}
 
@@ -148,6 +156,7 @@ class ReaderLoop:
         return handle
 
     def run(self, on_tick=None) -> None:
+        """Read until `stop`; every 10 ms flush the tally and call `on_tick(self)`."""
         next_flush = time.monotonic() + 0.01
         while not self.stop:
             events = self.ep.poll(0.005)
