@@ -24,7 +24,7 @@ from entitynet.client import FixRejected, GhostStore, Subscriptions, netview
 from entitynet.connection import Connection
 from entitynet.server.app import Server, serve
 from entitynet.server.config import ServerConfig
-from sims.movers import Mover, Trajectory, random_start
+from sims.mobility import Mover, Trajectory, random_start
 from topology.raw import PEDESTRIAN
 
 Say = Callable[[str], None]
@@ -80,8 +80,7 @@ class Viewer:
         self.index = index
         self.high = high
         self.z = rng.uniform(40.0, 90.0) if high else 1.7
-        self.traj = Trajectory(net, PEDESTRIAN, rng, [random_start(net, PEDESTRIAN, rng)], [])
-        self.traj.lengths = [net.edge_len[self.traj.path[0][0]]]
+        self.traj = Trajectory.starting_at(net, PEDESTRIAN, rng, random_start(net, PEDESTRIAN, rng))
         self.speed = 6.0 if high else 1.4
         self.subs = Subscriptions(cells_at)
         self.ghosts = GhostStore(net)
