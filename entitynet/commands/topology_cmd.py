@@ -60,10 +60,8 @@ def register(sub) -> None:
 
 
 def _add_pvs_options(parser: argparse.ArgumentParser) -> None:
-    try:
-        from topology.pvs import add_pvs_arguments
-    except ImportError:
-        return
+    from entitynet.commands.pvs_cmd import add_pvs_arguments
+
     add_pvs_arguments(parser)
 
 
@@ -78,10 +76,8 @@ def _add_pvs_export_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _register_pvs_command(tsub) -> None:
-    try:
-        from topology.pvs import register_pvs_command
-    except ImportError:
-        return
+    from entitynet.commands.pvs_cmd import register_pvs_command
+
     register_pvs_command(tsub, load_artifact)
 
 
@@ -127,12 +123,9 @@ def cmd_build(args: argparse.Namespace) -> int:
     )
     config.pvs = None
     if not args.no_pvs:
-        try:
-            from topology.pvs import pvs_config_from_args
+        from entitynet.commands.pvs_cmd import pvs_config_from_args
 
-            config.pvs = pvs_config_from_args(args)
-        except ImportError:
-            pass
+        config.pvs = pvs_config_from_args(args)
     try:
         say(f"reading {path or 'the bundled Helsinki map'}")
         if args.bbox and not (args.bbox[0] < args.bbox[2] and args.bbox[1] < args.bbox[3]):
@@ -205,10 +198,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     topo = load_artifact(args.file)
     extra = []
     if args.pvs_at:
-        try:
-            from topology.pvs import pvs_geojson_features
-        except ImportError:
-            raise CommandError("this entitynet has no PVS support") from None
+        from topology.export import pvs_geojson_features
+
         if "pvs" not in topo.meta:
             raise CommandError(f"{args.file} has no PVS (it was built with --no-pvs)")
         extra = pvs_geojson_features(topo, *args.pvs_at)
