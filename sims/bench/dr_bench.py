@@ -87,7 +87,7 @@ def _project_on_path(path: Path, pts: list[tuple[float, float]], tol: float = 25
 
 
 def vehicles(topo, n: int, rng: random.Random, progress) -> list[Entity]:
-    from proxies.gtfs import match_shapes, read_feed
+    from topology.gtfs import match_shapes, read_feed
 
     zp = SHARED / "hsl-gtfs-2022-02.zip"
     feed = read_feed(zp)
