@@ -306,15 +306,15 @@ class _TruthPlayer(Player):
     def _i(self, t: float) -> int:
         return min(max(int(round((t - self.truth_t0) / SAMPLE)), 0), len(self.truth_v) - 1)
 
-    def _network_fields(self, t: float, from_ghost: bool) -> tuple:
+    def _network_fields(self, t: float, from_ghost: bool, stop_at: float | None = None) -> tuple:
         kf = self.kf
         if not self.true_state or from_ghost or kf is None:
-            return super()._network_fields(t, from_ghost)
+            return super()._network_fields(t, from_ghost, stop_at)
         i = self._i(t)
         saved = kf.v, kf.a
         kf.v, kf.a = float(self.truth_v[i]), float(self.truth_a[i])
         try:
-            return super()._network_fields(t, from_ghost)
+            return super()._network_fields(t, from_ghost, stop_at)
         finally:
             kf.v, kf.a = saved  # the filter goes on with its own estimate
 
