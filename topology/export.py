@@ -38,6 +38,7 @@ def _features(geoms: np.ndarray, props: list[dict[str, Any]]) -> list[dict[str, 
 
 
 def to_geojson(topo: Topology, layers: tuple[str, ...] = LAYERS, extra_features: list | None = None) -> dict:
+    """The artifact's layers as one WGS84 FeatureCollection, for QGIS and other GIS tools."""
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
     features: list[dict[str, Any]] = []
     if "cells" in layers and topo.n_cells:
@@ -97,6 +98,7 @@ def to_geojson(topo: Topology, layers: tuple[str, ...] = LAYERS, extra_features:
 def write_geojson(
     topo: Topology, out: str | Path, layers: tuple[str, ...] = LAYERS, extra_features=None
 ) -> int:
+    """Write `to_geojson` compactly; returns the number of features written."""
     doc = to_geojson(topo, layers, extra_features)
     Path(out).write_text(json.dumps(doc, separators=(",", ":")))
     return len(doc["features"])

@@ -16,6 +16,9 @@ from topology.networks import PEDESTRIAN, TRAM, VEHICLE, Placement
 
 
 class PlacementIndex:
+    """STRtrees over the edges of each network and the areas: the first fix of an entity, before it
+    has a position to continue from (shapely, so it is built only on first use)."""
+
     def __init__(self, topo) -> None:
         self.topo = topo
         lines = shapely.from_ragged_array(

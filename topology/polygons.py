@@ -25,10 +25,12 @@ class Polygons:
 
     @classmethod
     def empty(cls) -> Polygons:
+        """No polygons (a map without buildings or areas is valid)."""
         return cls(np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((0, 2), np.float64))
 
     @classmethod
     def from_shapely(cls, polygons) -> Polygons:
+        """Pack shapely polygons into the ragged arrays (build time)."""
         import shapely  # lazily: reading an artifact's polygons needs no shapely, building them does
 
         geoms = np.asarray(list(polygons), dtype=object)

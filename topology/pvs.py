@@ -62,6 +62,8 @@ QUALITY: dict[str, dict[str, float]] = {
 
 @dataclass(frozen=True)
 class PvsConfig:
+    """The PVS build settings; the quality presets (QUALITY) trade build time for fewer missed cells."""
+
     cell_size: float = 20.0  # view-cell cube side (m)
     max_height: float = 100.0  # top of the view-cell stack (m)
     view_distance: float = 500.0  # horizontal range (m)
@@ -75,6 +77,7 @@ class PvsConfig:
 
     @classmethod
     def from_quality(cls, quality: str = "default", **overrides: Any) -> PvsConfig:
+        """A preset, with the settings given (not None) on top: the CLI passes unset options as None."""
         if quality not in QUALITY:
             raise ValueError(f"unknown PVS quality {quality!r}; choose one of {sorted(QUALITY)}")
         preset = dict(QUALITY[quality])
@@ -83,6 +86,7 @@ class PvsConfig:
         return cls(quality=quality, **preset)
 
     def validate(self) -> None:
+        """Refuse settings that would loop forever or divide by zero, with a message naming the setting."""
         for name in ("cell_size", "max_height", "view_distance", "raster", "ray_spacing", "far_step_from"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
@@ -94,6 +98,7 @@ class PvsConfig:
 
     @property
     def n_rays(self) -> int:
+        """Rays per eye point: enough that neighbouring rays are `ray_spacing` pixels apart at the far end."""
         reach = self.view_distance + self.cell_size * math.sqrt(2.0)
         n = int(math.ceil(2.0 * math.pi * reach / (self.ray_spacing * self.raster)))
         return max(64, n)
@@ -112,6 +117,7 @@ class PvsResult:
     stats: dict[str, Any] = field(default_factory=dict)
 
     def pvs_of(self, view_cell: int) -> np.ndarray:
+        """Sorted visibility-cell ids of one view cell (a view into `ids`, no copy)."""
         return self.ids[self.offsets[view_cell] : self.offsets[view_cell + 1]]
 
     def to_extra(self) -> dict[str, np.ndarray]:

@@ -44,6 +44,7 @@ class PvsIndex:
 
     @classmethod
     def from_topology(cls, topo: Any) -> PvsIndex:
+        """The index of a loaded artifact (ValueError when it was built without a PVS)."""
         from topology.pvs_codec import codec_from_arrays
 
         meta = topo.meta.get("pvs")
@@ -55,6 +56,7 @@ class PvsIndex:
 
     @classmethod
     def from_result(cls, result: PvsResult) -> PvsIndex:
+        """The index of a fresh build, through the same codec as the artifact (tests and benchmarks)."""
         from topology.pvs_codec import EncodedPvs
 
         codec = EncodedPvs.from_arrays(result.to_extra())

@@ -23,12 +23,14 @@ class _Raster:
     shape: tuple[int, int]
 
     def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """x of every column's and y of every row's pixel centre."""
         rows, cols = self.shape
         xs = self.gx0 + (np.arange(cols) + 0.5) * self.px
         ys = self.gy0 + (np.arange(rows) + 0.5) * self.px
         return xs, ys
 
     def window(self, bounds: tuple[float, float, float, float]) -> tuple[slice, slice]:
+        """Row and column slices of the pixels that meet `bounds` (clipped to the raster)."""
         xmin, ymin, xmax, ymax = bounds
         c0 = max(0, int(math.floor((xmin - self.gx0) / self.px)))
         c1 = min(self.shape[1], int(math.ceil((xmax - self.gx0) / self.px)) + 1)
@@ -37,6 +39,7 @@ class _Raster:
         return slice(r0, r1), slice(c0, c1)
 
     def pixel_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat pixel index of each point (clamped to the raster)."""
         c = np.clip(np.floor((np.asarray(x) - self.gx0) / self.px).astype(np.int64), 0, self.shape[1] - 1)
         r = np.clip(np.floor((np.asarray(y) - self.gy0) / self.px).astype(np.int64), 0, self.shape[0] - 1)
         return r * self.shape[1] + c

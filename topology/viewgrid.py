@@ -36,12 +36,15 @@ class ViewGrid:
 
     @property
     def n_view_cells(self) -> int:
+        """View cells kept (grid cells not wholly inside a building)."""
         return int((self.index >= 0).sum())
 
     def layer_top(self, iz: np.ndarray | int) -> np.ndarray:
+        """Top z of layer(s) `iz` (the last layer stops at max_height)."""
         return np.minimum((np.asarray(iz) + 1) * self.size, self.max_height)
 
     def layer_bottom(self, iz: np.ndarray | int) -> np.ndarray:
+        """Bottom z of layer(s) `iz`."""
         return np.asarray(iz) * self.size
 
     def coords(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -60,6 +63,7 @@ class ViewGrid:
         ).astype(np.float64)
 
     def meta(self) -> dict:
+        """The grid's JSON-able description for `meta["pvs"]` (the index itself is an array)."""
         return {
             "origin": [float(self.x0), float(self.y0), 0.0],
             "cell_size": float(self.size),

@@ -11,6 +11,7 @@ from entitynet.cli import CommandError
 
 
 def register(sub) -> None:
+    """`entitynet topology build | info | export | pvs`."""
     p = sub.add_parser("topology", help="build and inspect the topology artifact")
     tsub = p.add_subparsers(dest="topology_command", metavar="ACTION", required=True)
 
@@ -92,6 +93,7 @@ def _progress(quiet: bool):
 
 
 def load_artifact(path: str):
+    """Load an artifact, or a CommandError naming what is wrong with the file (no traceback)."""
     from topology.artifact import ArtifactError, load
 
     try:
@@ -101,6 +103,7 @@ def load_artifact(path: str):
 
 
 def cmd_build(args: argparse.Namespace) -> int:
+    """Read, build and save; bad numbers and bad maps end with a clear error, not a half-written file."""
     from topology.artifact import save
     from topology.build import BuildConfig, BuildError, build, features_dropped, read_map
     from topology.cells import CellParams
@@ -159,6 +162,7 @@ def _positive(value: float, name: str) -> float:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    """Print counts, extent, CRS, digest and the build report: what a user checks after a build."""
     from topology.build import report_lines
 
     topo = load_artifact(args.file)
@@ -189,6 +193,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    """Write the chosen layers (and optionally one PVS) as WGS84 GeoJSON."""
     from topology.export import LAYERS, write_geojson
 
     layers = tuple(x.strip() for x in args.layers.split(",") if x.strip())
