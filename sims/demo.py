@@ -66,7 +66,7 @@ def distance_cells_at(topo, view_distance: float = 500.0) -> Callable[[float, fl
 
 def pvs_lookup(topo, say: Say) -> Callable[[float, float, float], np.ndarray]:
     if "pvs" in topo.meta:
-        from topology.pvs import PvsIndex
+        from topology.pvs_index import PvsIndex
 
         return PvsIndex.from_topology(topo).cells_at
     say("the artifact has no PVS: viewers subscribe to every cell within 500 m instead")

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from shapely.geometry import Polygon
 
-# Network bits: an edge may belong to several networks (a residential street is walkable and drivable).
-PEDESTRIAN = 1
-VEHICLE = 2
-TRAM = 4
-NETWORK_NAMES = {PEDESTRIAN: "pedestrian", VEHICLE: "vehicle", TRAM: "tram"}
+# the network bits live in the shapely-free topology.networks; re-exported here for the readers
+from topology.networks import NETWORK_NAMES as NETWORK_NAMES
+from topology.networks import PEDESTRIAN as PEDESTRIAN
+from topology.networks import TRAM as TRAM
+from topology.networks import VEHICLE as VEHICLE
 
 
 @dataclass

@@ -74,7 +74,7 @@ def vehicles(topo, n: int, rng: random.Random, progress) -> list[Entity]:
     """`n` trams and buses (half each, as far as the feed has them) along distinct GTFS shapes matched onto
     the map, moved by their kind's speed profile with dwells at the shape's stops and red signals at road
     junctions: realistic transit truth, with the route and stops the network model may use."""
-    from proxies.gtfs import match_shapes, read_feed
+    from topology.gtfs import match_shapes, read_feed
 
     zp = SHARED / "hsl-gtfs-2022-02.zip"
     feed = read_feed(zp)

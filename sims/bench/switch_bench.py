@@ -52,7 +52,7 @@ def pvs_viewer_cells(topo, n: int, rng: random.Random) -> list[tuple[int, ...]] 
     """Cells in the PVS of the view cell of a random street node, half at street level and half above the roofs
     (None when the artifact has no PVS)."""
     try:
-        from topology.pvs import PvsIndex
+        from topology.pvs_index import PvsIndex
 
         index = PvsIndex.from_topology(topo)
     except Exception as exc:  # no PVS, or one this version of topology.pvs cannot read: fall back, say so

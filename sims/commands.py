@@ -1,15 +1,21 @@
-"""`entitynet demo`: the bundled Helsinki map, a shard server, a few hundred honest clients and viewers."""
+"""`entitynet demo` and `entitynet bench`: the subcommands of `sims`, registered through the entry-point
+group `entitynet.commands` (pyproject.toml) so that `entitynet` never imports `sims` (the arrows run
+topology <- entitynet <- sims)."""
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import json
 import sys
 import time
 
 from entitynet.cli import CommandError
 
 
-def register(sub) -> None:
+# ---- entitynet demo ----------------------------------------------------------------------------------------
+def register_demo(sub) -> None:
+    """`entitynet demo`: the bundled Helsinki map, a shard server, a few hundred honest clients and viewers."""
     p = sub.add_parser("demo", help="run a live city on loopback: server, honest clients, PVS viewers")
     p.add_argument("--entities", type=int, default=300, help="simulated entities (default 300)")
     p.add_argument("--viewers", type=int, default=24, help="viewers subscribing by PVS (default 24)")
@@ -19,10 +25,11 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="random seed")
     p.add_argument("--port", type=int, default=0, help="server TCP port (default: any free port)")
     p.add_argument("--no-pvs", action="store_true", help="use an artifact without PVS (subscribe by distance)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run_demo_command)
 
 
-def run(args: argparse.Namespace) -> int:
+def run_demo_command(args: argparse.Namespace) -> int:
+    """Check the numbers (a clear error, not a traceback from deep inside), then run the demo until done."""
     import trio
 
     from entitynet.topology_cache import bundled_topology
@@ -50,4 +57,36 @@ def run(args: argparse.Namespace) -> int:
         summary_every=args.summary_every, seed=args.seed, port=args.port,
     )  # fmt: skip
     trio.run(run_demo, topo, path, config, lambda m: print(m, flush=True))
+    return 0
+
+
+# ---- entitynet bench ---------------------------------------------------------------------------------------
+def register_bench(sub) -> None:
+    """`entitynet bench SUITE [--quick] --out FILE.json`: the suites of `sims.bench.all_suites()`."""
+    from sims.bench import all_suites
+
+    p = sub.add_parser("bench", help="run a benchmark suite and write its JSON report")
+    p.add_argument("suite", choices=sorted(all_suites()), help="which suite")
+    p.add_argument("--quick", action="store_true", help="a smaller run that finishes in under a minute")
+    p.add_argument("--out", metavar="FILE.json", help="write the JSON report here (default: print it)")
+    p.add_argument("--topology", metavar="FILE", help="topology artifact (default: the bundled Helsinki map)")
+    p.set_defaults(func=run_bench_command)
+
+
+def progress(msg: str) -> None:
+    """Bench progress goes to stderr so that stdout stays the results (pipe it into jq)."""
+    print(f"[bench] {msg}", file=sys.stderr, flush=True)
+
+
+def run_bench_command(args: argparse.Namespace) -> int:
+    """Import the suite's module only now (a suite's heavy imports cost nothing to the other commands)."""
+    from sims.bench import all_suites
+    from sims.bench.report import write_report
+
+    module = importlib.import_module(all_suites()[args.suite])
+    body = module.run(args, progress)
+    report = write_report(args.suite, body, args.out)
+    print(json.dumps(report["results"], indent=2, default=float))
+    if args.out:
+        progress(f"report written to {args.out}")
     return 0
