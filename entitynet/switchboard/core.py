@@ -19,8 +19,6 @@ from __future__ import annotations
 import random
 from collections import Counter
 
-import msgpack
-
 from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
 from entitynet.switchboard import access
@@ -32,7 +30,8 @@ from entitynet.switchboard.ratelimit import TokenBucket
 from entitynet.switchboard.subscribing import SubscriptionsMixin
 from entitynet.switchboard.timers import ExpiryHeap
 
-_packb = msgpack.Packer(use_bin_type=True).pack
+_encode_update = P.encode_update  # the one UPDATE layout (entitynet.protocol.codec), bound for the hot path
+_encode_leave = P.encode_leave
 
 
 class ClientState:
@@ -269,7 +268,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         e.seq = m.seq
         e.validity_ms = m.validity_ms
         e.payload = m.payload
-        e.enc_plain = _packb([P.UPDATE, eid, m.seq, new, m.validity_ms, m.payload, None])
+        e.enc_plain = _encode_update(eid, m.seq, new, m.validity_ms, m.payload)
         e.enc_ident = None
         self.timers.set(eid, now + m.validity_ms / 1000.0 + cfg.grace_s)
 
@@ -319,11 +318,11 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if ident is None:
             return e.enc_plain
         if e.enc_ident is None:
-            e.enc_ident = _packb([P.UPDATE, e.eid, e.seq, e.cells, e.validity_ms, e.payload, ident])
+            e.enc_ident = _encode_update(e.eid, e.seq, e.cells, e.validity_ms, e.payload, ident)
         return e.enc_ident
 
     def _leave(self, eid: int, clients: set[int]) -> None:
-        enc = _packb([P.LEAVE, eid])
+        enc = _encode_leave(eid)
         states = self._states
         for v in clients:
             st = states.get(v)
