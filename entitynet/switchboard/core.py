@@ -212,7 +212,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
             elif t is P.Subscribe:
                 self._subscribe(c, m, now)
             elif t is P.Ping:
-                self._control(c, P.Pong(m.client_ms, P.now_ms(max(now, 0.0))))
+                self._reply_msg(c, P.Pong(m.client_ms, P.now_ms(max(now, 0.0))))
             elif t is P.Unpublish:
                 self._unpublish(c, m)
             elif t is P.Follow:
@@ -242,7 +242,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
             c.token = m.token
         c.ready = True
         self.hello_timers.cancel(c.cid)
-        self._control(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), cfg.wire_limits()))
+        self._reply_msg(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), cfg.wire_limits()))
 
     # ------------------------------------------------------------------------------------------ publishing
     def _publish(self, c: ClientState, m: P.Publish, now: float) -> None:

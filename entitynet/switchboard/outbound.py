@@ -67,7 +67,7 @@ class OutboundMixin:
             self._dirty.add(c.cid)
         c.replies = c.refused = 0
 
-    def _control(self, c: ClientState, msg: P.Message) -> None:
+    def _reply_msg(self, c: ClientState, msg: P.Message) -> None:
         self._reply(c, P.encode_message(msg))
 
     def _reply(self, c: ClientState, encoded: bytes) -> None:
