@@ -134,6 +134,7 @@ class Server(WritingMixin):
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        """Listen, serve and run the flusher, timers and housekeeping until cancelled (one nursery)."""
         cfg = self.config
         if cfg.open_mode:
             logs.event("OPEN MODE: any token is accepted; use only for local testing", logging.WARNING)
