@@ -18,7 +18,7 @@ from entitynet.protocol import ErrorCode
 from entitynet.switchboard.outbox import Outbox
 
 if TYPE_CHECKING:
-    from entitynet.switchboard.core import ClientState
+    from entitynet.switchboard.tables import ClientState
 
 log = logging.getLogger("entitynet.switchboard")
 

@@ -14,7 +14,7 @@ from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
 
 if TYPE_CHECKING:
-    from entitynet.switchboard.core import ClientState
+    from entitynet.switchboard.tables import ClientState
 
 
 class SubscriptionsMixin:
