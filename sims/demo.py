@@ -94,6 +94,7 @@ class Viewer:
             self.ghosts.receive(msg, time.time())
         elif isinstance(msg, P.Welcome):
             self.ghosts.ghosts.clear()  # entity ids are per server session
+            self.subs.apply_limits(msg.limits)  # the next move subscribes within them (max_subscriptions, ...)
 
     def move(self, dt: float) -> list[P.Subscribe]:
         self.traj.advance(self.speed * dt)

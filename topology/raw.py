@@ -61,6 +61,7 @@ class RawBuilding:
 
 @dataclass
 class RawStop:
+    """A stop of a transit route relation, projected, so that routes can place their stops on edges."""
     stop_id: int
     xy: tuple[float, float]
     name: str = ""
@@ -80,6 +81,8 @@ class RawRoute:
 
 @dataclass
 class RawMap:
+    """Everything one reader produced, in local metres: the cleaner's input, with the feature counts that
+    become the build report."""
     crs: str
     origin: tuple[float, float]
     ways: list[RawWay] = field(default_factory=list)

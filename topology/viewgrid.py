@@ -24,14 +24,17 @@ class ViewGrid:
 
     @property
     def nz(self) -> int:
+        """Layers (height bands) of the grid."""
         return int(self.index.shape[0])
 
     @property
     def ny(self) -> int:
+        """Rows (y) of the grid."""
         return int(self.index.shape[1])
 
     @property
     def nx(self) -> int:
+        """Columns (x) of the grid."""
         return int(self.index.shape[2])
 
     @property

@@ -33,10 +33,6 @@ HELD_OUT_SEEDS = (11, 12, 13)  # pedestrian sets drawn apart from the main one (
 DOPPLER = 0.3  # RMS per axis (m/s) of the Doppler velocity in the aided runs (a phone or vehicle locator's)
 
 
-def add_arguments(parser) -> None:  # pragma: no cover - optional hook
-    """The suite takes no options beyond the common ones."""
-
-
 # ---- running -----------------------------------------------------------------------------------------------
 def run_entity(topo, ent: Entity, model: str, threshold: float, acc: dict,
                noisy: bool = True, player=None, doppler: float | None = None) -> None:
