@@ -14,9 +14,9 @@ coordinate `s`:
 - at a stop it dwells until the expected departure (or `dwell` seconds), then goes on to the following stop on
   its last ETAs, and past those on the schedule's run times plus its last known delay.
 
-One-minute ETA granularity makes the arrival time uncertain by half a minute; the schedule's run time from the
-observed departure is an independent estimate, so the target is the schedule's arrival clamped into the ETA's
-rounding interval (`granularity`).
+One-minute ETA granularity makes the arrival time uncertain by half a minute either way: the target is the
+middle of what is still possible (`_arrival`), and a departure is taken from the tracker's next answer rather
+than from a rounded departure time that may be early.
 """
 
 from __future__ import annotations
@@ -107,21 +107,21 @@ class EtaMotion:
         self.left_at = now
 
     # ---- the target time ------------------------------------------------------------------------------------
-    def _arrival(self, j: int) -> float | None:
-        """When to reach stop j: its ETA (narrowed by the schedule's run time from our departure), else the
-        schedule plus the last delay, else None (no opinion: cruise)."""
+    def _arrival(self, j: int, t: float) -> float | None:
+        """When to reach stop j, as seen at time t: with an ETA rounded to `granularity` the true arrival lies
+        anywhere in ETA +- granularity/2; a vehicle not there yet will arrive in [max(t, ETA - g/2), ETA + g/2],
+        and the middle of that is the target (it moves later while the vehicle is not seen at the stop). Without
+        an ETA: the schedule plus the last delay; else None (no opinion: cruise)."""
         eta = self.eta.get(j)
-        run = None
-        if self.left_at is not None and j > 0:
-            run = self.left_at + max(self.sched[j][0] - self.sched[j - 1][1], 0.0)
         if eta is not None:
             half = 0.5 * self.granularity
-            if run is not None and half > 0.0:
-                return min(max(run, eta - half), eta + half)
-            return eta
+            if half <= 0.0:
+                return eta
+            lo, hi = max(eta - half, t), eta + half
+            return 0.5 * (lo + hi) if hi > t else t
         if self.trip_start is not None:
             return self.trip_start + self.sched[j][0] + self.delay
-        return run
+        return None
 
     # ---- motion ---------------------------------------------------------------------------------------------
     def advance(self, now: float) -> tuple[float, float]:
@@ -143,7 +143,10 @@ class EtaMotion:
                 return  # at the end of the route
             until = self.dwell_until
             if until is None:
-                until = self.etd.get(self.target, t + lim.dwell)
+                # a rounded departure time may be half a granularity early; the next poll showing the vehicle
+                # past the stop (`observe`) ends the dwell sooner
+                etd = self.etd.get(self.target)
+                until = t + lim.dwell if etd is None else etd + 0.5 * self.granularity
                 self.dwell_until = until
             if t + dt < until:
                 return
@@ -155,7 +158,7 @@ class EtaMotion:
         if dist <= 0.05:
             self._arrive(t)
             return
-        arrive = self._arrival(j)
+        arrive = self._arrival(j, t)
         v_brake = math.sqrt(2.0 * lim.brake * dist)
         if arrive is None or arrive - t <= dt:
             v_des = lim.vmax  # late (or no time known): as fast as allowed

@@ -62,7 +62,7 @@ class Vehicle:
 class Fleet:
     def __init__(self, topo, book: RouteBook, *, fix_interval: float = 2.0, stale_after: float = 300.0,
                  granularity: float = 60.0, threshold: float = 8.0, accuracy: float = 3.0,
-                 first_entity: int = 1) -> None:
+                 first_entity: int = 1, entry_horizon: float = 20.0) -> None:
         self.topo = topo
         self.net = netview(topo)
         self.book = book
@@ -71,6 +71,7 @@ class Fleet:
         self.granularity = granularity
         self.threshold = threshold
         self.accuracy = accuracy
+        self.entry_horizon = entry_horizon
         self.vehicles: dict[str, Vehicle] = {}
         self.counters = Counters()
         self._next_entity = first_entity
@@ -215,9 +216,11 @@ class Fleet:
             frac = min(max(1.0 - left / run, 0.0), 1.0)
             s = prev.s + frac * (s_next - prev.s)
         else:
-            s = s_next - left * 6.0  # entering the map: about 6 m/s before its first stop here
-            if s < 0.0:
+            # entering the map: where it is before its first stop here is a guess (the schedule's speed from its
+            # previous stop, off the map), so it appears only `entry_horizon` seconds before that stop
+            if left > self.entry_horizon:
                 return False
+            s = max(s_next - left * route.stops[nxt].approach_speed, 0.0)
         m.place(s, now, nxt)
         return True
 

@@ -26,6 +26,7 @@ class RouteStop:
     s: float  # path coordinate on the route
     sched_arr: float  # seconds from the trip's first departure
     sched_dep: float
+    approach_speed: float = 6.0  # m/s of the schedule from the trip's previous stop (on the map or not)
 
 
 @dataclass
@@ -92,6 +93,15 @@ def _stops_along(xy: np.ndarray, cum: np.ndarray, pts: np.ndarray, snap: float) 
     return out
 
 
+def _approach(pat: Pattern, k: int) -> float:
+    """The schedule's mean speed from stop k-1 to stop k (along the shape), within 2..15 m/s."""
+    if k == 0:
+        return 6.0
+    run = float(pat.arr[k] - pat.dep[k - 1])
+    gap = float(pat.stop_dist[k] - pat.stop_dist[k - 1])
+    return min(max(gap / run, 2.0), 15.0) if run > 0.0 and gap > 0.0 else 6.0
+
+
 def build_routes(topo, gtfs: str | FsPath, *, modes: tuple[str, ...] = ("tram", "bus"), stop_snap: float = 40.0,
                  schedule: Schedule | None = None, matched=None) -> RouteBook:
     """Match the feed's shapes onto `topo` and give every trip over the map its route and stops."""
@@ -128,7 +138,7 @@ def build_routes(topo, gtfs: str | FsPath, *, modes: tuple[str, ...] = ("tram", 
             for m in runs:
                 xy, cum = _path_xy(topo, m.edges)
                 ss = _stops_along(xy, cum, sxy, stop_snap)
-                stops = [RouteStop(sid, k, s, float(pat.arr[k]), float(pat.dep[k]))
+                stops = [RouteStop(sid, k, s, float(pat.arr[k]), float(pat.dep[k]), _approach(pat, k))
                          for k, (sid, s) in enumerate(zip(pat.stop_ids, ss, strict=True)) if s is not None]
                 if len(stops) >= 2 and (best is None or len(stops) > len(best.stops)):
                     best = TransitRoute(m.shape_id, m.mode, list(m.edges), float(cum[-1]), stops)

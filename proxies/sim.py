@@ -50,7 +50,7 @@ def run_sim(topo, book: RouteBook, world: ReplayWorld, *, start: float, duration
 
     clock = ServiceClock.for_date(book.schedule.service_date if book.schedule else "20220222")
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
-    fleet = Fleet(topo, book, granularity=world.granularity, **(fleet_kw or {}))
+    fleet = Fleet(topo, book, **{"granularity": world.granularity, **(fleet_kw or {})})
     res = SimResult()
     stops = book.stops
 
