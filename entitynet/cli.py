@@ -2,7 +2,9 @@
 
 This is the composition root: each subcommand lives in its own module with a `register(subparsers)`
 function, imported here by name so that `entitynet --help` stays fast and a broken optional part
-cannot stop the others from running.
+cannot stop the others from running. Packages that build on entitynet (`proxies`, `sims`) add their own
+subcommands through the `entitynet.commands` entry-point group, so that entitynet never imports them; a plugin
+that fails to load or register is reported as a warning and left out.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ import argparse
 import importlib
 import logging
 import sys
+import warnings
+from importlib.metadata import entry_points
 
 from entitynet import __version__
 
@@ -22,6 +26,9 @@ COMMAND_MODULES = [
     "entitynet.commands.serve_cmd",
     "entitynet.commands.users_cmd",
 ]
+
+#: entry-point group through which other packages add subcommands (`name = "module:register"`)
+PLUGIN_GROUP = "entitynet.commands"
 
 
 class CommandError(Exception):
@@ -38,6 +45,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    for ep in entry_points(group=PLUGIN_GROUP):
+        try:
+            ep.load()(sub)
+        except Exception as exc:  # noqa: BLE001 - a broken plugin must not break the CLI
+            warnings.warn(f"entitynet: command plugin {ep.name!r} ({ep.value}) not loaded: {exc}", stacklevel=1)
     return parser
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from entitynet.client import Path, Player, netview
+from entitynet.client import FixRejected, Path, Player, netview
 from entitynet.client.entities import entity_type
 from entitynet.protocol import Publish, Unpublish
 from proxies.eta_motion import EtaMotion, Limits
@@ -57,6 +57,7 @@ class Vehicle:
     index_of: dict[int, int]  # trip stop index -> route stop index
     last_data: float
     last_fix: float = -math.inf
+    positions: bool = False  # a position feed gives its fixes (the ETA motion only fills gaps)
 
 
 class Fleet:
@@ -72,6 +73,7 @@ class Fleet:
         self.threshold = threshold
         self.accuracy = accuracy
         self.entry_horizon = entry_horizon
+        self.position_gap = 60.0  # s without a position before the ETA motion feeds the fixes again
         self.vehicles: dict[str, Vehicle] = {}
         self.counters = Counters()
         self._next_entity = first_entity
@@ -155,7 +157,7 @@ class Fleet:
             trip, route = found
             veh = self.vehicles.get(ref)
             if veh is not None and veh.trip != trip:
-                self._retire(ref)  # the vehicle started its next trip: a new route
+                self.pending.extend(self._retire(ref))  # the vehicle started its next trip: a new route
                 veh = None
             index_of = veh.index_of if veh is not None else {st.index: i for i, st in enumerate(route.stops)}
             stop_index = {st.stop_id: i for i, st in enumerate(route.stops)}
@@ -224,14 +226,50 @@ class Fleet:
         m.place(s, now, nxt)
         return True
 
+    def ingest_positions(self, positions, offset: float, to_local) -> None:
+        """GTFS-rt VehiclePositions (`gtfsrt.Position`, producer times + `offset` = local): each position is a
+        fix for the vehicle's client core, as a phone's would be; a vehicle seen first is placed where the
+        position projects onto its route. The ETA motion is moved up to the position, so that it carries on
+        from there should the positions stop."""
+        c = self.counters
+        c.polls += 1
+        for pos in positions:
+            c.calls += 1
+            if not pos.vehicle or not pos.trip_id:
+                c.untraced += 1
+                continue
+            found = self.book.route_of(pos.trip_id)
+            if found is None:
+                c.off_map += 1
+                continue
+            trip, route = found
+            x, y = to_local(pos.lon, pos.lat)
+            veh = self.vehicles.get(pos.vehicle)
+            if veh is not None and veh.trip != trip:
+                self.pending.extend(self._retire(pos.vehicle))
+                veh = None
+            s = self._project(route, x, y, veh.motion.s if veh is not None else 0.0)
+            if s is None:
+                c.off_map += 1
+                continue
+            t = pos.t + offset
+            if veh is None:
+                veh = self._new_vehicle(pos.vehicle, trip, route, pos.route_id)
+                nxt = next((i for i, st in enumerate(route.stops) if st.s > s + 1.0), len(route.stops) - 1)
+                veh.motion.place(s, t, nxt)
+                self.vehicles[pos.vehicle] = veh
+            c.used += 1
+            c.vehicles_seen.add(pos.vehicle)
+            veh.motion.observe(t, {}, location_s=s)
+            veh.positions = True
+            self.fix(pos.vehicle, x, y, t, pos.speed, pos.bearing)
+
     def fix(self, ref: str, x: float, y: float, t: float, speed: float | None = None,
             heading: float | None = None) -> None:
-        """A GTFS-rt vehicle position (local metres): fed to the vehicle's client core as it is, when newer."""
+        """A vehicle position (local metres): fed to the vehicle's client core as it is, when newer."""
         veh = self.vehicles.get(ref)
         if veh is None or t <= veh.last_fix:
             return
-        from entitynet.client import FixRejected
-
         try:
             self.pending.extend(veh.player.feed(x, y, t, self.accuracy, speed=speed, heading=heading))
         except FixRejected:
@@ -265,7 +303,8 @@ class Fleet:
                     self.counters.retired_stale += 1
                 out.extend(self._retire(ref))
                 continue
-            if motion_fixes and now - veh.last_fix >= self.fix_interval:
+            gap = self.fix_interval if not veh.positions else max(self.fix_interval, self.position_gap)
+            if motion_fixes and now - veh.last_fix >= gap:
                 x, y, v, heading = self.position(veh, now)
                 msgs = veh.player.feed(x, y, now, self.accuracy, speed=v, heading=heading, speed_accuracy=0.3)
                 veh.last_fix = now
