@@ -46,7 +46,7 @@ def test_monotone_and_never_standing_between_stops(g, poll, latency):
     trace = _run(_motion(g), truth, 15.0, g, poll, latency, 520.0, rng)
     s = np.array([p[1] for p in trace])
     assert np.all(np.diff(s) >= -1e-9), "moved backwards"
-    for _t, si, v, standing in trace:
+    for _t, si, v, _standing in trace:
         if v == 0.0 and si > 0.0:
             assert min(abs(si - x) for x in STOPS) < 1e-6, f"stood at {si} between stops"
     assert s[-1] == pytest.approx(STOPS[-1])  # reached the end

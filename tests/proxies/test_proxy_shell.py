@@ -6,7 +6,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import pytest
 import requests
 import trio
 from replay_helpers import make_service, replay_running, url
