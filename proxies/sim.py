@@ -27,23 +27,24 @@ class SimResult:
     cpu_s: float = 0.0
     seen: set[str] = field(default_factory=set)
     lost: int = 0
-    recovery_s: float | None = None
+    series: list[tuple[float, float]] = field(default_factory=list)  # (seconds from start, mean error then)
 
     def summary(self) -> dict:
         e = np.array(self.errors) if self.errors else np.zeros(1)
         vmin = self.vehicle_seconds / 60.0
+        vh = self.vehicle_seconds / 3600.0
         return {
             "position_error_m": {"mean": float(e.mean()), "p95": float(np.percentile(e, 95)), "max": float(e.max()),
                                  "samples": len(self.errors)},
             "updates_per_vehicle_min": self.publishes / vmin if vmin else 0.0,
-            "proxy_cpu_s_per_vehicle_hour": self.cpu_s / (self.vehicle_seconds / 3600.0) if self.vehicle_seconds else 0.0,
+            "proxy_cpu_s_per_vehicle_hour": self.cpu_s / vh if vh else 0.0,
             "vehicles_traced": len(self.seen),
         }
 
 
 def run_sim(topo, book: RouteBook, world: ReplayWorld, *, start: float, duration: float, poll: float = 20.0,
             latency: float = 3.0, warmup: float = 120.0, outage: tuple[float, float] | None = None,
-            fleet_kw: dict | None = None) -> tuple[SimResult, Fleet]:
+            fleet_kw: dict | None = None, preview: float = 600.0) -> tuple[SimResult, Fleet]:
     """Run from service second `start` for `duration` s (errors counted after `warmup`). `outage` = (from, to)
     seconds after start during which polls fail."""
     from topology.projection import LocalProjection
@@ -59,7 +60,6 @@ def run_sim(topo, book: RouteBook, world: ReplayWorld, *, start: float, duration
         return float(p[0]), float(p[1])
 
     next_poll = start
-    outage_end_seen = None
     t = start
     while t <= start + duration:
         now = clock.epoch(t)
@@ -68,12 +68,10 @@ def run_sim(topo, book: RouteBook, world: ReplayWorld, *, start: float, duration
             next_poll += poll
             failing = outage is not None and outage[0] <= t - start < outage[1]
             if not failing:
-                data = build_response(world.visits(stops, t - latency, preview=1200.0), t - latency, clock)
+                data = build_response(world.visits(stops, t - latency, preview=preview), t - latency, clock)
                 c0 = time.process_time()
                 d = parse_response(data)
                 fleet.ingest(d.calls, d.response_time, now, to_local=to_local)
-                if outage is not None and t - start >= outage[1] and outage_end_seen is None:
-                    outage_end_seen = t
         fleet.tick(now)
         res.cpu_s += time.process_time() - c0
         res.vehicle_seconds += len(fleet.vehicles)
@@ -83,10 +81,14 @@ def run_sim(topo, book: RouteBook, world: ReplayWorld, *, start: float, duration
             if refs:
                 ll = np.array([truth[r][:2] for r in refs])
                 txy = proj.to_local(ll[:, 0], ll[:, 1])
+                errs = []
                 for r, (tx, ty) in zip(refs, txy, strict=True):
                     g = fleet.ghost_xy(r, now)
                     if g is not None:
-                        res.errors.append(float(np.hypot(g[0] - tx, g[1] - ty)))
+                        errs.append(float(np.hypot(g[0] - tx, g[1] - ty)))
+                res.errors.extend(errs)
+                if errs:
+                    res.series.append((t - start, float(np.mean(errs))))
         t += 1.0
     res.publishes = fleet.counters.publishes
     res.seen = set(fleet.counters.vehicles_seen)

@@ -69,7 +69,7 @@ class StopMonitoringClient:
     only that, one GetStopMonitoring per stop."""
 
     def __init__(self, url: str, wsdl: str | None = None, *, timeout: float = 10.0, requestor: str = "entitynet",
-                 chunk: int = 500, preview_s: int = 1200, mode: str = "auto") -> None:
+                 chunk: int = 500, preview_s: int = 600, mode: str = "auto") -> None:
         self.url = url
         self.wsdl = wsdl or default_wsdl()
         if not Path(self.wsdl).exists() and "://" not in self.wsdl:

@@ -206,14 +206,20 @@ def _true(text: str | None, default: bool) -> bool:
     return text.lower() in ("true", "1")
 
 
+#: the elements of a MonitoredStopVisit the proxy reads (any namespace)
+_FIELDS = ("MonitoredVehicleJourney", "StopPointRef", "MonitoringRef", "DatedVehicleJourneyRef",
+           "VehicleJourneyRef", "Longitude", "Latitude", "Order", "VisitNumber", "VehicleRef", "LineRef",
+           "DirectionRef", "ExpectedArrivalTime", "ExpectedDepartureTime", "AimedArrivalTime", "VehicleAtStop",
+           "Monitored")
+_FIELD_TAGS = tuple("{*}" + f for f in _FIELDS)
+
+
 def _flat(visit) -> dict[str, str]:
-    """Local name -> stripped text of every element in a visit, the first occurrence of each (one pass in C;
-    a visit's fields of interest have unique names, wherever a producer nests them)."""
+    """Local name -> stripped text of the elements the proxy reads, the first occurrence of each (lxml filters
+    the tags in C; a visit's fields of interest have unique names, wherever a producer nests them)."""
     out: dict[str, str] = {}
-    for el in visit.iter():
+    for el in visit.iter(*_FIELD_TAGS):
         tag = el.tag
-        if not isinstance(tag, str):
-            continue
         name = tag[tag.rfind("}") + 1:]
         if name not in out:
             text = el.text
