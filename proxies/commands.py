@@ -103,12 +103,12 @@ def _load(args):
         topo, _path = bundled_topology(_say, with_pvs=False)
     if not Path(args.gtfs).exists():
         raise _command_error(f"GTFS feed {args.gtfs} not found")
-    from proxies.routes import build_routes
+    from proxies.routes import cached_routes
     from proxies.schedule import ScheduleError
 
     t0 = time.perf_counter()
     try:
-        book = build_routes(topo, args.gtfs)
+        book = cached_routes(topo, args.gtfs, say=_say)
     except ScheduleError as exc:
         raise _command_error(str(exc)) from None
     _say(f"{len(book.routes)} trips on {len({id(r) for r in book.routes.values()})} routes over the map, "

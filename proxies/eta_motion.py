@@ -50,6 +50,7 @@ class EtaMotion:
         self.sched = list(sched)
         self.lim = limits
         self.granularity = float(granularity)
+        self.dwell_slack = 0.5  # a rounded departure time may be this many granularities early
         self.t: float | None = None
         self.s = stop_s[0]
         self.v = 0.0
@@ -62,6 +63,7 @@ class EtaMotion:
         self.left_at: float | None = None  # when we left the last stop (for the schedule's run time)
         self.standing = True
         self.last_obs: float | None = None
+        self.creep_until = -math.inf
 
     # ---- observations -------------------------------------------------------------------------------------
     def place(self, s: float, now: float, target: int) -> None:
@@ -100,6 +102,11 @@ class EtaMotion:
             self.s = min(location_s, self.stop_s[self.target])
             self.v = max(self.v, self.lim.v_min)
             self.standing = False
+        elif location_s is not None and location_s < self.s - 5.0 and not self.standing:
+            # we are ahead of the reported position: creep (never back, never standing) until it has caught up
+            # at the speed it needs for the ETA
+            lead = self.s - location_s
+            self.creep_until = now + lead / max(self.v, 4.0)
 
     def _depart(self, now: float) -> None:
         self.standing = False
@@ -146,7 +153,7 @@ class EtaMotion:
                 # a rounded departure time may be half a granularity early; the next poll showing the vehicle
                 # past the stop (`observe`) ends the dwell sooner
                 etd = self.etd.get(self.target)
-                until = t + lim.dwell if etd is None else etd + 0.5 * self.granularity
+                until = t + lim.dwell if etd is None else etd + self.dwell_slack * self.granularity
                 self.dwell_until = until
             if t + dt < until:
                 return
@@ -169,6 +176,8 @@ class EtaMotion:
             disc = bt * bt - 2.0 * lim.brake * dist
             v_des = bt - math.sqrt(disc) if disc >= 0.0 else lim.vmax
         v_des = min(v_des, lim.vmax, v_brake)
+        if t < self.creep_until:
+            v_des = lim.v_min
         v_des = max(v_des, min(lim.v_min, v_brake))
         if v_des > self.v:
             v = min(v_des, self.v + lim.accel * dt)

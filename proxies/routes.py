@@ -152,3 +152,41 @@ def build_routes(topo, gtfs: str | FsPath, *, modes: tuple[str, ...] = ("tram", 
             stop_set[st.stop_id] = None
     journey_trip = {nmtoken(t): t for t in routes}
     return RouteBook(routes, journey_trip, list(stop_set), line_mode, schedule)
+
+
+def cached_routes(topo, gtfs: str | FsPath, *, modes: tuple[str, ...] = ("tram", "bus"), say=None) -> RouteBook:
+    """`build_routes`, cached on disk (the entitynet cache folder) by the map's digest, the feed's content, the
+    modes and this package's source, so a proxy starts in a second after the first time. An unreadable cache
+    entry is rebuilt."""
+    import hashlib
+    import pickle
+
+    from entitynet.topology_cache import cache_dir
+
+    h = hashlib.sha256()
+    h.update(topo.digest.encode())
+    h.update(FsPath(gtfs).read_bytes())
+    h.update(",".join(modes).encode())
+    for src in sorted(FsPath(__file__).parent.glob("*.py")):
+        h.update(src.read_bytes())
+    path = cache_dir() / f"routes-{h.hexdigest()[:16]}.pickle"
+    if path.exists():
+        try:
+            with open(path, "rb") as fh:
+                book = pickle.load(fh)
+            if isinstance(book, RouteBook):
+                return book
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
+            pass
+    if say:
+        say("matching the feed's shapes onto the map (cached for the next start)")
+    book = build_routes(topo, gtfs, modes=modes)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        with open(tmp, "wb") as fh:
+            pickle.dump(book, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        tmp.replace(path)
+    except OSError:
+        pass
+    return book
