@@ -160,14 +160,21 @@ class Fleet:
                 self.pending.extend(self._retire(ref))  # the vehicle started its next trip: a new route
                 veh = None
             index_of = veh.index_of if veh is not None else {st.index: i for i, st in enumerate(route.stops)}
-            stop_index = {st.stop_id: i for i, st in enumerate(route.stops)}
+            stop_index: dict[str, list[int]] = {}
+            for i, st in enumerate(route.stops):
+                stop_index.setdefault(st.stop_id, []).append(i)
             etas, etds, aimed = {}, {}, {}
             at_stop = None
             loc = None
             for call in vcalls:
-                i = index_of.get(call.order - 1) if call.order else None
-                if i is None:
-                    i = stop_index.get(call.stop_id)
+                # the stop id says which stop; the order (SIRI Order / VisitNumber, GTFS-rt stop_sequence: not
+                # always the trip's index + 1 in real feeds) only where the route passes a stop twice
+                cand = stop_index.get(call.stop_id, ())
+                i = cand[0] if len(cand) == 1 else None
+                if i is None and call.order:
+                    i = index_of.get(call.order - 1)
+                    if cand and i not in cand:
+                        i = cand[0]
                 if i is None or call.expected_arrival is None:
                     continue
                 etas[i] = call.expected_arrival + off

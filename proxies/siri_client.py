@@ -90,7 +90,7 @@ class StopMonitoringClient:
         self.service = self.client.create_service(self.binding, url)
         self.requestor = requestor
         self.chunk = max(1, int(chunk))
-        self.preview = f"PT{int(preview_s)}S"
+        self.preview = timedelta(seconds=int(preview_s))
         self._ids = itertools.count(1)
         info = self.client.get_type(self._info_type())
         self._stamp_fields = [name for name, _el in info.elements if name.startswith("RequestTimestamp")]
@@ -121,14 +121,14 @@ class StopMonitoringClient:
         now = datetime.now(UTC)
         if self.mode == "multiple":
             for i in range(0, len(stops), self.chunk):
-                filters = [{"MonitoringRef": s, "PreviewInterval": timedelta(seconds=int(self.preview[2:-1]))}
+                filters = [{"MonitoringRef": s, "PreviewInterval": self.preview}
                            for s in stops[i:i + self.chunk]]
                 req = {"RequestTimestamp": now, "MessageIdentifier": f"entitynet-{next(self._ids)}",
                        "StopMonitoringFIlter": filters, "version": "2.0"}
                 out.append(self._call("GetMultipleStopMonitoring", now, req))
         else:
             for s in stops:
-                req = {"RequestTimestamp": now, "PreviewInterval": timedelta(seconds=int(self.preview[2:-1])),
+                req = {"RequestTimestamp": now, "PreviewInterval": self.preview,
                        "MonitoringRef": s, "version": "2.0"}
                 out.append(self._call("GetStopMonitoring", now, req))
         return out

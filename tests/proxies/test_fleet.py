@@ -8,8 +8,8 @@ import pytest
 from entitynet.protocol import Publish, Unpublish
 from proxies.fleet import Fleet
 from proxies.replay_core import ReplayWorld
-from proxies.siri_xml import Call
 from proxies.sim import run_sim
+from proxies.siri_xml import Call
 
 T0 = 1_645_510_000.0
 
@@ -73,3 +73,10 @@ def test_a_two_minute_outage_loses_no_vehicle(line_topo, line_book):
     assert res.lost == 0 and len(res.seen) >= 3
     back = recovery(res.series, (120.0, 240.0), 30.0)
     assert back is not None and back <= 60.0  # the error is back to its usual within a minute of the outage
+
+
+def test_the_stop_id_decides_not_a_stop_sequence_that_counts_otherwise(line_topo, line_book):
+    """Real feeds number stop_sequence their own way (HSL's trimmed trips start at 19): S2 is S2."""
+    fleet = Fleet(line_topo, line_book, granularity=0.0)
+    fleet.ingest([_call(2, T0 + 60.0, order=19), _call(3, T0 + 150.0, order=20)], T0, T0)
+    assert set(fleet.vehicles["V1"].motion.eta) == {2, 3}
