@@ -76,7 +76,8 @@ def test_a_two_minute_outage_loses_no_vehicle(line_topo, line_book):
 
 
 def test_the_stop_id_decides_not_a_stop_sequence_that_counts_otherwise(line_topo, line_book):
-    """Real feeds number stop_sequence their own way (HSL's trimmed trips start at 19): S2 is S2."""
+    """Real feeds number stop_sequence their own way (gaps, or HSL's trimmed trips starting at 19): S3 is S3
+    even when its stop_sequence (2) would be another stop's index + 1."""
     fleet = Fleet(line_topo, line_book, granularity=0.0)
-    fleet.ingest([_call(2, T0 + 60.0, order=19), _call(3, T0 + 150.0, order=20)], T0, T0)
-    assert set(fleet.vehicles["V1"].motion.eta) == {2, 3}
+    fleet.ingest([_call(3, T0 + 60.0, order=2), _call(4, T0 + 150.0, order=3)], T0, T0)
+    assert set(fleet.vehicles["V1"].motion.eta) == {3, 4}
