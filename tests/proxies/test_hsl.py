@@ -44,7 +44,7 @@ def test_answers_with_real_codes_validate(hsl_tram_book):
 def test_proxied_trams_follow_the_truth(helsinki, hsl_tram_book, granularity, p95_max):
     """Replay -> SIRI XML -> fleet -> published model, in virtual time, 20 s polls with 3 s latency."""
     world = ReplayWorld(hsl_tram_book.schedule, granularity=granularity)
-    res, fleet = run_sim(helsinki, hsl_tram_book, world, start=8 * 3600, duration=480.0, poll=20.0, latency=3.0,
+    res, fleet = run_sim(helsinki, hsl_tram_book, world, start=8 * 3600, duration=360.0, poll=20.0, latency=3.0,
                          warmup=60.0)
     summary = res.summary()
     assert summary["vehicles_traced"] >= 5 and summary["position_error_m"]["samples"] > 500

@@ -75,10 +75,10 @@ def test_bare_siri_document_with_a_default_namespace_and_no_soap():
 
 
 def test_a_very_large_answer_is_read_and_an_oversized_one_refused(monkeypatch):
-    visits = [_visit(i) for i in range(20_000)]
+    visits = [_visit(i) for i in range(12_000)]
     data = build_response(visits, 8 * 3600, CLOCK)
-    assert len(data) > 10_000_000
-    assert len(parse_response(data).calls) == 20_000
+    assert len(data) > 8_000_000
+    assert len(parse_response(data).calls) == 12_000
     import proxies.siri_xml as sx
 
     monkeypatch.setattr(sx, "MAX_RESPONSE_BYTES", 1_000_000)
