@@ -141,8 +141,30 @@ def _run_shell(args, topo, book, make_poller) -> int:
                      f"{c.discarded_fraction:.1%} | publishes {c.publishes} | last error {shell.last_error}")
             n.cancel_scope.cancel()
 
-    trio.run(main)
+    from entitynet.connection import HandshakeRefused
+
+    refused = None
+    try:
+        trio.run(main)
+    except BaseException as exc:  # noqa: B036 - only a refusal (maybe inside exception groups) is ours to report
+        refused = _find(exc, HandshakeRefused)
+        if refused is None:
+            raise
+    if refused is not None:
+        raise _command_error(str(refused))
     return 0
+
+
+def _find(exc: BaseException, kind: type) -> BaseException | None:
+    """The first exception of `kind` in `exc` or the exception groups nested in it."""
+    if isinstance(exc, kind):
+        return exc
+    if isinstance(exc, BaseExceptionGroup):
+        for e in exc.exceptions:
+            got = _find(e, kind)
+            if got is not None:
+                return got
+    return None
 
 
 def run_siri(args) -> int:

@@ -128,6 +128,9 @@ class ProxyShell:
                 self._failed("timeout", "the poll did not finish")
             except (SiriError, gtfsrt.FeedError, requests.RequestException) as exc:
                 self._failed(error_kind(exc), str(exc))
+            except Exception as exc:  # noqa: BLE001 - an answer nobody foresaw must not stop the proxy
+                log.exception("poll failed unexpectedly")
+                self._failed("other", f"{type(exc).__name__}: {exc}")
             self.metrics.vehicles.set(len(self.fleet.vehicles))
             await trio.sleep(max(self.config.poll - (self.clock() - t0), 0.0))
 

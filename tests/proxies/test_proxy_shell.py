@@ -155,3 +155,48 @@ async def test_gtfs_rt_proxy_positions_and_trip_updates(line_topo, line_book, li
                 await _wait(lambda good=good: shell.good_polls > good)
             assert shell.fleet.counters.retired_stale == 0
             n.cancel_scope.cancel()
+
+
+async def test_an_unforeseen_error_in_a_poll_is_counted_and_survived(line_topo, line_book, line_feed):
+    service = make_service(line_feed)
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):
+        shell = _shell(line_topo, line_book, server)
+        real = shell.siri_poller(StopMonitoringClient(url(service), mode="multiple", timeout=1.0))
+        calls = []
+
+        def flaky():
+            calls.append(1)
+            if len(calls) == 2:
+                raise KeyError("something nobody foresaw")
+            return real()
+
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, flaky)
+            await _wait(lambda: shell.metrics.value("entitynet_proxy_errors_total", kind="other") == 1)
+            await _wait(lambda: shell.good_polls >= 2 and len(calls) >= 3)
+            n.cancel_scope.cancel()
+
+
+def test_a_refused_handshake_is_a_clean_command_error(line_topo, line_book):
+    """A server that refuses the proxy (wrong topology digest) ends the command with a message, no traceback."""
+    import argparse
+
+    from entitynet.cli import CommandError
+    from proxies import commands
+
+    got: list[BaseException] = []
+
+    def command(args) -> None:
+        try:
+            commands._run_shell(args, line_topo, line_book, lambda shell: lambda: [])
+        except CommandError as exc:
+            got.append(exc)
+
+    async def serve_and_run():
+        async with running(digest="another-map", n_cells=line_topo.n_cells) as server:
+            args = argparse.Namespace(server=("127.0.0.1", server.port), token="", poll=0.5, timeout=1.0,
+                                      stale_after=300.0, metrics_port=None, duration=5.0)
+            await trio.to_thread.run_sync(command, args)
+
+    trio.run(serve_and_run)
+    assert got and "refused" in str(got[0]) and "digest" in str(got[0])
