@@ -43,6 +43,7 @@ class DemoConfig:
     seed: int = 1
     host: str = "127.0.0.1"
     port: int = 0
+    transit: str | None = None  # a GTFS feed: trams and buses through the replay producer and the SIRI proxy
 
 
 @dataclass
@@ -134,6 +135,11 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print) -
                 f"{len(movers)} entities ({', '.join(f'{n} {k}s' for k, n in sorted(kinds.items()))}) over "
                 f"{len(conns)} connections; {len(viewers)} viewers ({n_high} above the roofs)"
             )
+
+            if config.transit:
+                from proxies.demo_transit import run_transit  # optional part: only with a schedule
+
+                await clients.start(run_transit, topo, address, config.transit, say)
 
             stop = trio.Event()
             clients.start_soon(_stop_on_signal, stop)
