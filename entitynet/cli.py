@@ -27,7 +27,6 @@ COMMAND_MODULES = [
     "entitynet.commands.users_cmd",
 ]
 
-
 #: entry-point group through which other packages register subcommands: `name = "module:register"`
 PLUGIN_GROUP = "entitynet.commands"
 

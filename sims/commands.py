@@ -9,6 +9,7 @@ import importlib
 import json
 import sys
 import time
+from pathlib import Path
 
 from entitynet.cli import CommandError
 
@@ -25,6 +26,8 @@ def register_demo(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="random seed")
     p.add_argument("--port", type=int, default=0, help="server TCP port (default: any free port)")
     p.add_argument("--no-pvs", action="store_true", help="use an artifact without PVS (subscribe by distance)")
+    p.add_argument("--transit", metavar="GTFS", help="add trams and buses from this GTFS feed through the SIRI "
+                   "replay producer and the transit proxy (needs the proxies package)")
     p.set_defaults(func=run_demo_command)
 
 
@@ -38,6 +41,8 @@ def run_demo_command(args: argparse.Namespace) -> int:
     for name in ("entities", "viewers", "connections"):
         if getattr(args, name) < (0 if name == "viewers" else 1):
             raise CommandError(f"--{name} must be at least {0 if name == 'viewers' else 1}")
+    if args.transit is not None and not Path(args.transit).exists():
+        raise CommandError(f"GTFS feed {args.transit} not found")
     if args.duration is not None and not args.duration > 0:
         raise CommandError("--duration must be a positive number of seconds")
     start = time.perf_counter()
@@ -54,7 +59,7 @@ def run_demo_command(args: argparse.Namespace) -> int:
     )
     config = DemoConfig(
         entities=args.entities, viewers=args.viewers, connections=args.connections, duration=args.duration,
-        summary_every=args.summary_every, seed=args.seed, port=args.port,
+        summary_every=args.summary_every, seed=args.seed, port=args.port, transit=args.transit,
     )  # fmt: skip
     trio.run(run_demo, topo, path, config, lambda m: print(m, flush=True))
     return 0

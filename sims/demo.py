@@ -14,6 +14,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +44,7 @@ class DemoConfig:
     seed: int = 1
     host: str = "127.0.0.1"
     port: int = 0
+    transit: str | None = None  # a GTFS feed: trams and buses through the replay producer and the SIRI proxy
 
 
 @dataclass
@@ -135,6 +137,10 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print) -
                 f"{len(conns)} connections; {len(viewers)} viewers ({n_high} above the roofs)"
             )
 
+            if config.transit:
+                run_transit = demo_part("transit")  # optional part, from the proxies package
+                await clients.start(run_transit, topo, address, config.transit, say)
+
             stop = trio.Event()
             clients.start_soon(_stop_on_signal, stop)
             if config.duration is not None:
@@ -218,3 +224,15 @@ async def _stop_on_signal(stop: trio.Event) -> None:
         async for _ in signals:
             stop.set()
             return
+
+
+#: entry-point group through which other packages add parts to the demo (`name = "module:function"`)
+DEMO_PART_GROUP = "entitynet.demo_parts"
+
+
+def demo_part(name: str) -> Callable:
+    """The demo part `name` that another package registers (transit: proxies' replay producer and SIRI proxy),
+    found by entry point so that sims never imports proxies (the layering's arrows run one way)."""
+    for ep in entry_points(group=DEMO_PART_GROUP, name=name):
+        return ep.load()
+    raise LookupError(f"no demo part {name!r} installed (entry-point group {DEMO_PART_GROUP})")
