@@ -4,12 +4,12 @@ import math
 import random
 
 import pytest
-from client_fixtures import cross
 from hypothesis import given
 from hypothesis import strategies as st
 
 from entitynet.client import FixRejected, Player
 from entitynet.client.filters import Kinematic1D
+from tests.entitynet.client_fixtures import cross
 
 
 def _run(aided: bool, n: int = 120, seed: int = 3) -> Player:

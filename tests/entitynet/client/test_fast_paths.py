@@ -10,7 +10,6 @@ from bisect import bisect_right
 
 import numpy as np
 import pytest
-from client_fixtures import area_square, chain, cross, hairpin, make_topology, parallel
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -41,6 +40,7 @@ from entitynet.client.placement import Fix, Placer, _ring_distance_np, _SegTable
 from entitynet.client.player import Player
 from entitynet.client.route import Route
 from entitynet.protocol import Publish
+from tests.entitynet.client_fixtures import area_square, chain, cross, hairpin, make_topology, parallel
 from topology.raw import PEDESTRIAN, VEHICLE
 
 TOPOS = [cross(arm=100.0), parallel(gap=12.0, length=300.0), chain(), hairpin(), area_square()]

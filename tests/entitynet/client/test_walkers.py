@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import math
 
-from client_fixtures import area_square, make_topology
-
 from entitynet.client import Player
+from tests.entitynet.client_fixtures import area_square, make_topology
 from topology.raw import PEDESTRIAN
 
 
