@@ -26,7 +26,7 @@ def test_tram_shapes_match_onto_the_tram_network_of_a_synthetic_map():
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
-    from client_fixtures import make_topology
+    from tests.entitynet.client_fixtures import make_topology
 
     from proxies.gtfs import match_shapes, read_feed
     from topology.projection import LocalProjection
