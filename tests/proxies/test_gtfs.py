@@ -23,12 +23,8 @@ def test_read_feed_keeps_tram_and_bus_shapes_with_their_stops():
 
 def test_tram_shapes_match_onto_the_tram_network_of_a_synthetic_map():
     """A synthetic tram line laid along one real tram shape (projected): the matcher must find it."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
-    from tests.entitynet.client_fixtures import make_topology
-
     from proxies.gtfs import match_shapes, read_feed
+    from tests.entitynet.client_fixtures import make_topology
     from topology.projection import LocalProjection
     from topology.raw import TRAM
 
