@@ -24,6 +24,7 @@ from entitynet.client.baselines import WorldFilter, plane_model
 from entitynet.client.coverage import MAX_PUBLISH_CELLS, Coverage
 from entitynet.client.entities import EntityType, entity_type
 from entitynet.client.filters import Kinematic1D
+from entitynet.client.fixes import FixRejected, check_fix, velocity
 from entitynet.client.frozen import maker
 from entitynet.client.limits import HORIZON, max_speed
 from entitynet.client.modes import MODELS, ModelKind, Place
@@ -32,7 +33,6 @@ from entitynet.client.network import NetView, netview
 from entitynet.client.occupation import Occupation
 from entitynet.client.path import Path
 from entitynet.client.payload import encode_network, encode_quantized
-from entitynet.client.placement import Fix
 from entitynet.client.route import Route
 from entitynet.client.rules import OWN_ESTIMATE, Estimate, UpdateRules
 from entitynet.client.tracker import NetworkTracker, placer_for
@@ -41,10 +41,6 @@ from entitynet.protocol import Publish, Unpublish
 __all__ = ["MODELS", "FixRejected", "Player", "placer_for"]
 
 _make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
-
-
-class FixRejected(ValueError):
-    """A fix that cannot be used: NaN/inf, time not after the previous fix, or a bad accuracy."""
 
 
 class Player:
@@ -133,25 +129,9 @@ class Player:
         """The along-path filter (on an edge)."""
         return self.tracker.kf if self.tracker is not None else None
 
-    @property
-    def area(self) -> int:
-        """The area the tracker holds the entity in (-1 before any)."""
-        return self.tracker.area if self.tracker is not None else -1
-
-    @property
-    def last_fix(self) -> Fix | None:
-        """The last fix as placed on the network."""
-        return self.tracker.last_fix if self.tracker is not None else None
-
-    @property
-    def kx(self) -> Kinematic1D | None:
-        """The plane filter's x axis: the tracker's in an area (network model), else the baseline's."""
-        return self.tracker.kx if self.world is None else self.world.kx
-
-    @property
-    def ky(self) -> Kinematic1D | None:
-        """The plane filter's y axis (see `kx`)."""
-        return self.tracker.ky if self.world is None else self.world.ky
+    def _plane(self) -> tuple[Kinematic1D | None, Kinematic1D | None]:
+        """The plane filters (x, y): the tracker's in an area (network model), else the baseline's."""
+        return (self.tracker.kx, self.tracker.ky) if self.world is None else (self.world.kx, self.world.ky)
 
     @property
     def inferred(self) -> tuple[str, int, float, float, float] | None:
@@ -161,18 +141,19 @@ class Player:
             e, off = self.path.locate(self.kf.s)
             x, y = self.net.point(e, off)
             return "edge", e, off, x, y
-        kx = self.kx
+        kx, ky = self._plane()
         if mode == Place.AREA:
-            return "area", self.area, 0.0, kx.s, self.ky.s
+            return "area", self.tracker.area, 0.0, kx.s, ky.s
         if kx is not None:
-            return "world", -1, 0.0, kx.s, self.ky.s
+            return "world", -1, 0.0, kx.s, ky.s
         return None
 
     def estimate_xy(self) -> tuple[float, float]:
         """The filtered position (local metres)."""
         if self.mode == Place.EDGE:
             return self.path.xy(self.kf.s)
-        return self.kx.s, self.ky.s
+        kx, ky = self._plane()
+        return kx.s, ky.s
 
     # ---- input ----------------------------------------------------------------------------------------------
     def feed(self, x: float, y: float, t: float, accuracy: float | None = None, *,
@@ -185,13 +166,8 @@ class Player:
         axis (m/s). Optional: without them the speed comes from differences of positions, which at 5 m GPS
         and 1 Hz is about ten times noisier."""
         acc = self.accuracy if accuracy is None else float(accuracy)
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(t)):
-            raise FixRejected(f"fix with non-finite value ({x!r}, {y!r}, t={t!r})")
-        if not (math.isfinite(acc) and acc > 0.0):
-            raise FixRejected(f"fix accuracy must be finite and positive, got {acc!r}")
-        if self.last_t is not None and not t > self.last_t:
-            raise FixRejected(f"fix time {t!r} is not after the previous fix at {self.last_t!r}")
-        vel = _velocity(speed, heading, speed_accuracy)
+        check_fix(x, y, t, acc, self.last_t)
+        vel = velocity(speed, heading, speed_accuracy)
         self.last_t = t
         self.rules.halted = False
         self.measured = (x, y, t)
@@ -206,7 +182,7 @@ class Player:
                 return self._off_network(t)
             if vel is not None and self.world is None:
                 trk.fuse_velocity(vel)
-        lf = self.last_fix
+        lf = trk.last_fix if trk is not None else None
         on_way = lf is not None and self.world is None and trk.place == Place.EDGE
         self.rules.note_fix((lf.x, lf.y) if on_way else (x, y))
         self.off_since = None
@@ -215,7 +191,8 @@ class Player:
                 reason = "first"
             else:
                 edge = self.world is None and trk.place == Place.EDGE
-                v_est = trk.kf.v if edge else math.hypot(self.kx.v, self.ky.v)
+                kx, ky = self._plane()
+                v_est = trk.kf.v if edge else math.hypot(kx.v, ky.v)
                 reason = self.rules.decide(t, self.ghost, self.pub_t, self.occupation, v_est, self, self.estimate)
         if reason is None:
             return []
@@ -278,7 +255,7 @@ class Player:
             payload, ghost = encode_network(*self._network_fields(t, from_ghost, stop_at))
         else:
             area = trk.area if self.world is None and trk.place == Place.AREA else None
-            payload, ghost = encode_quantized(plane_model(self.model, self.etype, t, self.kx, self.ky, area,
+            payload, ghost = encode_quantized(plane_model(self.model, self.etype, t, *self._plane(), area,
                                                           self.ghost, from_ghost, stop_at))
         self.rules.published()
         self.ghost = ghost
@@ -327,20 +304,3 @@ class Player:
             vmax = min(max(trk.vpeak, 4.0), et.vmax)
         stop_s = self.route.next_stop(sub, s_sub) if v > 0.0 else math.inf
         return t, sub, s_sub, max(v, 0.0), a, vmax, et.code, et.parts, stop_s, et.brake
-
-
-def _velocity(speed: float | None, heading: float | None,
-              speed_accuracy: float) -> tuple[float, float, float] | None:
-    """(vx, vy, variance per axis) of a reported Doppler velocity, or None when there is none."""
-    if speed is None:
-        return None
-    if heading is None and speed == 0.0:
-        heading = 0.0  # receivers give no course when standing still; none is needed
-    if heading is None:
-        raise FixRejected("a fix's speed needs its heading (degrees clockwise from north)")
-    if not (math.isfinite(speed) and speed >= 0.0 and math.isfinite(heading)):
-        raise FixRejected(f"fix speed must be finite and >= 0 and heading finite, got {speed!r}, {heading!r}")
-    if not (math.isfinite(speed_accuracy) and speed_accuracy > 0.0):
-        raise FixRejected(f"speed accuracy must be finite and positive, got {speed_accuracy!r}")
-    h = math.radians(heading)
-    return speed * math.sin(h), speed * math.cos(h), speed_accuracy * speed_accuracy

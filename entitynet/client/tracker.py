@@ -266,7 +266,11 @@ class NetworkTracker:
     def _track_on(self, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float, r: float) -> str | None:
         """The rest of `track` for the usual fix (on the predicted edge, inside the switch margin, within
         `reacquire`): the same steps with `_s_of`'s first case and the bookkeeping written out.
-        MEASURED-FAST-PATH"""
+
+        A measured fast path, kept because it is worth more than 10 % of fixes/s: `dr_bench.fixes_per_second`
+        on the quick datasets (Helsinki, 6 HSL vehicles, 6 pedestrians), with and without it, alternating, 3
+        rounds each, medians: vehicles 24.0k against 20.3k fixes/s (+18 %), pedestrians 13.9k against 12.7k
+        (+10 %). test_fast_paths.py checks it against the general code (`written_out=False`) bit for bit."""
         self.pending = (-1, 0)
         self.last_fix = fix
         # the consistency check of `track` cannot jump here: it needs g.distance + margin < fix.distance, and

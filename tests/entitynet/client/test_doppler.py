@@ -75,8 +75,8 @@ def test_world_models_take_both_components():
     p = Player(None, 1, "car", model="fpw")
     for i in range(5):
         p.feed(0.0, 0.0, float(i), speed=8.0, heading=45.0, speed_accuracy=0.1)
-    assert p.kx.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
-    assert p.ky.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
+    assert p.world.kx.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
+    assert p.world.ky.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
 
 
 @pytest.mark.parametrize("kw", [dict(speed=math.nan, heading=0.0), dict(speed=-1.0, heading=0.0),
