@@ -13,6 +13,7 @@ import math
 from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
+from entitynet.client.modes import AREA
 from entitynet.client.motion import AreaModel, Model, NetworkModel
 from entitynet.client.network import NetView
 from entitynet.client.occupation import Occupation, make_occupation, occupy, occupy_area, wire_validity
@@ -46,6 +47,7 @@ class Coverage:
         self.net = net
         self.etype = etype
         self.route = route
+        self.has_route = bool(route)
         self.body, self.margin, self.accuracy, self.lateral = body, margin, accuracy, lateral
         self.lookahead, self.max_validity, self.heartbeat = lookahead, max_validity, heartbeat
 
@@ -56,7 +58,7 @@ class Coverage:
             return None
         et = self.etype
         placer = trk.placer
-        if trk.place == "area":
+        if trk.place is AREA:
             x, y = ghost.xy_at(t) if isinstance(ghost, AreaModel) else estimate_xy()
             vx, vy = (ghost.vx, ghost.vy) if isinstance(ghost, AreaModel) else (0.0, 0.0)
             # the strip outside the area is covered by the lateral cells below, so the period only keeps
@@ -99,7 +101,7 @@ class Coverage:
                      lookahead=self.lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel,
                      dead_end_at_path_end=path.edges[-1] == trk.dead_end)
         back = None
-        if v == 0.0 and not self.route and self.body == 0.0 and isinstance(ghost, NetworkModel):
+        if v == 0.0 and not self.has_route and self.body == 0.0 and isinstance(ghost, NetworkModel):
             # a walker standing still may turn and leave the other way, and the standing test needs a few
             # fixes to see it go: cover the way behind too, `lateral` beyond the margin (and the parallel
             # ways as far behind)
@@ -110,7 +112,7 @@ class Coverage:
                     cells.append(c)
             occ = Occupation(tuple(cells), min(occ.validity, back.validity), occ.front_period, occ.aft_period,
                              occ.cover_start, occ.cover_end)
-        if self.lateral > 0.0 and not self.route:
+        if self.lateral > 0.0 and not self.has_route:
             extra = self._lateral_cells(trk, path, s, occ.cover_end - s,
                                         None if back is None else back.cover_end - back.cover_start)
             cells = list(occ.cells)

@@ -27,7 +27,7 @@ from entitynet.client.filters import Kinematic1D
 from entitynet.client.fixes import FixRejected, check_fix, velocity
 from entitynet.client.frozen import maker
 from entitynet.client.limits import HORIZON, max_speed
-from entitynet.client.modes import MODELS, ModelKind, Place
+from entitynet.client.modes import AREA, EDGE, MODELS, ModelKind, Place
 from entitynet.client.motion import Model, NetworkModel
 from entitynet.client.network import NetView, netview
 from entitynet.client.occupation import Occupation
@@ -137,12 +137,12 @@ class Player:
     def inferred(self) -> tuple[str, int, float, float, float] | None:
         """(kind, edge or area, offset, x, y) of the filtered position, or None before the first placement."""
         mode = self.mode
-        if mode == Place.EDGE and self.path is not None:
+        if mode is EDGE and self.path is not None:
             e, off = self.path.locate(self.kf.s)
             x, y = self.net.point(e, off)
             return "edge", e, off, x, y
         kx, ky = self._plane()
-        if mode == Place.AREA:
+        if mode is AREA:
             return "area", self.tracker.area, 0.0, kx.s, ky.s
         if kx is not None:
             return "world", -1, 0.0, kx.s, ky.s
@@ -150,8 +150,9 @@ class Player:
 
     def estimate_xy(self) -> tuple[float, float]:
         """The filtered position (local metres)."""
-        if self.mode == Place.EDGE:
-            return self.path.xy(self.kf.s)
+        trk = self.tracker
+        if trk is not None and trk.place is EDGE:
+            return trk.path.xy(trk.kf.s)
         kx, ky = self._plane()
         return kx.s, ky.s
 
@@ -183,16 +184,18 @@ class Player:
             if vel is not None and self.world is None:
                 trk.fuse_velocity(vel)
         lf = trk.last_fix if trk is not None else None
-        on_way = lf is not None and self.world is None and trk.place == Place.EDGE
+        on_way = lf is not None and self.world is None and trk.place is EDGE
         self.rules.note_fix((lf.x, lf.y) if on_way else (x, y))
         self.off_since = None
         if reason is None:
             if not self.published or self.ghost is None:
                 reason = "first"
             else:
-                edge = self.world is None and trk.place == Place.EDGE
-                kx, ky = self._plane()
-                v_est = trk.kf.v if edge else math.hypot(kx.v, ky.v)
+                if self.world is None and trk.place is EDGE:
+                    v_est = trk.kf.v
+                else:
+                    kx, ky = self._plane()
+                    v_est = math.hypot(kx.v, ky.v)
                 reason = self.rules.decide(t, self.ghost, self.pub_t, self.occupation, v_est, self, self.estimate)
         if reason is None:
             return []
@@ -251,10 +254,10 @@ class Player:
         if not from_ghost and trk is not None:
             trk.face_travel()  # publish in the direction of travel, whatever the filter's hysteresis says
         # ghost == decode(payload, net), without the round trip
-        if self.world is None and trk.place == Place.EDGE:
+        if self.world is None and trk.place is EDGE:
             payload, ghost = encode_network(*self._network_fields(t, from_ghost, stop_at))
         else:
-            area = trk.area if self.world is None and trk.place == Place.AREA else None
+            area = trk.area if self.world is None and trk.place is AREA else None
             payload, ghost = encode_quantized(plane_model(self.model, self.etype, t, *self._plane(), area,
                                                           self.ghost, from_ghost, stop_at))
         self.rules.published()

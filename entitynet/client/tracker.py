@@ -14,7 +14,7 @@ from bisect import bisect_right
 
 from entitynet.client.entities import EntityType
 from entitynet.client.filters import Kinematic1D
-from entitynet.client.modes import Place
+from entitynet.client.modes import AREA, EDGE, Place
 from entitynet.client.network import DirEdge, NetView
 from entitynet.client.path import Path, follow
 from entitynet.client.placement import Fix, Placer
@@ -50,6 +50,7 @@ class NetworkTracker:
         self.etype = etype
         self.placer = placer_for(net, etype.networks)
         self.route = route
+        self.has_route = bool(route)  # (a plain attribute: asked on every fix)
         self.body, self.margin, self.lookahead = body, margin, lookahead
         self.off_network, self.lateral = off_network, lateral
         # a route is a-priori knowledge: leaving it needs much stronger evidence than changing street
@@ -86,7 +87,7 @@ class NetworkTracker:
         the same place twice) says nothing reliable about the speed along it and is left out; so is one against
         an a-priori route, which the entity does not reverse on."""
         vx, vy, rv = vel
-        if self.place == Place.EDGE:
+        if self.place is EDGE:
             path = self.path
             s = self.recent_s[-1] if self.recent_s else self.kf.s
             hx, hy = path.xy(min(s + 1.0, path.length))
@@ -96,17 +97,17 @@ class NetworkTracker:
                 return
             along = (vx * (hx - bx) + vy * (hy - by)) / n
             speed = math.hypot(vx, vy)
-            if speed >= DOPPLER_MOVING and (abs(along) < 0.7 * speed or (self.route and along < 0.0)):
+            if speed >= DOPPLER_MOVING and (abs(along) < 0.7 * speed or (self.has_route and along < 0.0)):
                 return
             self.kf.update_speed(along, rv)
-        elif self.place == Place.AREA:
+        elif self.place is AREA:
             self.kx.update_speed(vx, rv)
             self.ky.update_speed(vy, rv)
 
     def face_travel(self) -> None:
         """Before a publish: turn the path to the direction of travel when the filter says the entity goes
         backwards along it, whatever the hysteresis of `track` says (never on an a-priori route)."""
-        if self.place == Place.EDGE and not self.route and self.kf is not None and self.kf.v < -self.etype.v_stop:
+        if self.place is EDGE and not self.has_route and self.kf is not None and self.kf.v < -self.etype.v_stop:
             self._reverse()
             self._maintain_path()
 
@@ -114,13 +115,13 @@ class NetworkTracker:
     def _init_at(self, fix: Fix, t: float, r: float) -> None:
         self.last_fix = fix
         if fix.kind == "area":
-            self.place, self.area = Place.AREA, fix.index
+            self.place, self.area = AREA, fix.index
             self.path = None
             if self.area_filter:
                 self.kx = Kinematic1D(fix.x, t, r, q=1.0, accel=False)
                 self.ky = Kinematic1D(fix.y, t, r, q=1.0, accel=False)
             return
-        self.place = Place.EDGE
+        self.place = EDGE
         de = (fix.index, 1)
         i = self.route.first.get(de, self.route.first.get((fix.index, -1)))
         if i is not None:
@@ -149,7 +150,7 @@ class NetworkTracker:
                 return "off"
             self._init_at(fix, t, r)
             return "first" if not published else "jump"
-        if self.place == Place.AREA:
+        if self.place is AREA:
             if placer.inside_area(self.area, x, y):
                 self._area_update(x, y, t, r)
                 return None
@@ -255,7 +256,7 @@ class NetworkTracker:
         kf = self.kf
         if kf.v > self.vpeak or t - self.vpeak_t > 120.0:
             self.vpeak, self.vpeak_t = kf.v, t
-        backwards = not self.route and kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0
+        backwards = not self.has_route and kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0
         self.reverse_count = self.reverse_count + 1 if backwards else 0
         if self.reverse_count >= 3:
             self._reverse()
@@ -297,7 +298,7 @@ class NetworkTracker:
         if v > self.vpeak or t - self.vpeak_t > 120.0:
             self.vpeak, self.vpeak_t = v, t
         reason = None
-        if self.route:
+        if self.has_route:
             self.reverse_count = 0
         else:
             backwards = v < -self.etype.v_start and v + kf.speed_sigma() < 0.0
@@ -327,7 +328,7 @@ class NetworkTracker:
     def _first(self, x: float, y: float) -> Fix | None:
         """First placement: on the a-priori route when it is near (its edges win over a closer other
         street within `route_margin`), else the placement index."""
-        if self.route:
+        if self.has_route:
             f = self.placer.on_edges(x, y, [e for e, _d in self.route.edges])
             if f.distance <= self.off_network:
                 g = self.placer.first(x, y)
