@@ -24,6 +24,7 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from entitynet.client.player import Player
+from entitynet.client.rules import OWN_ESTIMATE
 from entitynet.protocol import Publish
 from sims.bench.dr_data import MAIN_PEDESTRIANS, SAMPLE, SHARED, Entity, car_trace, pedestrians, vehicles
 from sims.mobility import gps
@@ -139,38 +140,34 @@ def oracle_updates_per_min(ents: list[Entity], threshold: float, vmax: float = 1
     return updates / max(minutes, 1e-9)
 
 
-class _TruthPlayer(Player):
-    """The network player with part of its estimate replaced by the truth (`true_state`: the speed and the
-    acceleration it publishes, and everything derived from them at a publish: the stop, the planned halt, the
-    speed cap; `true_test`: the position the drift test of a moving ghost compares the ghost with). The
-    standing, stop and start tests still judge by the noisy fixes and the filter, so "both" is not the oracle.
-    Measures how much of the gap to the oracle each part of the estimation costs."""
+class TruthEstimate:
+    """The truth in place of part of the network player's estimate, injected as its `Estimate`
+    (`true_state`: the speed and the acceleration it publishes, and everything derived from them at a
+    publish: the stop, the planned halt, the speed cap; `true_test`: the position the drift test of a moving
+    ghost compares the ghost with). The standing, stop and start tests still judge by the noisy fixes and the
+    filter, so "both" is not the oracle. Measures how much of the gap to the oracle each part of the
+    estimation costs."""
 
-    def __init__(self, *args, truth: tuple, true_state: bool, true_test: bool, **kw) -> None:
-        super().__init__(*args, **kw)
+    def __init__(self, truth: tuple, true_state: bool, true_test: bool) -> None:
         self.truth_t0, self.truth_xy, self.truth_v, self.truth_a = truth
         self.true_state, self.true_test = true_state, true_test
 
     def _i(self, t: float) -> int:
         return min(max(int(round((t - self.truth_t0) / SAMPLE)), 0), len(self.truth_v) - 1)
 
-    def _network_fields(self, t: float, from_ghost: bool, stop_at: float | None = None) -> tuple:
-        kf = self.kf
-        if not self.true_state or from_ghost or kf is None:
-            return super()._network_fields(t, from_ghost, stop_at)
-        i = self._i(t)
-        saved = kf.v, kf.a
-        kf.v, kf.a = float(self.truth_v[i]), float(self.truth_a[i])
-        try:
-            return super()._network_fields(t, from_ghost, stop_at)
-        finally:
-            kf.v, kf.a = saved  # the filter goes on with its own estimate
-
-    def _drift_reference(self) -> tuple[float, float]:
-        if self.true_test and self.mode == "edge":
-            x, y = self.truth_xy[self._i(self.last_t)]
+    def position(self, player: Player, t: float) -> tuple[float, float]:
+        """The true position on an edge (`true_test`), else the player's estimate."""
+        if self.true_test and player.mode == "edge":
+            x, y = self.truth_xy[self._i(t)]
             return float(x), float(y)
-        return super()._drift_reference()
+        return OWN_ESTIMATE.position(player, t)
+
+    def motion(self, player: Player, t: float) -> tuple[float, float]:
+        """The true speed and acceleration (`true_state`), else the filter's; the filter goes on with its own."""
+        if self.true_state:
+            i = self._i(t)
+            return float(self.truth_v[i]), float(self.truth_a[i])
+        return OWN_ESTIMATE.motion(player, t)
 
 
 def estimation_bounds(topo, ents: list[Entity], threshold: float) -> dict[str, float]:
@@ -185,9 +182,9 @@ def estimation_bounds(topo, ents: list[Entity], threshold: float) -> dict[str, f
             v = np.gradient(s, ent.t)
             truth = (float(ent.t[0]), ent.xy, v, np.gradient(v, ent.t))
             run_entity(topo, ent, "network", threshold, acc,
-                       player=lambda e=ent, tr=truth, a=st, b=tt: _TruthPlayer(
+                       player=lambda e=ent, tr=truth, a=st, b=tt: Player(
                            topo, 1, e.etype, model="network", route=e.route, stops=e.stops, threshold=threshold,
-                           truth=tr, true_state=a, true_test=b))
+                           estimate=TruthEstimate(tr, a, b)))
         row = _row("vehicles", "network", threshold, acc)
         out[key] = {"updates_per_entity_min": float(row["updates_per_entity_min"]), "error_p95_m": row["error_p95_m"]}
     return out

@@ -4,12 +4,12 @@ import math
 import random
 
 import pytest
-from client_fixtures import cross
 from hypothesis import given
 from hypothesis import strategies as st
 
 from entitynet.client import FixRejected, Player
 from entitynet.client.filters import Kinematic1D
+from tests.entitynet.client_fixtures import cross
 
 
 def _run(aided: bool, n: int = 120, seed: int = 3) -> Player:
@@ -75,8 +75,8 @@ def test_world_models_take_both_components():
     p = Player(None, 1, "car", model="fpw")
     for i in range(5):
         p.feed(0.0, 0.0, float(i), speed=8.0, heading=45.0, speed_accuracy=0.1)
-    assert p.kx.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
-    assert p.ky.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
+    assert p.world.kx.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
+    assert p.world.ky.v == pytest.approx(8.0 / math.sqrt(2.0), abs=0.3)
 
 
 @pytest.mark.parametrize("kw", [dict(speed=math.nan, heading=0.0), dict(speed=-1.0, heading=0.0),

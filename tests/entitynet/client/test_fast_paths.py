@@ -10,7 +10,6 @@ from bisect import bisect_right
 
 import numpy as np
 import pytest
-from client_fixtures import area_square, chain, cross, hairpin, make_topology, parallel
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -39,7 +38,9 @@ from entitynet.client.payload import (
 )
 from entitynet.client.placement import Fix, Placer, _ring_distance_np, _SegTable, ring_distance
 from entitynet.client.player import Player
+from entitynet.client.route import Route
 from entitynet.protocol import Publish
+from tests.entitynet.client_fixtures import area_square, chain, cross, hairpin, make_topology, parallel
 from topology.raw import PEDESTRIAN, VEHICLE
 
 TOPOS = [cross(arm=100.0), parallel(gap=12.0, length=300.0), chain(), hairpin(), area_square()]
@@ -456,15 +457,15 @@ def test_xy_speed_and_cells_written_out_equal_the_calls(ti, data, s0, v, a, vmax
         assert path.cover_cells(s, reach, cover_end) == want
 
 
-def _known_until_reference(p, path, s):
-    """`Player._known_until` as it was (without its memo): walk the route pairs from the edge holding s."""
-    if not p.route:
+def _known_until_reference(r, path, s):
+    """`Route.known_until` as it was (without its memo): walk the route pairs from the edge holding s."""
+    if not r:
         return 0.0
     k = path.index(s)
-    if path.edges[k] not in p.route_first:
+    if path.edges[k] not in r.first:
         return 0.0
     edges, n = path.edges, len(path.edges)
-    while k + 1 < n and (edges[k], edges[k + 1]) in p.route_pairs:
+    while k + 1 < n and (edges[k], edges[k + 1]) in r.pairs:
         k += 1
     return path.cum[k + 1]
 
@@ -474,11 +475,10 @@ def _known_until_reference(p, path, s):
 def test_known_until_route_stretch_equals_the_pair_walk(ti, data):
     """Paths along the route, off it, or along a route that passes an edge twice (pairs from elsewhere)."""
     net = NETS[ti] if ti < len(TOPOS) else MESH
-    topo = net.topo
     route = _random_path(net, data).edges
     if data.draw(st.booleans()):
         route = route + _random_path(net, data).edges  # a second stretch (may not join: pairs only)
-    p = Player(topo, 1, "cyclist", route=route)
+    r = Route(net, route)
     for _ in range(3):
         # the route's first stretch (a path along the route), or any walk (on and off the route)
         first = route[: len(route) if _joins(net, route) else 1]
@@ -487,8 +487,8 @@ def test_known_until_route_stretch_equals_the_pair_walk(ti, data):
         sub = path.suffix(k)
         assert sub == Path(net, path.edges[k:]) and sub.cum == [c - path.cum[k] for c in path.cum[k:]]
         for s in (data.draw(st.floats(-5.0, sub.length + 5.0)), *sub.cum):
-            p._ku_memo = None
-            assert p._known_until(sub, s) == _known_until_reference(p, sub, s)
+            r._ku_memo = None
+            assert r.known_until(sub, s) == _known_until_reference(r, sub, s)
 
 
 def _joins(net, edges):
@@ -507,15 +507,12 @@ def test_ring_distance_loop_equals_the_numpy_pass(ai, x, y):
     assert ring_distance(ring[:1], x, y) == _ring_distance_np(ring[:1], x, y) == math.inf
 
 
-class _GeneralTrack(Player):
-    FAST_TRACK = False  # every fix through `_track`'s general code (what `_track_on` writes out)
-
-
 def _state(p):
-    kf = p.kf
+    kf, tr = p.kf, p.tracker
     return (p.mode, p.path.edges if p.path else None, p.path.cum if p.path else None,
-            [getattr(kf, f) for f in type(kf).__slots__] if kf is not None else None, p.last_fix, p.pending,
-            p.dist_ema, list(p.recent_s), p.vpeak, p.vpeak_t, p.reverse_count, p.dead_end, p.ghost, p.occupation)
+            [getattr(kf, f) for f in type(kf).__slots__] if kf is not None else None, tr.last_fix, tr.pending,
+            tr.dist_ema, list(tr.recent_s), tr.vpeak, tr.vpeak_t, tr.reverse_count, tr.dead_end, p.ghost,
+            p.occupation)
 
 
 @settings(max_examples=60, deadline=None)
@@ -528,7 +525,9 @@ def test_track_on_equals_the_general_track(ti, etype, with_route, seed, noise, d
     path = _random_path(net, data)
     route = path.edges if with_route else None
     a = Player(net.topo, 1, etype, route=route, accuracy=5.0)
-    b = _GeneralTrack(net.topo, 1, etype, route=route, accuracy=5.0)
+    b = Player(net.topo, 1, etype, route=route, accuracy=5.0)
+    b.tracker.written_out = False  # every fix through `track`'s general code (what `_track_on` writes out)
+    assert a.tracker.written_out
     rng = np.random.default_rng(seed)
     s, v = 0.0, float(rng.uniform(0.0, 12.0))
     for i in range(80):

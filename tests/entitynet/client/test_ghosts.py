@@ -1,10 +1,10 @@
 """Receiver side: ghost store (keep invisible entities for their validity) and subscriptions."""
 
 import pytest
-from client_fixtures import cross
 
 from entitynet.client import GhostStore, LimitExceeded, Player, Subscriptions, WorldModel, encode, netview
 from entitynet.protocol import QUERY_IDENTITY, Follow, Leave, Subscribe, Update
+from tests.entitynet.client_fixtures import cross
 
 
 def upd(entity, seq, cells, validity_ms, t0=0.0, x=0.0):

@@ -4,13 +4,13 @@ import math
 import random
 
 import pytest
-from client_fixtures import cross, parallel
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from entitynet.client import NetworkModel, Path, Player, decode, encode, netview
 from entitynet.client.kinematics import brake_plan
 from entitynet.client.limits import HORIZON
+from tests.entitynet.client_fixtures import cross, parallel
 
 
 @given(v=st.floats(0.0, 20.0), a=st.floats(-2.0, 2.0), vmax=st.floats(1.0, 20.0), d=st.floats(0.5, 500.0),

@@ -4,7 +4,6 @@ stops after `max_gap`, and the entity is unpublished after `lost_after`; receive
 import math
 
 import pytest
-from client_fixtures import cross, make_topology
 
 from entitynet.client import FixRejected, GhostStore, Player, decode, encode, netview
 from entitynet.client.entities import TYPES
@@ -12,6 +11,7 @@ from entitynet.client.limits import HORIZON, MAX_SPEED, max_speed, world_state
 from entitynet.client.motion import AreaModel, NetworkModel, WorldModel
 from entitynet.client.path import Path
 from entitynet.protocol import Publish, Unpublish, Update
+from tests.entitynet.client_fixtures import cross, make_topology
 from topology.raw import TRAM
 
 ARM = 3000.0

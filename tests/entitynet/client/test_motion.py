@@ -1,10 +1,10 @@
 """Motion models and payloads: every receiver extrapolates the published model the same way."""
 
 import pytest
-from client_fixtures import cross, tee
 
 from entitynet.client import AreaModel, NetworkModel, Path, PayloadError, WorldModel, decode, encode, netview
 from entitynet.client.path import follow
+from tests.entitynet.client_fixtures import cross, tee
 from topology.raw import VEHICLE
 
 

@@ -3,13 +3,13 @@
 import math
 
 import pytest
-from client_fixtures import chain, cross
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from entitynet.client import FixRejected, Player, advance, decode, encode, netview, time_to_travel
 from entitynet.client.motion import NetworkModel
 from entitynet.client.path import Path
+from tests.entitynet.client_fixtures import chain, cross
 
 speeds = st.floats(0.0, 40.0, allow_nan=False)
 accels = st.floats(-5.0, 5.0, allow_nan=False)
@@ -61,7 +61,7 @@ def test_nan_and_inf_fixes_are_rejected(x):
 def test_utm_northings_keep_centimetre_precision():
     # a crossing at absolute UTM coordinates (no local origin): ~385 km east, ~6672 km north
     e0, n0 = 385945.123, 6672301.456
-    from client_fixtures import make_topology
+    from tests.entitynet.client_fixtures import make_topology
 
     nodes = {"C": (e0, n0), "W": (e0 - 100.0, n0), "E": (e0 + 100.0, n0), "N": (e0, n0 + 100.0)}
     topo = make_topology(nodes, [("W", "C"), ("C", "E"), ("C", "N")])

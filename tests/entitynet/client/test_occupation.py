@@ -3,9 +3,9 @@
 import math
 
 import pytest
-from client_fixtures import chain, cross, make_topology
 
 from entitynet.client import Path, netview, occupy
+from tests.entitynet.client_fixtures import chain, cross, make_topology
 from topology.raw import TRAM
 
 V = 10.0  # m/s
@@ -124,7 +124,7 @@ def test_junction_cells_back_to_back():
 
 
 def test_without_route_the_lookahead_covers_every_branch_of_the_next_junction():
-    from client_fixtures import tee
+    from tests.entitynet.client_fixtures import tee
 
     topo = tee(arm=100.0, junction_radius=10.0)  # edges 0: W->C, 1: C->E, 2: C->S
     net = netview(topo)

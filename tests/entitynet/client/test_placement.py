@@ -1,9 +1,8 @@
 """Placement: first fix, continuity, determinism on vertices and equidistant edges, hairpins."""
 
-from client_fixtures import cross, hairpin, parallel
-
 from entitynet.client import Player, netview
 from entitynet.client.placement import Placer
+from tests.entitynet.client_fixtures import cross, hairpin, parallel
 from topology.raw import PEDESTRIAN, VEHICLE
 
 

@@ -3,10 +3,10 @@
 import math
 
 import pytest
-from client_fixtures import area_square, cross, parallel, tee
 
 from entitynet.client import FixRejected, Player, decode, netview
 from entitynet.protocol import Publish, Unpublish
+from tests.entitynet.client_fixtures import area_square, cross, parallel, tee
 
 
 def drive(p, xs, y=0.0, t0=0.0, dt=1.0):

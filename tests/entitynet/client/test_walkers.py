@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import math
 
-from client_fixtures import area_square, make_topology
-
 from entitynet.client import Player
+from tests.entitynet.client_fixtures import area_square, make_topology
 from topology.raw import PEDESTRIAN
 
 
@@ -54,7 +53,7 @@ def test_area_occupation_lists_the_neighbouring_area_and_lasts_until_the_lateral
     out = []
     for i in range(8):  # walking east at 1.4 m/s, 4 m inside the western area's boundary with the eastern one
         out += p.feed(-12.0 + 1.4 * i, 0.5, float(i))
-    assert p.mode == "area" and p.area == 0
+    assert p.mode == "area" and p.tracker.area == 0
     m = out[-1]
     assert int(topo.area_cell[1]) in m.cells  # 4 m from the other area: GPS cannot tell them apart
     speed = math.hypot(p.ghost.vx, p.ghost.vy)
@@ -82,7 +81,7 @@ def test_a_fix_nearer_the_path_behind_is_placed_where_the_prediction_is():
     # 4.5 m south of the walker: 3.5 m from A -> B (24 m back along the path), 4.5 m from C -> D
     p.feed(11.0, 3.5, float(len(pts)))
     assert p.inferred[1] == 2  # still on C -> D
-    assert p.last_fix.index == 2
+    assert p.tracker.last_fix.index == 2
     assert p.kf.s > s_before  # the estimate keeps moving on, not dragged back towards A -> B
 
 

@@ -1,0 +1,177 @@
+"""Coverage: which cells a publish lists, and for how long (reference section 4.5, cell occupation).
+
+The published model's occupation (`occupy`: the body and the margin along the path, the way ahead up to the
+next choice or along the known route), and the extra cells that GPS noise makes possible: behind a standing
+walker (it may turn and leave the other way), lateral ways within `lateral` metres (the other sidewalk, a way
+skirting an area) and areas next to the position. Kept apart from the tracker: it reads the tracker's state
+and the published ghost, and changes neither.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from entitynet.client.entities import EntityType
+from entitynet.client.modes import AREA
+from entitynet.client.motion import AreaModel, Model, NetworkModel
+from entitynet.client.network import NetView
+from entitynet.client.occupation import Occupation, make_occupation, occupy, occupy_area, wire_validity
+from entitynet.client.path import Path, follow
+from entitynet.client.placement import ring_distance
+from entitynet.client.route import Route
+from entitynet.client.tracker import MAX_PATH_EDGES, NetworkTracker
+
+MAX_PUBLISH_CELLS = 64
+
+
+def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
+    """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
+    return make_occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+def _wire(occ: Occupation) -> Occupation:
+    """The occupation with its validity as the PUBLISH carries it (`wire_validity`)."""
+    v = wire_validity(occ.validity)
+    if v == occ.validity:
+        return occ
+    return Occupation(occ.cells, v, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+class Coverage:
+    """The cells one entity publishes: its occupation from the ghost (network model) or from the tracker's
+    estimate (world-frame baselines), widened by `lateral` metres where the entity may be elsewhere."""
+
+    def __init__(self, net: NetView, etype: EntityType, route: Route, *, body: float, margin: float,
+                 accuracy: float, lateral: float, lookahead: float, max_validity: float, heartbeat: float) -> None:
+        self.net = net
+        self.etype = etype
+        self.route = route
+        self.has_route = bool(route)
+        self.body, self.margin, self.accuracy, self.lateral = body, margin, accuracy, lateral
+        self.lookahead, self.max_validity, self.heartbeat = lookahead, max_validity, heartbeat
+
+    def occupation(self, t: float, ghost: Model, trk: NetworkTracker,
+                   estimate_xy: Callable[[], tuple[float, float]]) -> Occupation | None:
+        """The occupation to publish with `ghost` at `t` (None while the tracker has no place)."""
+        if trk.place is None:
+            return None
+        et = self.etype
+        placer = trk.placer
+        if trk.place is AREA:
+            x, y = ghost.xy_at(t) if isinstance(ghost, AreaModel) else estimate_xy()
+            vx, vy = (ghost.vx, ghost.vy) if isinstance(ghost, AreaModel) else (0.0, 0.0)
+            # the strip outside the area is covered by the lateral cells below, so the period only keeps
+            # the GPS accuracy as its margin (a large drift threshold would otherwise make it vanish)
+            margin = min(self.margin, self.accuracy)
+            occ = occupy_area(x, y, vx, vy, placer.ring(trk.area), self.net.area_cell[trk.area],
+                              margin=margin, max_validity=self.max_validity)
+            if self.lateral > 0.0:
+                # ways crossing or skirting the area and areas next to it: under GPS noise the entity may be
+                # on one of them
+                cells = list(occ.cells)
+                for e in placer.edges_near(x, y, self.lateral):
+                    f = placer.project_on(x, y, e)
+                    if f.distance <= self.lateral:
+                        for a0, b0, c in self.net.pieces(e, 1):
+                            if b0 >= f.offset - self.lateral and a0 <= f.offset + self.lateral and c not in cells:
+                                cells.append(c)
+                for area in placer.areas_near(x, y, self.lateral):
+                    c = self.net.area_cell[area]
+                    if c not in cells and ring_distance(placer.ring(area), x, y) <= self.lateral:
+                        cells.append(c)
+                validity = occ.validity
+                speed = math.hypot(vx, vy)
+                if len(cells) <= MAX_PUBLISH_CELLS and speed > 0.0 and self.lateral > margin:
+                    # every cell within `lateral` of the position is listed: the ghost must move
+                    # `lateral - margin` before the truth can be outside them, wherever the boundary is
+                    validity = max(validity, min((self.lateral - margin) / speed, self.max_validity))
+                occ = Occupation(tuple(cells[:MAX_PUBLISH_CELLS]), validity, occ.front_period, occ.aft_period,
+                                 occ.cover_start, occ.cover_end)
+            return _wire(occ)
+        if isinstance(ghost, NetworkModel):
+            path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a
+        else:
+            # world-frame baselines: the same occupation machinery on the client's network estimate
+            path, s, v, a = trk.path, trk.kf.s, max(trk.kf.v, 0.0), 0.0
+        known = self.route.known_until(path, s)
+        travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
+        # at a dead end the model halts at the path's end: nothing ahead to enter, no front period
+        occ = occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
+                     lookahead=self.lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel,
+                     dead_end_at_path_end=path.edges[-1] == trk.dead_end)
+        back = None
+        if v == 0.0 and not self.has_route and self.body == 0.0 and isinstance(ghost, NetworkModel):
+            # a walker standing still may turn and leave the other way, and the standing test needs a few
+            # fixes to see it go: cover the way behind too, `lateral` beyond the margin (and the parallel
+            # ways as far behind)
+            back = self._behind(path, s, self.lateral, et.networks)
+            cells = list(occ.cells)
+            for c in back.cells:
+                if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
+                    cells.append(c)
+            occ = Occupation(tuple(cells), min(occ.validity, back.validity), occ.front_period, occ.aft_period,
+                             occ.cover_start, occ.cover_end)
+        if self.lateral > 0.0 and not self.has_route:
+            extra = self._lateral_cells(trk, path, s, occ.cover_end - s,
+                                        None if back is None else back.cover_end - back.cover_start)
+            cells = list(occ.cells)
+            for c in extra:
+                if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
+                    cells.append(c)
+            occ = _with_cells(occ, tuple(cells))
+        return _wire(occ)
+
+    def _behind(self, path: Path, s: float, lookahead: float, networks: int) -> Occupation:
+        """The occupation of a standing entity turned around: the published path's edge at s reversed and
+        followed by the junction rule, covered as `occupy` covers the way ahead (`lookahead` beyond the margin,
+        every branch at a choice of way within it)."""
+        net = self.net
+        k = path.index(s)
+        e, d = path.edges[k]
+        back = (e, -d)
+        s_back = path.cum[k + 1] - s
+        edges = [back] + follow(net, back, networks, lookahead + self.margin + 80.0, max_edges=MAX_PATH_EDGES)
+        return occupy(Path(net, edges), s_back, 0.0, 0.0, 0.0, self.etype.vmax, networks, margin=self.margin,
+                      lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
+
+    def _lateral_cells(self, trk: NetworkTracker, path: Path, s: float, ahead: float,
+                       behind: float | None = None) -> list[int]:
+        """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may
+        be on a parallel way (the other sidewalk) rather than the one it was placed on. Each such edge is
+        covered from `behind` metres behind the projected point (default: the margin and the body) to `ahead`
+        metres on, in the direction of travel."""
+        net, placer = self.net, trk.placer
+        x, y = path.xy(s)
+        hx, hy = path.xy(min(s + 1.0, path.length))
+        bx, by = path.xy(max(s - 1.0, 0.0))
+        dx, dy = hx - bx, hy - by
+        e_cur = path.locate(s)[0]
+        back = self.margin + self.body if behind is None else behind  # a standing walker: both ways
+        # the path's own edges are covered where the occupation runs; one the path reaches only further on
+        # (it loops back along the parallel way) is still a lateral candidate here
+        cum, edges = path.cum, path.edges
+        on_path = {edges[k][0] for k in range(len(edges)) if cum[k + 1] >= s - back and cum[k] <= s + ahead}
+        out: list[int] = []
+        # every way near the position, connected or not (footways drawn twice, a few metres apart)
+        for e in placer.edges_near(x, y, self.lateral):
+            if e == e_cur or e in on_path:
+                continue
+            f = placer.project_on(x, y, e)
+            if f.distance > self.lateral:
+                continue
+            hx0, hy0 = net.point(e, min(f.offset + 1.0, net.edge_len[e]))
+            bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
+            fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
+            length = net.edge_len[e]
+            lo, hi = (f.offset - back, f.offset + ahead) if fwd else (f.offset - ahead, f.offset + back)
+            lo, hi = max(lo, 0.0), min(hi, length)
+            for a0, b0, c in net.pieces(e, 1):
+                if b0 >= lo and a0 <= hi and c not in out:
+                    out.append(c)
+        for area in placer.areas_near(x, y, self.lateral):  # an area next to the way: maybe inside it
+            if ring_distance(placer.ring(area), x, y) <= self.lateral:
+                c = net.area_cell[area]
+                if c not in out:
+                    out.append(c)
+        return out

@@ -1,0 +1,164 @@
+"""The update rules: when an honest client publishes (reference section 4.5), given what it published.
+
+- `drift`: the ghost (what every receiver extrapolates) is more than `threshold` metres from where the
+  entity is believed to be, `confirm` fixes in a row (or once by 1.5 x);
+- `stop` / `start`: emergent behaviour the extrapolation cannot know (a start is speed *and* displacement);
+- `periodic`: the baseline that publishes a position every `period` seconds;
+- `expiry`: the occupation's validity period ran out; `heartbeat`: nothing else for `heartbeat` seconds;
+- `gap`: no fix for `max_gap` seconds: the guess stops where it got to; `lost`: no fix for `lost_after`
+  seconds, the entity is unpublished (entitynet/client/limits.py says why).
+
+Where the entity "is believed to be" comes from an injected `Estimate` (default: the player's own filtered
+estimate), so that a benchmark can put the truth there without overriding the player's private methods.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Protocol
+
+from entitynet.client.entities import EntityType
+from entitynet.client.motion import Model, NetworkModel
+from entitynet.client.occupation import Occupation
+
+if TYPE_CHECKING:
+    from entitynet.client.player import Player
+
+
+class Estimate(Protocol):
+    """What the player believes about itself, where the update rules and the publish ask: the position the
+    drift test compares the ghost with, and the along-path speed and acceleration a network publish carries.
+    The benchmark injects the truth here to measure what the estimate's noise costs."""
+
+    def position(self, player: Player, t: float) -> tuple[float, float]:
+        """(x, y) the drift test of a moving ghost compares it with, at the fix time `t`."""
+        ...
+
+    def motion(self, player: Player, t: float) -> tuple[float, float]:
+        """(v, a) along the path to publish at `t` (network model, on an edge, from a fix)."""
+        ...
+
+
+class OwnEstimate:
+    """The player's own filtered estimate (the default `Estimate`)."""
+
+    def position(self, player: Player, t: float) -> tuple[float, float]:
+        """The filtered position."""
+        return player.estimate_xy()
+
+    def motion(self, player: Player, t: float) -> tuple[float, float]:
+        """The along-path filter's speed and acceleration."""
+        kf = player.tracker.kf
+        return kf.v, kf.a
+
+
+OWN_ESTIMATE = OwnEstimate()
+
+
+class UpdateRules:
+    """The decisions between publishes, and their memory: fixes over the threshold in a row (`over`), the
+    last few fix positions (`recent`, for the standing test), whether a fix gap halted the published guess
+    (`halted`), and whether the next publish repositions a standing entity (`reposition`)."""
+
+    def __init__(self, etype: EntityType, *, periodic: bool, threshold: float, confirm: int, heartbeat: float,
+                 max_validity: float, period: float, max_gap: float, lost_after: float) -> None:
+        self.etype = etype
+        self.periodic = periodic
+        self.threshold, self.confirm = threshold, confirm
+        self.heartbeat, self.max_validity, self.period = heartbeat, max_validity, period
+        self.max_gap, self.lost_after = max_gap, lost_after
+        self.over = 0
+        self.reposition = False
+        self.halted = False  # a fix gap stopped the published guess (the `gap` update)
+        self.recent: list[tuple[float, float]] = []  # the last few fixes (on the network when placed)
+        self._still: tuple[Model, tuple[float, float, float]] | None = None  # a standing ghost's answer
+
+    def note_fix(self, xy: tuple[float, float]) -> None:
+        """Remember a fix's position (the last five) for the standing test."""
+        self.recent.append(xy)
+        if len(self.recent) > 5:
+            del self.recent[0]
+
+    def forget(self) -> None:
+        """A lost entity: its next fix starts afresh."""
+        self._still = None
+        self.recent.clear()
+        self.halted = False
+
+    def published(self) -> None:
+        """A publish went out: the drift count and a pending reposition start over."""
+        self.over = 0
+        self.reposition = False
+
+    def validity(self, occupation: Occupation | None) -> float:
+        """Seconds the last publish holds (its occupation's validity, or `max_validity` without cells)."""
+        return occupation.validity if occupation is not None else self.max_validity
+
+    def due(self, t: float, pub_t: float, occupation: Occupation | None) -> str | None:
+        """"expiry" or "heartbeat" when the last publish (at `pub_t`) has run out at `t`, else None."""
+        if t >= pub_t + self.validity(occupation):
+            return "expiry"
+        if t - pub_t >= self.heartbeat:
+            return "heartbeat"
+        return None
+
+    def decide(self, t: float, ghost: Model, pub_t: float, occupation: Occupation | None, v_est: float,
+               player: Player, estimate: Estimate = OWN_ESTIMATE) -> str | None:
+        """The reason to publish after a fix at `t` (None: the ghost is still good). `v_est`: the estimated
+        speed; the drift test of a moving ghost asks `estimate.position(player, t)`."""
+        if self.periodic:
+            if t - pub_t >= self.period - 1e-6:
+                return "periodic"
+            return self.due(t, pub_t, occupation)
+        still = self._still
+        if still is not None and still[0] is ghost:
+            gx, gy, gv = still[1]
+        else:
+            gx, gy, gv = ghost.xy_speed_at(t)
+            if isinstance(ghost, NetworkModel) and ghost.v == 0.0 and ghost.a == 0.0:
+                # a standing network ghost (half the fixes of transit vehicles) answers the same at every t:
+                # advance(0, 0, .) moves 0.0 and its braking plan is void (brake_plan gives inf at v = 0)
+                self._still = (ghost, (gx, gy, gv))
+        et = self.etype
+        if gv > et.v_stop and v_est < et.v_stop:
+            return "stop"
+        if gv <= et.v_stop:
+            # the published model stands still: judge by the mean of the last fixes, not by the filter,
+            # whose speed wanders with the noise of a standing GPS (a start is speed *and* displacement)
+            moved = False
+            for n, limit in ((5, self.threshold), (2, 1.6 * self.threshold)):
+                pts = self.recent[-n:]
+                mx = my = 0.0
+                for px, py in pts:
+                    mx += px
+                    my += py
+                m = len(pts)
+                moved = moved or math.hypot(mx / m - gx, my / m - gy) > limit
+            if moved:
+                if v_est > et.v_start:
+                    return "start"
+                if v_est <= et.v_stop:
+                    self.reposition = True  # still standing, just somewhere else: publish standing there
+                return "drift"  # (creeping between v_stop and v_start: publish the slow motion)
+            return self.due(t, pub_t, occupation)
+        ex, ey = estimate.position(player, t)
+        drift = math.hypot(gx - ex, gy - ey)
+        # `confirm` fixes in a row over the threshold (or one over 1.5x) make a drift update
+        self.over = self.over + 1 if drift > self.threshold else 0
+        if self.over >= self.confirm or drift > 1.5 * self.threshold:
+            return "drift"
+        return self.due(t, pub_t, occupation)
+
+    def on_tick(self, now: float, last_t: float | None, pub_t: float,
+                occupation: Occupation | None) -> tuple[str | None, float | None]:
+        """Time passes without a fix: (reason, stop_at). "lost" after `lost_after` seconds without a fix;
+        "gap" once after `max_gap` (stand where the guess was at `stop_at`); then "expiry" / "heartbeat"
+        (continuing the published model, standing at `stop_at` when a gap halted it)."""
+        gap = now - last_t if last_t is not None else 0.0
+        if gap >= self.lost_after:
+            return "lost", None
+        stop_at = last_t + self.max_gap if gap >= self.max_gap else None
+        if stop_at is not None and not self.halted:
+            self.halted = True
+            return "gap", stop_at
+        return self.due(now, pub_t, occupation), stop_at
