@@ -121,9 +121,9 @@ class Page:
                                    + " | ".join(self.console[-5:]))
             await trio.sleep(every)
 
-    async def screenshot(self) -> bytes:
-        """The tab as PNG bytes."""
-        result = await self.send("Page.captureScreenshot", {"format": "png"})
+    async def screenshot(self, timeout: float = 120.0) -> bytes:
+        """The tab as PNG bytes (a page busy rendering on a software GPU may take a while)."""
+        result = await self.send("Page.captureScreenshot", {"format": "png"}, timeout)
         return base64.b64decode(result["data"])
 
 

@@ -44,14 +44,15 @@ async function main() {
   const pvs = new PvsLookup(geometry, (vc) => getJson(`/viewer/pvs/${vc}.json`));
   const session = new ViewerSession(net, config.digest, tokenFrom(config), (x, y, z) => pvs.cellsAt(x, y, z));
   const data = staticData(geometry);
-  const city = cityLayers(data);
+  const hide = (new URLSearchParams(location.hash.slice(1)).get("hide") || "").split(",");
+  const city = cityLayers(data).filter((layer) => !hide.includes(layer.id)); // `#hide=streets,ground`
   const show = { cells: false, pvs: false, viewCell: false };
   const [x0, y0, x1, y1] = geometry.extent;
   let viewState = {
     position: [(x0 + x1) / 2, (y0 + y1) / 2 - 380, 160], bearing: 0, pitch: 42, maxPitch: 89, minPitch: -89,
     maxBounds: [[x0 - 400, y0 - 400, 0.5], [x1 + 400, y1 + 400, 600]],
   };
-  const probe = { firstEntityMs: null, frames: [], lastFrame: null, subscribesSent: 0, started: opened };
+  const probe = { tickMs: 0, firstEntityMs: null, frames: [], lastFrame: null, subscribesSent: 0, started: opened };
 
   let ws = null;
   const deck = new Deck({
@@ -61,7 +62,10 @@ async function main() {
     onViewStateChange: ({ viewState: v }) => { viewState = v; deck.setProps({ viewState }); },
     layers: city,
     getTooltip: ({ object }) => tooltip(object),
-    useDevicePixels: false,
+    // `#scale=0.5` renders at half resolution: a software renderer's frame time falls with the pixel count
+    useDevicePixels: Number(new URLSearchParams(location.hash.slice(1)).get("scale")) || false,
+    // multisampling quadruples the fragment work of a software renderer (SwiftShader); `#aa=1` turns it on
+    deviceProps: { webgl: { antialias: new URLSearchParams(location.hash.slice(1)).get("aa") === "1" } },
     // connect once the city is drawn: its first build keeps the page busy for seconds on a slow machine,
     // and a socket opened before would miss the server's handshake timeout
     onAfterRender: () => { if (ws === null) connect(); },
@@ -125,6 +129,7 @@ async function main() {
     const vc = pvs.viewCell(x, y, z);
     deck.setProps({ layers: [...city, ...overlayLayers(data, show, [...session.cells], viewBox(geometry, x, y, z)),
       ...entityLayers(ghosts, t, frame)] });
+    probe.tickMs = performance.now() - t0; // this frame's JavaScript: extrapolation and layer props
     if (t0 - rate.t >= 1000) {
       rate.ups = ((session.stats.updates - rate.updates) * 1000) / (t0 - rate.t);
       rate.bps = ((session.stats.bytes - rate.bytes) * 1000) / (t0 - rate.t);
@@ -162,7 +167,7 @@ async function main() {
     ready: () => session.ready,
     stats: () => ({ ...session.stats, held: session.ghosts.size, visible: visibleCount, cells: session.cells.size,
       badPayloads: session.ghosts.badPayloads, error: session.error, firstEntityMs: probe.firstEntityMs,
-      subscribesSent: probe.subscribesSent, frame }),
+      subscribesSent: probe.subscribesSent, frame, tickMs: probe.tickMs, deck: { ...deck.metrics } }),
     entityIds: () => [...session.ghosts.ghosts.keys()].sort((a, b) => a - b),
     byType: () => {
       const out = {};

@@ -62,7 +62,8 @@ export function cityLayers(data) {
       getFillColor: [62, 92, 70], material: false }),
     new PathLayer({ id: "streets", data: data.streets, ...CART, getPath: (d) => d.path,
       getColor: (d) => streetColor(d.net), getWidth: (d) => streetWidth(d.net), widthUnits: "meters",
-      widthMinPixels: 1, capRounded: true, jointRounded: true, parameters: { depthCompare: "always" } }),
+      // square caps and miter joints: rounded ones cost a software renderer (SwiftShader) several times more
+      widthMinPixels: 1, capRounded: false, jointRounded: false, parameters: { depthCompare: "always" } }),
     new SolidPolygonLayer({ id: "buildings", data: data.buildings, ...CART, getPolygon: (d) => d.polygon,
       extruded: true, getElevation: (d) => d.height, getFillColor: [205, 200, 190], wireframe: false,
       material: { ambient: 0.35, diffuse: 0.6, shininess: 16, specularColor: [40, 40, 40] } }),
