@@ -1,6 +1,6 @@
 // The page as an honest viewer client, sans-IO (entitynet/protocol.py and entitynet/client/subscriptions.py):
 // bytes in with `receive(bytes, now)`, bytes out from `hello()`, `moveCamera()`, `ping()`. The shell
-// (app.js) moves them over one WebSocket: one binary message = one payload = a msgpack array of messages.
+// (viewer.js) moves them over one WebSocket: one binary message = one payload = a msgpack array of messages.
 
 import { decode as unpack, encode as pack } from "@msgpack/msgpack";
 import { GhostStore } from "./ghosts.js";
