@@ -1,4 +1,4 @@
-// The deck.gl layers: the static city (buildings, streets, areas) built once, overlays that toggle
+// The library benchmark's deck.gl variant (bench.js; the viewer draws with three.js, city3d.js): the static city (buildings, streets, areas) built once, overlays that toggle
 // (visibility cells, the camera's view cell and its PVS) and the entities rebuilt every frame.
 // Local metric coordinates of the artifact (CARTESIAN; x east, y north, z up), no map tiles.
 

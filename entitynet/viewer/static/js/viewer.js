@@ -2,10 +2,9 @@
 // All protocol logic is in session.js (sans-IO), all extrapolation in motion.js; this file only wires them
 // to the browser. `window.entitynet` exposes read-outs (and a camera setter) for the headless-browser test.
 
-import { Deck, FirstPersonView } from "@deck.gl/core";
+import { City3D, TYPE_STYLE } from "./city3d.js";
 import { configureLimits, NetView } from "./motion.js";
 import { PvsLookup } from "./pvs.js";
-import { cityLayers, entityLayers, overlayLayers, staticData, TYPE_STYLE } from "./scene.js";
 import { ViewerSession } from "./session.js";
 
 const PING_EVERY_MS = 5000;
@@ -43,33 +42,15 @@ async function main() {
   const net = new NetView(geometry.net);
   const pvs = new PvsLookup(geometry, (vc) => getJson(`/viewer/pvs/${vc}.json`));
   const session = new ViewerSession(net, config.digest, tokenFrom(config), (x, y, z) => pvs.cellsAt(x, y, z));
-  const data = staticData(geometry);
-  const hide = (new URLSearchParams(location.hash.slice(1)).get("hide") || "").split(",");
-  const city = cityLayers(data).filter((layer) => !hide.includes(layer.id)); // `#hide=streets,ground`
+  const hash = new URLSearchParams(location.hash.slice(1));
+  const city = new City3D($("map"), geometry, { pixelRatio: Number(hash.get("scale")) || 1, antialias: hash.get("aa") === "1" });
   const show = { cells: false, pvs: false, viewCell: false };
   const [x0, y0, x1, y1] = geometry.extent;
-  let viewState = {
-    position: [(x0 + x1) / 2, (y0 + y1) / 2 - 380, 160], bearing: 0, pitch: 42, maxPitch: 89, minPitch: -89,
-    maxBounds: [[x0 - 400, y0 - 400, 0.5], [x1 + 400, y1 + 400, 600]],
-  };
+  // bearing: degrees clockwise from north; pitch: degrees below the horizon
+  let viewState = { position: [(x0 + x1) / 2, (y0 + y1) / 2 - 380, 160], bearing: 0, pitch: 42 };
+  const bounds = [[x0 - 400, y0 - 400, 0.5], [x1 + 400, y1 + 400, 600]];
   const probe = { tickMs: 0, firstEntityMs: null, frames: [], lastFrame: null, subscribesSent: 0, started: opened };
-
   let ws = null;
-  const deck = new Deck({
-    parent: $("map"),
-    views: new FirstPersonView({ id: "camera", fovy: 60, near: 0.3, far: 6000, controller: { keyboard: { moveSpeed: 8 } } }),
-    viewState,
-    onViewStateChange: ({ viewState: v }) => { viewState = v; deck.setProps({ viewState }); },
-    layers: city,
-    getTooltip: ({ object }) => tooltip(object),
-    // `#scale=0.5` renders at half resolution: a software renderer's frame time falls with the pixel count
-    useDevicePixels: Number(new URLSearchParams(location.hash.slice(1)).get("scale")) || false,
-    // multisampling quadruples the fragment work of a software renderer (SwiftShader); `#aa=1` turns it on
-    deviceProps: { webgl: { antialias: new URLSearchParams(location.hash.slice(1)).get("aa") === "1" } },
-    // connect once the city is drawn: its first build keeps the page busy for seconds on a slow machine,
-    // and a socket opened before would miss the server's handshake timeout
-    onAfterRender: () => { if (ws === null) connect(); },
-  });
 
   // ---- the WebSocket shell ----
   function send(bytes) {
@@ -127,9 +108,12 @@ async function main() {
     visibleCount = ghosts.length;
     const [x, y, z] = viewState.position;
     const vc = pvs.viewCell(x, y, z);
-    deck.setProps({ layers: [...city, ...overlayLayers(data, show, [...session.cells], viewBox(geometry, x, y, z)),
-      ...entityLayers(ghosts, t, frame)] });
-    probe.tickMs = performance.now() - t0; // this frame's JavaScript: extrapolation and layer props
+    city.setCamera(viewState.position, viewState.bearing, viewState.pitch);
+    city.setOverlays(show, session.cells, viewBox(geometry, x, y, z));
+    city.setEntities(ghosts, t);
+    probe.tickMs = performance.now() - t0; // this frame's JavaScript: extrapolation and instance matrices
+    city.render();
+    if (ws === null) connect(); // after the city's first frame: its first build keeps a slow page busy for seconds
     if (t0 - rate.t >= 1000) {
       rate.ups = ((session.stats.updates - rate.updates) * 1000) / (t0 - rate.t);
       rate.bps = ((session.stats.bytes - rate.bytes) * 1000) / (t0 - rate.t);
@@ -143,31 +127,63 @@ async function main() {
   }
   requestAnimationFrame(tick);
 
-  // ---- controls ----
+  // ---- controls: a free first-person camera ----
   function setCamera(x, y, z, pitch = viewState.pitch, bearing = viewState.bearing) {
-    viewState = { ...viewState, position: [x, y, z], pitch, bearing };
-    deck.setProps({ viewState });
+    const clamp = (v, i) => Math.min(Math.max(v, bounds[0][i]), bounds[1][i]);
+    viewState = { position: [clamp(x, 0), clamp(y, 1), clamp(z, 2)], pitch: Math.min(Math.max(pitch, -89), 89),
+      bearing: ((bearing % 360) + 360) % 360 };
     resubscribe();
   }
+  function move(forward, right, up) {
+    const b = (viewState.bearing * Math.PI) / 180;
+    const step = Math.max(2, viewState.position[2] / 10); // faster high up
+    const [x, y, z] = viewState.position;
+    setCamera(x + step * (forward * Math.sin(b) + right * Math.cos(b)), y + step * (forward * Math.cos(b) - right * Math.sin(b)),
+      z + up * Math.max(1, step / 2));
+  }
+  const keys = { ArrowUp: [1, 0, 0], w: [1, 0, 0], ArrowDown: [-1, 0, 0], s: [-1, 0, 0], ArrowLeft: [0, -1, 0],
+    a: [0, -1, 0], ArrowRight: [0, 1, 0], d: [0, 1, 0], e: [0, 0, 1], PageUp: [0, 0, 1], q: [0, 0, -1], PageDown: [0, 0, -1] };
+  window.addEventListener("keydown", (ev) => {
+    const k = keys[ev.key];
+    if (k && !(ev.target instanceof HTMLInputElement)) { move(...k); ev.preventDefault(); }
+  });
+  const canvas = city.renderer.domElement;
+  let drag = null;
+  canvas.addEventListener("pointerdown", (ev) => { drag = [ev.clientX, ev.clientY]; canvas.setPointerCapture(ev.pointerId); });
+  canvas.addEventListener("pointerup", () => { drag = null; });
+  canvas.addEventListener("pointermove", (ev) => {
+    if (drag) {
+      const [px, py] = drag;
+      drag = [ev.clientX, ev.clientY];
+      const [x, y, z] = viewState.position;
+      setCamera(x, y, z, viewState.pitch + (ev.clientY - py) * 0.2, viewState.bearing + (ev.clientX - px) * 0.2);
+      return;
+    }
+    const g = city.pick(ev.offsetX, ev.offsetY);
+    const tip = $("tooltip");
+    tip.style.display = g ? "block" : "none";
+    if (g) {
+      tip.textContent = tooltip(g);
+      tip.style.left = `${ev.clientX + 12}px`;
+      tip.style.top = `${ev.clientY + 12}px`;
+    }
+  });
+  canvas.addEventListener("wheel", (ev) => { move(ev.deltaY < 0 ? 1 : -1, 0, 0); ev.preventDefault(); }, { passive: false });
+  window.addEventListener("resize", () => city.resize($("map").clientWidth, $("map").clientHeight));
   $("street").onclick = () => setCamera(viewState.position[0], viewState.position[1], STREET_Z, 3);
   $("roofs").onclick = () => setCamera(viewState.position[0], viewState.position[1], ROOF_Z, 32);
   for (const key of Object.keys(show)) {
     $(`show-${key}`).onchange = (ev) => { show[key] = ev.target.checked; };
   }
-  window.addEventListener("keydown", (ev) => {
-    const [x, y, z] = viewState.position;
-    if (ev.key === "PageUp" || ev.key === "e") setCamera(x, y, Math.min(z + 5, 600));
-    if (ev.key === "PageDown" || ev.key === "q") setCamera(x, y, Math.max(z - 5, 0.5));
-  });
   $("legend").innerHTML = Object.values(TYPE_STYLE)
-    .map((s) => `<span><i style="background:rgb(${s.color})"></i>${s.name}</span>`).join("");
+    .map((s) => `<span><i style="background:#${s.color.toString(16).padStart(6, "0")}"></i>${s.name}</span>`).join("");
   status("connecting");
 
   window.entitynet = {
     ready: () => session.ready,
     stats: () => ({ ...session.stats, held: session.ghosts.size, visible: visibleCount, cells: session.cells.size,
       badPayloads: session.ghosts.badPayloads, error: session.error, firstEntityMs: probe.firstEntityMs,
-      subscribesSent: probe.subscribesSent, frame, tickMs: probe.tickMs, deck: { ...deck.metrics } }),
+      subscribesSent: probe.subscribesSent, frame, tickMs: probe.tickMs }),
     entityIds: () => [...session.ghosts.ghosts.keys()].sort((a, b) => a - b),
     byType: () => {
       const out = {};
@@ -198,12 +214,10 @@ function viewBox(geometry, x, y, z) {
   return [bx, by, bz, bx + g.size, by + g.size, Math.min(bz + g.size, g.max_height)];
 }
 
-function tooltip(object) {
-  const g = object && object.g;
-  if (!g) return null;
+function tooltip(g) {
   const style = TYPE_STYLE[g.model.etype];
   // identities come only as the server's privacy rule allows (reciprocal, audience): otherwise null
-  return `${style ? style.name : "type " + g.model.etype} #${g.entity}` + (g.identity ? `\n${g.identity}` : "");
+  return `${style ? style.name : "type " + g.model.etype} #${g.entity}` + (g.identity ? ` ${g.identity}` : "");
 }
 
 main().catch((err) => {
