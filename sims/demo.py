@@ -131,7 +131,11 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print,
         address = (config.host, server.port)
         say(f"shard server listening on {config.host}:{server.port} (open mode: no tokens, local use only)")
         if server.http_port is not None:
+            from entitynet.viewer.routes import BUILD_HINT, BUNDLE, STATIC
+
             say(f"open the 3D viewer: http://{config.host}:{server.http_port}/")
+            if not (STATIC / BUNDLE).exists():
+                say(BUILD_HINT)
 
         async with trio.open_nursery() as clients:
             movers = [
