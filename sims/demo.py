@@ -107,6 +107,10 @@ class Viewer:
         return msgs
 
 
+def _plural(kind: str) -> str:
+    return kind + ("es" if kind.endswith("s") else "s")
+
+
 def _entity_kind(rng: random.Random, config: DemoConfig) -> str:
     r = rng.random()
     for kind, share in (("car", config.car_share), ("bus", config.bus_share), ("tram", config.tram_share)):
@@ -151,7 +155,7 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print,
                 v.conn = Connection(address, topo.digest, on_message=v.on_message)
                 await clients.start(v.conn.run)
             say(
-                f"{len(movers)} entities ({', '.join(f'{n} {k}s' for k, n in sorted(kinds.items()))}) over "
+                f"{len(movers)} entities ({', '.join(f'{n} {_plural(k)}' for k, n in sorted(kinds.items()))}) over "
                 f"{len(conns)} connections; {len(viewers)} viewers ({n_high} above the roofs)"
             )
 

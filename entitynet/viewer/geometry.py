@@ -70,21 +70,26 @@ def extrapolation_limits() -> dict[str, Any]:
     }
 
 
+def grid_json(x0: float, y0: float, size: float, max_height: float, index: np.ndarray,
+              view_distance: float) -> dict[str, Any]:
+    """A view-cell grid (topology/viewcells.py `ViewGrid`) with every grid cell resolved to the view cell that
+    answers for it (`topology.pvs._resolve_grid`, the table `PvsIndex.lookup_cell` reads)."""
+    from topology.pvs import _resolve_grid
+
+    index = np.asarray(index)
+    nz, ny, nx = (int(n) for n in index.shape)
+    return {"x0": float(x0), "y0": float(y0), "size": float(size), "max_height": float(max_height),
+            "nx": nx, "ny": ny, "nz": nz, "view_distance": float(view_distance),
+            "resolved": _resolve_grid(index).ravel().astype(int).tolist()}
+
+
 def pvs_grid_json(topo: Topology) -> dict[str, Any] | None:
-    """The view-cell grid with every grid cell resolved to the view cell answering for it, or None."""
+    """The artifact's view-cell grid for the page (`grid_json`), or None without a PVS."""
     meta = topo.meta.get("pvs")
     if meta is None or "pvs_grid" not in topo.extra:
         return None
-    from topology.pvs import _resolve_grid
-
-    index = np.asarray(topo.extra["pvs_grid"])
-    nz, ny, nx = (int(n) for n in index.shape)
-    return {
-        "x0": float(meta["origin"][0]), "y0": float(meta["origin"][1]), "size": float(meta["cell_size"]),
-        "max_height": float(meta["max_height"]), "nx": nx, "ny": ny, "nz": nz,
-        "view_distance": float(meta["view_distance"]),
-        "resolved": _resolve_grid(index).ravel().astype(int).tolist(),
-    }
+    return grid_json(meta["origin"][0], meta["origin"][1], meta["cell_size"], meta["max_height"],
+                     topo.extra["pvs_grid"], meta["view_distance"])
 
 
 def export_geometry(topo: Topology) -> dict[str, Any]:

@@ -20,7 +20,7 @@ from entitynet.client.motion import AreaModel, WorldModel
 from entitynet.client.network import NetView
 from entitynet.client.path import Path as NetPath
 from entitynet.client.payload import PayloadError, decode, encode, encode_network
-from entitynet.viewer.geometry import extrapolation_limits, net_json
+from entitynet.viewer.geometry import extrapolation_limits, grid_json, net_json
 from tests.entitynet.client_fixtures import make_topology
 
 OUT = Path(__file__).parent / "js" / "golden.json"
@@ -95,6 +95,27 @@ def _bad_payloads() -> list[tuple[str, bytes]]:
     ]
 
 
+def _pvs_lookups() -> dict:
+    """A small view-cell grid with holes (view cells left out inside buildings, a whole column), its JSON as the
+    page gets it, and the view cell `topology.pvs.PvsIndex.lookup_cell` answers at positions in and off it."""
+    import numpy as np
+
+    from topology.pvs import PvsIndex
+    from topology.viewcells import ViewGrid
+
+    nz, ny, nx = 3, 4, 5
+    index = np.arange(nz * ny * nx, dtype=np.int32).reshape(nz, ny, nx)
+    index[0, 1, 1] = index[1, 1, 1] = -1  # inside a building two layers tall
+    index[:, 2, 3] = -1  # a column wholly inside a building taller than the stack
+    index[0, 0, 4] = -1
+    grid = ViewGrid(-40.0, -30.0, 20.0, 55.0, index)
+    py = PvsIndex(grid, None, 10, 500.0)
+    points = [(x, y, z) for x in (-100.0, -40.0, -20.5, 0.0, 5.0, 19.99, 30.0, 41.0, 70.0, 500.0)
+              for y in (-80.0, -30.0, -9.0, 10.0, 15.0, 31.0, 60.0) for z in (-5.0, 0.0, 1.7, 20.0, 39.9, 55.0, 300.0)]
+    return {"grid": grid_json(grid.x0, grid.y0, grid.size, grid.max_height, grid.index, 500.0),
+            "lookups": [[x, y, z, py.lookup_cell(x, y, z)] for x, y, z in points]}
+
+
 def golden_vectors() -> dict:
     topo = golden_topology()
     net = NetView(topo)
@@ -115,7 +136,8 @@ def golden_vectors() -> dict:
             bad.append({"name": name, "payload": base64.b64encode(payload).decode()})
         else:
             raise AssertionError(f"the Python decoder accepts {name!r}")
-    return {"net": net_json(topo), "limits": extrapolation_limits(), "cases": cases, "bad": bad}
+    return {"net": net_json(topo), "limits": extrapolation_limits(), "cases": cases, "bad": bad,
+            "pvs": _pvs_lookups()}
 
 
 def main() -> None:

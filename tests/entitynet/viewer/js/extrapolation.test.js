@@ -9,6 +9,7 @@ import { test } from "node:test";
 import { GhostStore } from "../../../../entitynet/viewer/static/js/ghosts.js";
 import { configureLimits, LIMITS, NetView } from "../../../../entitynet/viewer/static/js/motion.js";
 import { decodePayload, PayloadError } from "../../../../entitynet/viewer/static/js/payload.js";
+import { PvsLookup } from "../../../../entitynet/viewer/static/js/pvs.js";
 
 const golden = JSON.parse(readFileSync(new URL("./golden.json", import.meta.url), "utf8"));
 const net = new NetView(golden.net);
@@ -74,4 +75,10 @@ test("ghost store: newer seq replaces, older is ignored, bad payloads are counte
   assert.equal(store.visible(100.0 + LIMITS.horizon).ghosts.length, 0); // no ghost outlives the horizon
   store.receive({ entity: 7, leave: true }, 0);
   assert.equal(store.size, 0);
+});
+
+test("camera -> view cell as topology/pvs.py PvsIndex.lookup_cell answers (clamps, holes, buried columns)", () => {
+  const lookup = new PvsLookup({ pvs: golden.pvs.grid }, async () => []);
+  assert.ok(golden.pvs.lookups.length > 100);
+  for (const [x, y, z, want] of golden.pvs.lookups) assert.equal(lookup.viewCell(x, y, z), want, `at ${x}, ${y}, ${z}`);
 });
