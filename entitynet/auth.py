@@ -58,6 +58,9 @@ def _create_private(path: Path) -> None:
 
 
 class TokenStore:
+    """Who may connect: token hashes -> user ids in one SQLite file, shared by `entitynet users` and
+    the server (which polls `data_version` to see revocations made from another process)."""
+
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         _create_private(self.path)
@@ -74,6 +77,8 @@ class TokenStore:
         return int(self._db.execute("PRAGMA data_version").fetchone()[0])
 
     def close(self) -> None:
+        """Release the SQLite handle; public so that an embedding program or a test can close a store it
+        opened before the file is removed or reopened."""
         self._db.close()
 
     def add_user(self, user: str) -> str:
@@ -86,6 +91,8 @@ class TokenStore:
         return token
 
     def authenticate(self, token: str) -> str | None:
+        """The user id of `token`, or None. Empty or over-long tokens (> 256 characters) are refused
+        without hashing or a query, so junk costs nothing."""
         if not token or len(token) > 256:
             return None
         row = self._db.execute("SELECT user FROM tokens WHERE hash = ?", (_hash(token),)).fetchone()

@@ -3,6 +3,10 @@
 This is the composition root: each subcommand lives in its own module with a `register(subparsers)`
 function, imported here by name so that `entitynet --help` stays fast and a broken optional part
 cannot stop the others from running.
+
+Packages that sit above `entitynet` (`sims`, `proxies`) add their own subcommands through the entry-point
+group `entitynet.commands` (see `discover_plugins`): the arrows run one way, so `entitynet` never imports
+them by name.
 """
 
 from __future__ import annotations
@@ -11,24 +15,43 @@ import argparse
 import importlib
 import logging
 import sys
+from collections.abc import Callable
+from importlib.metadata import entry_points
 
 from entitynet import __version__
 
 #: modules providing subcommands (each defines `register(subparsers)`)
 COMMAND_MODULES = [
     "entitynet.commands.topology_cmd",
-    "entitynet.commands.bench_cmd",
-    "entitynet.commands.demo_cmd",
     "entitynet.commands.serve_cmd",
     "entitynet.commands.users_cmd",
 ]
+
+#: entry-point group through which other packages register subcommands: `name = "module:register"`
+PLUGIN_GROUP = "entitynet.commands"
 
 
 class CommandError(Exception):
     """A user-facing error: printed as `entitynet: error: ...` with exit status 2, no traceback."""
 
 
+def discover_plugins(group: str = PLUGIN_GROUP) -> list[tuple[str, Callable]]:
+    """`(name, register)` of every installed subcommand plugin, sorted by name.
+
+    Why a warning and not an error: a plugin that fails to import (a missing optional dependency, a bug in
+    it) must not take the whole CLI down with it; the other commands keep working and the user is told which
+    one is missing and why."""
+    found = []
+    for ep in sorted(entry_points(group=group), key=lambda e: e.name):
+        try:
+            found.append((ep.name, ep.load()))
+        except Exception as exc:  # any failure of a plugin is reported, not fatal
+            print(f"entitynet: warning: command {ep.name!r} ({ep.value}) unavailable: {exc}", file=sys.stderr)
+    return found
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The full parser: the built-in COMMAND_MODULES, then the plugins (a plugin cannot shadow a built-in)."""
     parser = argparse.ArgumentParser(
         prog="entitynet",
         description="Dynamic entities on mobile 3D city maps: topology, visibility, honest clients, switchboards.",
@@ -38,10 +61,19 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    for name, register in discover_plugins():
+        if name in sub.choices:
+            print(f"entitynet: warning: plugin command {name!r} ignored: the name is taken", file=sys.stderr)
+            continue
+        try:
+            register(sub)
+        except Exception as exc:  # see discover_plugins
+            print(f"entitynet: warning: command {name!r} unavailable: {exc}", file=sys.stderr)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Parse, set up logging, run the command; user errors become exit status 2 without a traceback."""
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)

@@ -18,6 +18,8 @@ from topology.artifact import ArtifactError, Topology, load, save
 
 
 def cache_dir() -> Path:
+    """Where built artifacts are cached: $ENTITYNET_CACHE, else $XDG_CACHE_HOME/entitynet
+    (~/.cache/entitynet)."""
     base = os.environ.get("ENTITYNET_CACHE") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "entitynet"
     )
@@ -25,6 +27,8 @@ def cache_dir() -> Path:
 
 
 def bundled_artifact_path(with_pvs: bool = True) -> Path:
+    """The cache file of the bundled map; its name hashes the map and the builder's source, so any change
+    to either builds afresh instead of loading stale cells."""
     h = hashlib.sha256(BUNDLED_MAP.read_bytes())
     for src in sorted(Path(topology.__file__).parent.glob("*.py")):
         h.update(src.name.encode())

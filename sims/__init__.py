@@ -1,1 +1,1 @@
-"""Entity behaviours, load simulations and benchmark suites."""
+"""One mobility model (`sims.mobility`), the demo built on it, and the benchmark suites (`sims.bench`)."""

@@ -14,6 +14,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from entitynet.client import FixRejected, GhostStore, Subscriptions, netview
 from entitynet.connection import Connection
 from entitynet.server.app import Server, serve
 from entitynet.server.config import ServerConfig
-from sims.movers import Mover, Trajectory, random_start
+from sims.mobility import Mover, Trajectory, random_start
 from topology.raw import PEDESTRIAN
 
 Say = Callable[[str], None]
@@ -45,6 +46,7 @@ class DemoConfig:
     seed: int = 1
     host: str = "127.0.0.1"
     port: int = 0
+    transit: str | None = None  # a GTFS feed: trams and buses through the replay producer and the SIRI proxy
     http_port: int | None = None  # serve the browser viewer here (0: any free port; None: none)
 
 
@@ -69,7 +71,7 @@ def distance_cells_at(topo, view_distance: float = 500.0) -> Callable[[float, fl
 
 def pvs_lookup(topo, say: Say) -> Callable[[float, float, float], np.ndarray]:
     if "pvs" in topo.meta:
-        from topology.pvs import PvsIndex
+        from topology.pvs_index import PvsIndex
 
         return PvsIndex.from_topology(topo).cells_at
     say("the artifact has no PVS: viewers subscribe to every cell within 500 m instead")
@@ -83,8 +85,7 @@ class Viewer:
         self.index = index
         self.high = high
         self.z = rng.uniform(40.0, 90.0) if high else 1.7
-        self.traj = Trajectory(net, PEDESTRIAN, rng, [random_start(net, PEDESTRIAN, rng)], [])
-        self.traj.lengths = [net.edge_len[self.traj.path[0][0]]]
+        self.traj = Trajectory.starting_at(net, PEDESTRIAN, rng, random_start(net, PEDESTRIAN, rng))
         self.speed = 6.0 if high else 1.4
         self.subs = Subscriptions(cells_at)
         self.ghosts = GhostStore(net)
@@ -98,6 +99,7 @@ class Viewer:
             self.ghosts.receive(msg, time.time())
         elif isinstance(msg, P.Welcome):
             self.ghosts.ghosts.clear()  # entity ids are per server session
+            self.subs.apply_limits(msg.limits)  # the next move subscribes within them (max_subscriptions, ...)
 
     def move(self, dt: float) -> list[P.Subscribe]:
         self.traj.advance(self.speed * dt)
@@ -158,6 +160,10 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print,
                 f"{len(movers)} entities ({', '.join(f'{n} {_plural(k)}' for k, n in sorted(kinds.items()))}) over "
                 f"{len(conns)} connections; {len(viewers)} viewers ({n_high} above the roofs)"
             )
+
+            if config.transit:
+                run_transit = demo_part("transit")  # optional part, from the proxies package
+                await clients.start(run_transit, topo, address, config.transit, say)
 
             task_status.started(server)
             stop = trio.Event()
@@ -243,3 +249,15 @@ async def _stop_on_signal(stop: trio.Event) -> None:
         async for _ in signals:
             stop.set()
             return
+
+
+#: entry-point group through which other packages add parts to the demo (`name = "module:function"`)
+DEMO_PART_GROUP = "entitynet.demo_parts"
+
+
+def demo_part(name: str) -> Callable:
+    """The demo part `name` that another package registers (transit: proxies' replay producer and SIRI proxy),
+    found by entry point so that sims never imports proxies (the layering's arrows run one way)."""
+    for ep in entry_points(group=DEMO_PART_GROUP, name=name):
+        return ep.load()
+    raise LookupError(f"no demo part {name!r} installed (entry-point group {DEMO_PART_GROUP})")

@@ -35,6 +35,8 @@ class ArtifactError(Exception):
 
 @dataclass
 class Topology:
+    """The loaded artifact: numpy arrays only (CSR incidence lists, polylines, cell breakpoints), so that
+    clients and servers query it without shapely or networkx (placement builds its index lazily)."""
     meta: dict[str, Any]
     # nodes
     node_xy: np.ndarray  # (N, 2) float64
@@ -75,18 +77,22 @@ class Topology:
     # ---- sizes -------------------------------------------------------------------------------------------
     @property
     def n_nodes(self) -> int:
+        """Network nodes, street and area nodes together."""
         return len(self.node_xy)
 
     @property
     def n_edges(self) -> int:
+        """Network edges."""
         return len(self.edge_nodes)
 
     @property
     def n_cells(self) -> int:
+        """Visibility cells; cell ids are 0..n_cells-1 and are the ids used on the wire."""
         return len(self.cell_kind)
 
     @property
     def digest(self) -> str:
+        """The content digest that clients and servers compare in the handshake."""
         return self.meta["digest"]
 
     @property
@@ -97,9 +103,11 @@ class Topology:
 
     # ---- run-time queries (pure numpy, no shapely) --------------------------------------------------------
     def edges_of_node(self, node: int) -> np.ndarray:
+        """Edges incident to `node` (a view into the CSR array: do not modify)."""
         return self.node_edges[self.node_edge_offsets[node] : self.node_edge_offsets[node + 1]]
 
     def edge_polyline(self, edge: int) -> np.ndarray:
+        """The (n, 2) vertices of `edge`, from its from-node (offset 0) to its to-node (a view)."""
         return self.edge_geom_xy[self.edge_geom_offsets[edge] : self.edge_geom_offsets[edge + 1]]
 
     def cell_at(self, edge: int, offset: float) -> int:
@@ -126,9 +134,11 @@ class Topology:
         return xy[k] + t * (xy[k + 1] - xy[k])
 
     def cell_edges_of(self, cell: int) -> np.ndarray:
+        """The edges that pass through `cell` (a view), e.g. to tell which networks a cell serves."""
         return self.cell_edges[self.cell_edge_offsets[cell] : self.cell_edge_offsets[cell + 1]]
 
     def cell_nodes_of(self, cell: int) -> np.ndarray:
+        """The nodes inside `cell`: a junction's crossings, an area's node (a view)."""
         return self.cell_nodes[self.cell_node_offsets[cell] : self.cell_node_offsets[cell + 1]]
 
     # ---- placement index (built lazily: shapely is only needed for the first fix of an entity) ----------
@@ -166,6 +176,8 @@ def _arrays_of(topo: Topology) -> dict[str, np.ndarray]:
 
 
 def compute_digest(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> str:
+    """sha256 over the meta (less digest and timings) and every array's name, dtype, shape and bytes: two
+    builds of one map share a digest, any change of content gives another."""
     h = hashlib.sha256()
     # timings say how long this build took, not what the artifact holds: two builds of one map share a digest
     body = {k: v for k, v in meta.items() if k not in ("digest", "timings")}

@@ -31,6 +31,8 @@ class BuildError(Exception):
 
 @dataclass
 class BuildConfig:
+    """Every knob of a build in one place; the cleaning and cell parameters are recorded in the artifact's
+    meta, so a build can be repeated."""
     clean: CleanParams = field(default_factory=CleanParams)
     cells: CellParams = field(default_factory=CellParams)
     crs: str | None = None
@@ -275,4 +277,5 @@ def report_lines(report: dict[str, int]) -> list[str]:
 
 
 def features_dropped(report: dict[str, int] | Counter) -> int:
+    """How many map features the build skipped (the `dropped:*` counts of a build report)."""
     return int(sum(n for k, n in report.items() if k.startswith("dropped:")))

@@ -27,6 +27,8 @@ from topology.clean import Network
 
 @dataclass
 class CellParams:
+    """Sizes of the visibility cells: the width is the widest street and the height the tallest entity,
+    so one cell shape fits every street (the reference design's sweep volume)."""
     street_width_m: float = 16.0
     entity_height_m: float = 4.5
     junction_radius_m: float | None = None  # default: the street width
@@ -36,11 +38,14 @@ class CellParams:
 
     @property
     def radius(self) -> float:
+        """Distance from a crossing at which its streets are split; the street width unless set."""
         return self.junction_radius_m if self.junction_radius_m is not None else self.street_width_m
 
 
 @dataclass
 class CellSet:
+    """The cells as built, before they are packed into the artifact: per cell its kind, footprint, edges and
+    nodes, and per edge its breakpoints."""
     kind: list[int] = field(default_factory=list)
     footprints: list[Polygon] = field(default_factory=list)
     edges: list[list[int]] = field(default_factory=list)
@@ -50,6 +55,7 @@ class CellSet:
 
 
 def cumulative(xy: np.ndarray) -> np.ndarray:
+    """Distance along the polyline at each vertex (0 at the first): the table offset lookups search."""
     return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
 
 
@@ -86,6 +92,8 @@ class _UnionFind:
 
 
 def build_cells(net: Network, params: CellParams | None = None) -> CellSet:
+    """Cut the cleaned network into visibility cells (rules in the module docstring), so that every offset
+    of every edge lies in exactly one cell."""
     p = params or CellParams()
     r = p.radius
     area_nodes = {a.node for a in net.areas}

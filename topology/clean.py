@@ -30,6 +30,8 @@ from topology.raw import RawMap
 
 @dataclass
 class CleanParams:
+    """Tolerances of the cleaning steps, in metres (m2 for areas); what each step changes is counted in the
+    build report."""
     snap_tolerance_m: float = 1.0
     duplicate_tolerance_m: float = 0.5
     dangle_min_m: float = 2.0
@@ -40,6 +42,8 @@ class CleanParams:
 
 @dataclass
 class Edge:
+    """A cleaned edge from node `u` to node `v`: polyline, network bits, and layer (bridges and tunnels
+    stay apart from what they cross)."""
     u: int
     v: int
     xy: np.ndarray
@@ -48,11 +52,13 @@ class Edge:
 
     @property
     def length(self) -> float:
+        """Polyline length in metres, recomputed because cleaning edits the geometry."""
         return float(np.hypot(*np.diff(self.xy, axis=0).T).sum())
 
 
 @dataclass
 class Area:
+    """An area after cleaning; `node` is the network node that stands for it (-1 until it is joined)."""
     polygon: Polygon
     kind: str
     networks: int
@@ -68,9 +74,6 @@ class Network:
     edges: list[Edge]
     areas: list[Area]
     report: Counter
-
-    def area_of_node(self) -> dict[int, int]:
-        return {a.node: i for i, a in enumerate(self.areas)}
 
 
 def _dedupe_points(xy: np.ndarray, ids: np.ndarray, report: Counter) -> tuple[np.ndarray, np.ndarray]:
@@ -88,6 +91,8 @@ def _dedupe_points(xy: np.ndarray, ids: np.ndarray, report: Counter) -> tuple[np
 
 
 def clean(raw: RawMap, params: CleanParams | None = None) -> Network:
+    """Turn a reader's raw ways and areas into a topological network (the steps of the module docstring);
+    ValueError when no way of a modelled network is left."""
     p = params or CleanParams()
     report = raw.report
     ways = []

@@ -38,6 +38,7 @@ def _features(geoms: np.ndarray, props: list[dict[str, Any]]) -> list[dict[str, 
 
 
 def to_geojson(topo: Topology, layers: tuple[str, ...] = LAYERS, extra_features: list | None = None) -> dict:
+    """The artifact's layers as one WGS84 FeatureCollection, for QGIS and other GIS tools."""
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
     features: list[dict[str, Any]] = []
     if "cells" in layers and topo.n_cells:
@@ -97,6 +98,27 @@ def to_geojson(topo: Topology, layers: tuple[str, ...] = LAYERS, extra_features:
 def write_geojson(
     topo: Topology, out: str | Path, layers: tuple[str, ...] = LAYERS, extra_features=None
 ) -> int:
+    """Write `to_geojson` compactly; returns the number of features written."""
     doc = to_geojson(topo, layers, extra_features)
     Path(out).write_text(json.dumps(doc, separators=(",", ":")))
     return len(doc["features"])
+
+
+def pvs_geojson_features(topo: Any, x: float, y: float, z: float) -> list[dict]:
+    """WGS84 GeoJSON features for one view cell's PVS: the view cell's square (layer "pvs_view_cell") and
+    every visible cell's footprint (layer "pvs_cell"), for `topology.export.write_geojson(extra_features=)`."""
+    from topology.pvs_index import PvsIndex
+
+    index = PvsIndex.from_topology(topo)
+    v = index.lookup_cell(x, y, z)
+    cells = index.cells_at(x, y, z)
+    proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
+    iz, iy, ix = (int(a[0]) for a in np.nonzero(index.grid.index == v)) if v >= 0 else (0, 0, 0)
+    g = index.grid
+    sq = shapely.box(g.x0 + ix * g.size, g.y0 + iy * g.size, g.x0 + (ix + 1) * g.size, g.y0 + (iy + 1) * g.size)
+    head = {"layer": "pvs_view_cell", "view_cell": v, "position": [x, y, z], "visible_cells": int(len(cells)),
+            "z_min": float(g.layer_bottom(iz)), "z_max": float(g.layer_top(iz))}  # fmt: skip
+    feats = _features(_to_wgs84(np.array([sq], dtype=object), proj), [head])
+    polys = topo.cell_footprints.to_shapely()[cells] if len(cells) else np.empty(0, object)
+    props = [{"layer": "pvs_cell", "cell": int(c), "view_cell": v} for c in cells]
+    return feats + _features(_to_wgs84(polys, proj), props)

@@ -41,6 +41,8 @@ def _network_bits(props: dict) -> int:
 
 
 def read_geojson(path: str | Path, crs: str | None = None) -> RawMap:
+    """Read a GeoJSON file; a missing or non-GeoJSON file is a MapReadError (one clear message), bad
+    features are skipped and counted."""
     path = Path(path)
     try:
         doc = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -58,6 +60,8 @@ def read_geojson(path: str | Path, crs: str | None = None) -> RawMap:
 
 
 def geojson_to_raw(doc: dict, crs: str | None = None) -> RawMap:
+    """A parsed FeatureCollection as a RawMap in local metres; apart from reading so that tests can
+    pass documents directly."""
     report: Counter = Counter()
     source_crs = ((doc.get("crs") or {}).get("properties") or {}).get("name")
     lines: list[tuple[int, np.ndarray, dict]] = []

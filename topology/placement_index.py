@@ -7,27 +7,18 @@ the compiled arrays in the client core, not this index.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 import shapely
 from shapely import GeometryType
 
-from topology.raw import PEDESTRIAN, TRAM, VEHICLE
-
-
-class Placement(NamedTuple):
-    """kind "area": index = area, position = (x, y) inside it; kind "edge": index = edge, offset along it."""
-
-    kind: str
-    index: int
-    offset: float
-    x: float
-    y: float
-    distance: float
+from topology.networks import PEDESTRIAN, TRAM, VEHICLE, Placement
 
 
 class PlacementIndex:
+    """STRtrees over the edges of each network and the areas: the first fix of an entity, before it
+    has a position to continue from (shapely, so it is built only on first use)."""
+
     def __init__(self, topo) -> None:
         self.topo = topo
         lines = shapely.from_ragged_array(

@@ -9,8 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import shapely
-from shapely import GeometryType
 
 
 @dataclass(frozen=True)
@@ -27,23 +25,30 @@ class Polygons:
 
     @classmethod
     def empty(cls) -> Polygons:
+        """No polygons (a map without buildings or areas is valid)."""
         return cls(np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((0, 2), np.float64))
 
     @classmethod
     def from_shapely(cls, polygons) -> Polygons:
+        """Pack shapely polygons into the ragged arrays (build time)."""
+        import shapely  # lazily: reading an artifact's polygons needs no shapely, building them does
+
         geoms = np.asarray(list(polygons), dtype=object)
         if len(geoms) == 0:
             return cls.empty()
         kind, xy, (coord_offsets, ring_offsets) = shapely.to_ragged_array(geoms)
-        if kind != GeometryType.POLYGON:
+        if kind != shapely.GeometryType.POLYGON:
             raise ValueError(f"expected polygons, got {kind!r}")
         return cls(ring_offsets.astype(np.int64), coord_offsets.astype(np.int64), xy.astype(np.float64))
 
     def to_shapely(self) -> np.ndarray:
+        """The polygons as a shapely array (build steps and exports; the run-time readers never call it)."""
+        import shapely
+
         if len(self) == 0:
             return np.empty(0, dtype=object)
         return shapely.from_ragged_array(
-            GeometryType.POLYGON, self.xy, (self.coord_offsets, self.ring_offsets)
+            shapely.GeometryType.POLYGON, self.xy, (self.coord_offsets, self.ring_offsets)
         )
 
     def exterior(self, i: int) -> np.ndarray:

@@ -79,6 +79,8 @@ class LocalProjection:
     def for_extent(
         cls, lon_min: float, lat_min: float, lon_max: float, lat_max: float, crs: str | None = None
     ):
+        """The projection for a lon/lat box: `crs` (default: its UTM zone), origin at the box centre
+        rounded to the metre, so that local coordinates stay small."""
         lon_c, lat_c = (lon_min + lon_max) / 2.0, (lat_min + lat_max) / 2.0
         crs = crs or utm_crs_for(lon_c, lat_c)
         check_metric(crs)
@@ -95,10 +97,12 @@ class LocalProjection:
         return Transformer.from_crs(self.crs, "EPSG:4326", always_xy=True)
 
     def to_local(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """WGS84 lon/lat arrays -> (n, 2) local metres."""
         x, y = self._fwd().transform(np.asarray(lon, np.float64), np.asarray(lat, np.float64))
         return np.column_stack([np.asarray(x) - self.origin[0], np.asarray(y) - self.origin[1]])
 
     def to_wgs84(self, xy: np.ndarray) -> np.ndarray:
+        """(n, 2) local metres -> (n, 2) lon/lat, for GeoJSON export and web maps."""
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
         lon, lat = self._inv().transform(xy[:, 0] + self.origin[0], xy[:, 1] + self.origin[1])
         return np.column_stack([lon, lat])

@@ -44,6 +44,8 @@ import numpy as np
 import shapely
 
 from topology.polygons import Polygons
+from topology.pvs_index import PvsIndex as PvsIndex  # re-exported: builders make one from a PvsResult
+from topology.pvs_raster import _erode, _Raster, _rasterise
 from topology.viewcells import ViewGrid, build_view_grid, column_squares
 
 MAX_LABEL_LAYERS = 8  # how many overlapping visibility cells one target pixel can stand for
@@ -60,6 +62,8 @@ QUALITY: dict[str, dict[str, float]] = {
 
 @dataclass(frozen=True)
 class PvsConfig:
+    """The PVS build settings; the quality presets (QUALITY) trade build time for fewer missed cells."""
+
     cell_size: float = 20.0  # view-cell cube side (m)
     max_height: float = 100.0  # top of the view-cell stack (m)
     view_distance: float = 500.0  # horizontal range (m)
@@ -73,6 +77,7 @@ class PvsConfig:
 
     @classmethod
     def from_quality(cls, quality: str = "default", **overrides: Any) -> PvsConfig:
+        """A preset, with the settings given (not None) on top: the CLI passes unset options as None."""
         if quality not in QUALITY:
             raise ValueError(f"unknown PVS quality {quality!r}; choose one of {sorted(QUALITY)}")
         preset = dict(QUALITY[quality])
@@ -81,6 +86,7 @@ class PvsConfig:
         return cls(quality=quality, **preset)
 
     def validate(self) -> None:
+        """Refuse settings that would loop forever or divide by zero, with a message naming the setting."""
         for name in ("cell_size", "max_height", "view_distance", "raster", "ray_spacing", "far_step_from"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
@@ -92,6 +98,7 @@ class PvsConfig:
 
     @property
     def n_rays(self) -> int:
+        """Rays per eye point: enough that neighbouring rays are `ray_spacing` pixels apart at the far end."""
         reach = self.view_distance + self.cell_size * math.sqrt(2.0)
         n = int(math.ceil(2.0 * math.pi * reach / (self.ray_spacing * self.raster)))
         return max(64, n)
@@ -110,6 +117,7 @@ class PvsResult:
     stats: dict[str, Any] = field(default_factory=dict)
 
     def pvs_of(self, view_cell: int) -> np.ndarray:
+        """Sorted visibility-cell ids of one view cell (a view into `ids`, no copy)."""
         return self.ids[self.offsets[view_cell] : self.offsets[view_cell + 1]]
 
     def to_extra(self) -> dict[str, np.ndarray]:
@@ -132,77 +140,6 @@ class PvsResult:
             "config": asdict(self.config),
             "stats": self.stats,
         }
-
-
-# ------------------------------------------------------------------------------------------------------------
-# rasters
-
-
-@dataclass
-class _Raster:
-    """A padded raster: pixel (r, c) has its centre at (gx0 + (c + 0.5) * px, gy0 + (r + 0.5) * px)."""
-
-    gx0: float
-    gy0: float
-    px: float
-    shape: tuple[int, int]
-
-    def centres(self) -> tuple[np.ndarray, np.ndarray]:
-        rows, cols = self.shape
-        xs = self.gx0 + (np.arange(cols) + 0.5) * self.px
-        ys = self.gy0 + (np.arange(rows) + 0.5) * self.px
-        return xs, ys
-
-    def window(self, bounds: tuple[float, float, float, float]) -> tuple[slice, slice]:
-        xmin, ymin, xmax, ymax = bounds
-        c0 = max(0, int(math.floor((xmin - self.gx0) / self.px)))
-        c1 = min(self.shape[1], int(math.ceil((xmax - self.gx0) / self.px)) + 1)
-        r0 = max(0, int(math.floor((ymin - self.gy0) / self.px)))
-        r1 = min(self.shape[0], int(math.ceil((ymax - self.gy0) / self.px)) + 1)
-        return slice(r0, r1), slice(c0, c1)
-
-    def pixel_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        c = np.clip(np.floor((np.asarray(x) - self.gx0) / self.px).astype(np.int64), 0, self.shape[1] - 1)
-        r = np.clip(np.floor((np.asarray(y) - self.gy0) / self.px).astype(np.int64), 0, self.shape[0] - 1)
-        return r * self.shape[1] + c
-
-
-def _rasterise(polys: np.ndarray, raster: _Raster, bounds) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel, polygon) pairs for pixel centres strictly inside each polygon, within `bounds`."""
-    xs, ys = raster.centres()
-    pix, owner = [], []
-    shapely.prepare(polys)
-    bb = shapely.bounds(polys)
-    for j, poly in enumerate(polys):
-        if poly is None or poly.is_empty:
-            continue
-        x0, y0, x1, y1 = bb[j]
-        rs, cs = raster.window((max(x0, bounds[0]), max(y0, bounds[1]), min(x1, bounds[2]), min(y1, bounds[3])))
-        if rs.stop <= rs.start or cs.stop <= cs.start:
-            continue
-        gx, gy = np.meshgrid(xs[cs], ys[rs])
-        inside = shapely.contains_xy(poly, gx, gy)
-        rr, cc = np.nonzero(inside)
-        pix.append((rr + rs.start) * raster.shape[1] + (cc + cs.start))
-        owner.append(np.full(len(rr), j))
-    if not pix:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return np.concatenate(pix).astype(np.int64), np.concatenate(owner).astype(np.int64)
-
-
-def _erode(h: np.ndarray, radius_px: float) -> np.ndarray:
-    """Grey-scale erosion (minimum over a disk) with the outside counted as open ground (0)."""
-    r = int(math.floor(radius_px + 1e-9))
-    if r <= 0:
-        return h.copy()
-    pad = np.pad(h, r, constant_values=0.0)
-    out = h.copy()
-    rows, cols = h.shape
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            if dx * dx + dy * dy <= radius_px * radius_px + 1e-9 and (dx or dy):
-                np.minimum(out, pad[r + dy : r + dy + rows, r + dx : r + dx + cols], out=out)
-    return out
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -534,210 +471,3 @@ def _range_bits(grid: ViewGrid, cpolys: np.ndarray, d: float, n_cells: int) -> n
             blk[ii[exact], jj[exact]] = True
         out[sl] = blk
     return out
-
-
-# ------------------------------------------------------------------------------------------------------------
-# run-time lookup
-
-
-class PvsIndex:
-    """Position -> view cell -> PVS, in microseconds (pure arithmetic plus one cached decode).
-
-    Positions outside the grid are *clamped* to the nearest grid cell: x and y to the edge columns, z below
-    the ground to the lowest layer and z above `max_height` to the top layer (whose PVS then
-    under-approximates a higher camera's view). A position inside a view cell that was left out (wholly
-    inside a building) answers with the nearest kept cell above it in the same column, or, when the whole
-    column is inside a building taller than the stack, the nearest kept top-layer cell. NaN or infinite
-    coordinates raise ValueError.
-    """
-
-    def __init__(self, grid: ViewGrid, codec: Any, n_cells: int, view_distance: float, cache_size: int = 1 << 16):
-        self.grid = grid
-        self.codec = codec
-        self.n_cells = int(n_cells)
-        self.view_distance = float(view_distance)
-        self._cache: dict[int, np.ndarray] = {}
-        self._cache_size = int(cache_size)
-        self._resolve = _resolve_grid(grid.index)
-        # flat Python lists: scalar indexing of a list is several times faster than of a numpy array
-        self._own_flat = grid.index.ravel().tolist()
-        self._resolve_flat = self._resolve.ravel().tolist()
-        self._x0, self._y0, self._size = float(grid.x0), float(grid.y0), float(grid.size)
-        self._nx, self._ny, self._nz = grid.nx, grid.ny, grid.nz
-
-    @classmethod
-    def from_topology(cls, topo: Any) -> PvsIndex:
-        from topology.pvs_codec import codec_from_arrays
-
-        meta = topo.meta.get("pvs")
-        if meta is None or "pvs_grid" not in topo.extra:
-            raise ValueError("the topology has no PVS (built with --no-pvs?)")
-        grid = ViewGrid(meta["origin"][0], meta["origin"][1], meta["cell_size"], meta["max_height"],
-                        topo.extra["pvs_grid"])  # fmt: skip
-        return cls(grid, codec_from_arrays(topo.extra), meta["n_cells"], meta["view_distance"])
-
-    @classmethod
-    def from_result(cls, result: PvsResult) -> PvsIndex:
-        from topology.pvs_codec import EncodedPvs
-
-        codec = EncodedPvs.from_arrays(result.to_extra())
-        return cls(result.grid, codec, result.n_cells, result.config.view_distance)
-
-    def _grid_cell(self, x: float, y: float, z: float) -> tuple[int, int, int]:
-        try:  # math.floor raises for NaN (ValueError) and infinities (OverflowError): no extra checks
-            ix = min(max(math.floor((x - self._x0) / self._size), 0), self._nx - 1)
-            iy = min(max(math.floor((y - self._y0) / self._size), 0), self._ny - 1)
-            iz = min(max(math.floor(z / self._size), 0), self._nz - 1)
-        except (ValueError, OverflowError, TypeError):
-            raise ValueError(f"position must be finite numbers, got ({x!r}, {y!r}, {z!r})") from None
-        return iz, iy, ix
-
-    def view_cell_of(self, x: float, y: float, z: float) -> int:
-        """The view cell holding the (clamped) position, or -1 if that grid cell is inside a building."""
-        iz, iy, ix = self._grid_cell(x, y, z)
-        return self._own_flat[(iz * self._ny + iy) * self._nx + ix]
-
-    def lookup_cell(self, x: float, y: float, z: float) -> int:
-        """The view cell whose PVS answers for the position (see the class docstring); -1 only without any."""
-        iz, iy, ix = self._grid_cell(x, y, z)
-        return self._resolve_flat[(iz * self._ny + iy) * self._nx + ix]
-
-    def pvs(self, view_cell: int) -> np.ndarray:
-        """Sorted int32 ids of the visibility cells visible from the view cell (read-only, cached)."""
-        hit = self._cache.get(view_cell)
-        if hit is not None:
-            return hit
-        if view_cell < 0:
-            return np.zeros(0, np.int32)
-        ids = self.codec.decode(view_cell, self.n_cells).astype(np.int32)
-        ids.flags.writeable = False
-        if len(self._cache) >= self._cache_size:
-            self._cache.clear()
-        self._cache[view_cell] = ids
-        return ids
-
-    def cells_at(self, x: float, y: float, z: float) -> np.ndarray:
-        """The PVS for a camera at (x, y, z), local metres."""
-        return self.pvs(self.lookup_cell(x, y, z))
-
-
-def _resolve_grid(index: np.ndarray) -> np.ndarray:
-    """Every grid cell -> the view cell answering for it: itself, else the first kept cell above, else the
-    nearest kept top-layer cell (columns wholly inside a building taller than the stack)."""
-    nz, ny, nx = index.shape
-    out = index.copy()
-    for iz in range(nz - 2, -1, -1):  # fill from above: the first kept cell above
-        hole = out[iz] < 0
-        out[iz][hole] = out[iz + 1][hole]
-    top = out[nz - 1]
-    if (top < 0).any() and (top >= 0).any():
-        ky, kx = np.nonzero(top >= 0)
-        hy, hx = np.nonzero(top < 0)
-        for y, x in zip(hy, hx, strict=True):
-            k = int(np.argmin((ky - y) ** 2 + (kx - x) ** 2))
-            out[:, y, x] = np.where(out[:, y, x] < 0, top[ky[k], kx[k]], out[:, y, x])
-    return out
-
-
-# ------------------------------------------------------------------------------------------------------------
-# CLI glue (called by entitynet/commands/topology_cmd.py; topology imports nothing of entitynet at load)
-
-
-def _positive(text: str) -> float:
-    import argparse
-
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
-
-
-def add_pvs_arguments(parser: Any) -> None:
-    """Options of `entitynet topology build` for the view cells and the PVS (`--no-pvs` is the builder's)."""
-    g = parser.add_argument_group("visibility (view cells and PVS)")
-    g.add_argument("--pvs-quality", choices=sorted(QUALITY), default="default",
-                   help="speed/accuracy preset of the PVS (default: default; see docs/pvs.md)")  # fmt: skip
-    g.add_argument("--view-cell-size", type=_positive, metavar="M", help="view-cell cube side (default 20 m)")
-    g.add_argument("--view-max-height", type=_positive, metavar="M", help="top of the view cells (default 100 m)")
-    g.add_argument("--view-distance", type=_positive, metavar="M", help="PVS range (default 500 m)")
-    g.add_argument("--pvs-workers", type=int, metavar="N", help="worker processes (default 2)")
-
-
-def pvs_config_from_args(args: Any) -> PvsConfig:
-    workers = getattr(args, "pvs_workers", None)
-    if workers is not None and workers < 1:
-        workers = 1
-    return PvsConfig.from_quality(
-        getattr(args, "pvs_quality", "default") or "default",
-        cell_size=getattr(args, "view_cell_size", None),
-        max_height=getattr(args, "view_max_height", None),
-        view_distance=getattr(args, "view_distance", None),
-        workers=workers,
-    )
-
-
-def register_pvs_command(tsub: Any, load_artifact: Callable[[str], Any]) -> None:
-    """`entitynet topology pvs FILE --at X Y Z [--json]`: the view cell and PVS of a local position."""
-    p = tsub.add_parser("pvs", help="print the PVS (visible cells) of the view cell holding a position")
-    p.add_argument("file")
-    p.add_argument("--at", nargs=3, type=float, metavar=("X", "Y", "Z"), required=True,
-                   help="local position in metres (relative to the artifact's origin)")  # fmt: skip
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-
-    def run(args: Any) -> int:
-        import json
-
-        topo = load_artifact(args.file)
-        try:
-            index = PvsIndex.from_topology(topo)
-            x, y, z = args.at
-            own = index.view_cell_of(x, y, z)
-            used = index.lookup_cell(x, y, z)
-            cells = index.cells_at(x, y, z)
-        except ValueError as exc:
-            try:
-                from entitynet.cli import CommandError
-            except ImportError:  # pragma: no cover - topology used without entitynet
-                raise SystemExit(f"error: {exc}") from None
-            raise CommandError(f"{args.file}: {exc}") from None
-        info = {"position": [x, y, z], "view_cell": own, "answered_by": used, "n_cells": int(len(cells)),
-                "in_grid": bool(_in_grid(index, x, y, z)), "cells": cells.tolist()}  # fmt: skip
-        if args.json:
-            print(json.dumps(info))
-        else:
-            note = "" if info["in_grid"] else " (outside the grid: clamped)"
-            inside = "" if own == used else f" (inside a building: answered by view cell {used})"
-            print(f"view cell {own}{inside}{note}: {len(cells)} visible cells")
-            print(" ".join(str(c) for c in cells))
-        return 0
-
-    p.set_defaults(func=run)
-
-
-def _in_grid(index: PvsIndex, x: float, y: float, z: float) -> bool:
-    g = index.grid
-    return (g.x0 <= x <= g.x0 + g.nx * g.size) and (g.y0 <= y <= g.y0 + g.ny * g.size) and 0 <= z <= g.max_height
-
-
-def pvs_geojson_features(topo: Any, x: float, y: float, z: float) -> list[dict]:
-    """WGS84 GeoJSON features for one view cell's PVS: the view cell's square (layer "pvs_view_cell") and
-    every visible cell's footprint (layer "pvs_cell"), for `topology.export.write_geojson(extra_features=)`."""
-    from topology.export import _features, _to_wgs84
-    from topology.projection import LocalProjection
-
-    index = PvsIndex.from_topology(topo)
-    v = index.lookup_cell(x, y, z)
-    cells = index.cells_at(x, y, z)
-    proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
-    iz, iy, ix = (int(a[0]) for a in np.nonzero(index.grid.index == v)) if v >= 0 else (0, 0, 0)
-    g = index.grid
-    sq = shapely.box(g.x0 + ix * g.size, g.y0 + iy * g.size, g.x0 + (ix + 1) * g.size, g.y0 + (iy + 1) * g.size)
-    head = {"layer": "pvs_view_cell", "view_cell": v, "position": [x, y, z], "visible_cells": int(len(cells)),
-            "z_min": float(g.layer_bottom(iz)), "z_max": float(g.layer_top(iz))}  # fmt: skip
-    feats = _features(_to_wgs84(np.array([sq], dtype=object), proj), [head])
-    polys = topo.cell_footprints.to_shapely()[cells] if len(cells) else np.empty(0, object)
-    props = [{"layer": "pvs_cell", "cell": int(c), "view_cell": v} for c in cells]
-    return feats + _features(_to_wgs84(polys, proj), props)

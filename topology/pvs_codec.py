@@ -23,6 +23,8 @@ import numpy as np
 
 @dataclass
 class EncodedPvs:
+    """The PVS as difference trees (module docstring): per view cell a parent and a sorted delta; this
+    is what the artifact stores."""
     parent: np.ndarray  # (V,) int32: the view cell this one is coded against, -1 for a root
     delta_offsets: np.ndarray  # (V+1,) uint32
     delta_ids: np.ndarray  # sorted symmetric difference to the parent (a root: its whole list)
@@ -30,22 +32,23 @@ class EncodedPvs:
     _offs: list | None = field(default=None, repr=False, compare=False)
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """The arrays under the names the artifact stores them by (in `extra`)."""
         return {"pvs_parent": self.parent, "pvs_delta_offsets": self.delta_offsets, "pvs_delta_ids": self.delta_ids}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]) -> EncodedPvs:
+        """Read back what `arrays` wrote."""
         return cls(arrays["pvs_parent"], arrays["pvs_delta_offsets"], arrays["pvs_delta_ids"])
 
     @property
     def nbytes(self) -> int:
+        """Stored size in bytes, for the benchmark's compression figures."""
         return sum(int(a.nbytes) for a in self.arrays().values())
 
     @property
     def n_roots(self) -> int:
+        """View cells stored whole (no parent): fewer means neighbours compress better."""
         return int((self.parent < 0).sum())
-
-    def delta(self, view_cell: int) -> np.ndarray:
-        return self.delta_ids[self.delta_offsets[view_cell] : self.delta_offsets[view_cell + 1]]
 
     def decode(self, view_cell: int, n_cells: int | None = None) -> np.ndarray:
         """The sorted cell ids of one view cell: the XOR of the deltas on its path to the root."""
@@ -67,6 +70,7 @@ class EncodedPvs:
 
 
 def id_dtype(n_cells: int) -> type:
+    """The narrowest id type for `n_cells` cells: uint16 below 65,536, which halves a city map's PVS."""
     return np.uint16 if n_cells < 65536 else np.uint32
 
 
@@ -141,6 +145,7 @@ class StarPvs:
     delta_ids: np.ndarray
 
     def decode(self, view_cell: int, n_cells: int | None = None) -> np.ndarray:
+        """The sorted cell ids of one view cell: its root's list XOR its delta."""
         r = int(self.ref[view_cell])
         root = self.root_ids[self.root_offsets[r] : self.root_offsets[r + 1]]
         d = self.delta_ids[self.delta_offsets[view_cell] : self.delta_offsets[view_cell + 1]]

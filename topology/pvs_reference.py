@@ -30,6 +30,8 @@ EPS = 1e-9
 
 @dataclass(frozen=True)
 class ReferenceConfig:
+    """Density of the exact reference: more eyes and targets find more visible pairs, at more time per
+    view cell."""
     eyes_xy: int = 3  # eye lattice points per side of the cube
     eyes_z: int = 2  # eye lattice levels (bottom, ..., top of the cube)
     target_spacing: float = 4.0  # metres between target points over a footprint

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from shapely.geometry import Polygon
 
-# Network bits: an edge may belong to several networks (a residential street is walkable and drivable).
-PEDESTRIAN = 1
-VEHICLE = 2
-TRAM = 4
-NETWORK_NAMES = {PEDESTRIAN: "pedestrian", VEHICLE: "vehicle", TRAM: "tram"}
+# the network bits live in the shapely-free topology.networks; re-exported here for the readers
+from topology.networks import NETWORK_NAMES as NETWORK_NAMES
+from topology.networks import PEDESTRIAN as PEDESTRIAN
+from topology.networks import TRAM as TRAM
+from topology.networks import VEHICLE as VEHICLE
 
 
 @dataclass
@@ -61,6 +61,7 @@ class RawBuilding:
 
 @dataclass
 class RawStop:
+    """A stop of a transit route relation, projected, so that routes can place their stops on edges."""
     stop_id: int
     xy: tuple[float, float]
     name: str = ""
@@ -80,6 +81,8 @@ class RawRoute:
 
 @dataclass
 class RawMap:
+    """Everything one reader produced, in local metres: the cleaner's input, with the feature counts that
+    become the build report."""
     crs: str
     origin: tuple[float, float]
     ways: list[RawWay] = field(default_factory=list)

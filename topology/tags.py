@@ -183,6 +183,7 @@ def area_kind(tags: dict[str, str]) -> tuple[str, int] | None:
 
 
 def parse_layer(tags: dict[str, str]) -> int:
+    """OSM `layer` as an int; missing or unreadable is 0 (the ground), as renderers read it."""
     try:
         return int(tags.get("layer", "0").strip())
     except ValueError:

@@ -12,69 +12,14 @@ covers the cell's square (shapely, one vectorised `covers` per layer).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import shapely
 
 from topology.polygons import Polygons
+from topology.viewgrid import ViewGrid
 
-
-@dataclass(frozen=True)
-class ViewGrid:
-    """Layer k spans z in [k*size, min((k+1)*size, max_height)]; column (iy, ix) spans
-    [x0 + ix*size, x0 + (ix+1)*size] x [y0 + iy*size, ...]. `index[iz, iy, ix]` is the view-cell id or -1."""
-
-    x0: float
-    y0: float
-    size: float
-    max_height: float
-    index: np.ndarray  # (nz, ny, nx) int32
-
-    @property
-    def nz(self) -> int:
-        return int(self.index.shape[0])
-
-    @property
-    def ny(self) -> int:
-        return int(self.index.shape[1])
-
-    @property
-    def nx(self) -> int:
-        return int(self.index.shape[2])
-
-    @property
-    def n_view_cells(self) -> int:
-        return int((self.index >= 0).sum())
-
-    def layer_top(self, iz: np.ndarray | int) -> np.ndarray:
-        return np.minimum((np.asarray(iz) + 1) * self.size, self.max_height)
-
-    def layer_bottom(self, iz: np.ndarray | int) -> np.ndarray:
-        return np.asarray(iz) * self.size
-
-    def coords(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(iz, iy, ix) of every view cell, ordered by id."""
-        iz, iy, ix = np.nonzero(self.index >= 0)
-        order = np.argsort(self.index[iz, iy, ix])
-        return iz[order], iy[order], ix[order]
-
-    def boxes(self) -> np.ndarray:
-        """(V, 6) x0, y0, z0, x1, y1, z1 of every view cell, ordered by id."""
-        iz, iy, ix = self.coords()
-        x0 = self.x0 + ix * self.size
-        y0 = self.y0 + iy * self.size
-        return np.column_stack(
-            [x0, y0, self.layer_bottom(iz), x0 + self.size, y0 + self.size, self.layer_top(iz)]
-        ).astype(np.float64)
-
-    def meta(self) -> dict:
-        return {
-            "origin": [float(self.x0), float(self.y0), 0.0],
-            "cell_size": float(self.size),
-            "dims": [self.nx, self.ny, self.nz],
-            "max_height": float(self.max_height),
-        }
+__all__ = ["ViewGrid", "build_view_grid", "column_squares"]  # ViewGrid lives in the shapely-free viewgrid
 
 
 def column_squares(x0: float, y0: float, size: float, nx: int, ny: int) -> np.ndarray:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from topology.raw import PEDESTRIAN, TRAM, VEHICLE
+from topology.networks import PEDESTRIAN, TRAM, VEHICLE
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from entitynet.client.network import NetView
-from topology.placement_index import Placement
+from topology.networks import Placement
 
 # a placement result is the placement index's own record: kind "edge" (index = edge, offset along it) or
 # kind "area" (index = area); x, y the inferred point; distance from the fix

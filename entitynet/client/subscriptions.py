@@ -20,30 +20,40 @@ class LimitExceeded(ValueError):
 
 class Subscriptions:
     def __init__(self, cells_at: Callable[[float, float, float], Iterable[int]], *, max_follows: int = 16,
-                 query_interval: float = 1.0) -> None:
+                 query_interval: float = 1.0, max_subscriptions: int | None = None) -> None:
         self.cells_at = cells_at
         self.max_follows = max_follows
         self.query_interval = query_interval
+        self.max_subscriptions = max_subscriptions  # None: no cap until a WELCOME announces one
         self.cells: frozenset[int] = frozenset()
         self.follows: set[int] = set()
         self._last_query = -math.inf
         self._query_id = 0
 
     def apply_limits(self, limits: dict[str, int]) -> None:
-        """Adopt the limits a WELCOME announced (unknown keys are ignored)."""
+        """Adopt the limits a WELCOME announced (unknown keys are ignored), so that this client never sends
+        what the server would refuse: a SUBSCRIBE over `max_subscriptions` is refused whole."""
+        if "max_subscriptions" in limits:
+            self.max_subscriptions = max(0, int(limits["max_subscriptions"]))
         if "max_follows" in limits:
             self.max_follows = int(limits["max_follows"])
-        if "query_interval_ms" in limits:
-            self.query_interval = int(limits["query_interval_ms"]) / 1000.0
+        if "query_rate_mhz" in limits:  # the server's token bucket refills at this rate (milli-queries/s)
+            rate = int(limits["query_rate_mhz"]) / 1000.0
+            self.query_interval = 1.0 / rate if rate > 0 else math.inf
 
     def move_camera(self, x: float, y: float, z: float) -> list[Subscribe]:
         """The SUBSCRIBE difference for a camera at (x, y, z); empty when the PVS did not change."""
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             raise ValueError(f"camera position must be finite, got ({x!r}, {y!r}, {z!r})")
-        new = frozenset(int(c) for c in self.cells_at(x, y, z))
-        return self.set_cells(new)
+        return self.set_cells([int(c) for c in self.cells_at(x, y, z)])
 
     def set_cells(self, new: Iterable[int]) -> list[Subscribe]:
+        """The SUBSCRIBE difference to the cells `new`, of which only the first `max_subscriptions` (in the
+        order given: list the most wanted first) are kept when there are more."""
+        new = list(new)
+        cap = self.max_subscriptions
+        if cap is not None and len(new) > cap:
+            new = list(dict.fromkeys(new))[:cap]  # duplicates dropped first, so they do not use up the cap
         new = frozenset(new)
         added = tuple(sorted(new - self.cells))
         removed = tuple(sorted(self.cells - new))

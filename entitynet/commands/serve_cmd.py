@@ -8,6 +8,7 @@ from entitynet.cli import CommandError
 
 
 def register(sub) -> None:
+    """Add `entitynet serve` and its options to the CLI (called by `entitynet.cli` at start-up)."""
     p = sub.add_parser("serve", help="run a switchboard server (one shard)")
     p.add_argument("--topology", metavar="FILE", required=True,
                    help="topology artifact: the server learns its digest and cell count from it")
@@ -31,6 +32,8 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the server until a signal; a bad option or a port that cannot be bound becomes a CommandError (one
+    clear line for the user) instead of a traceback."""
     import logging
 
     import trio

@@ -11,6 +11,7 @@ from entitynet.cli import CommandError
 
 
 def register(sub) -> None:
+    """`entitynet topology build | info | export | pvs`."""
     p = sub.add_parser("topology", help="build and inspect the topology artifact")
     tsub = p.add_subparsers(dest="topology_command", metavar="ACTION", required=True)
 
@@ -60,10 +61,8 @@ def register(sub) -> None:
 
 
 def _add_pvs_options(parser: argparse.ArgumentParser) -> None:
-    try:
-        from topology.pvs import add_pvs_arguments
-    except ImportError:
-        return
+    from entitynet.commands.pvs_cmd import add_pvs_arguments
+
     add_pvs_arguments(parser)
 
 
@@ -78,10 +77,8 @@ def _add_pvs_export_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _register_pvs_command(tsub) -> None:
-    try:
-        from topology.pvs import register_pvs_command
-    except ImportError:
-        return
+    from entitynet.commands.pvs_cmd import register_pvs_command
+
     register_pvs_command(tsub, load_artifact)
 
 
@@ -96,6 +93,7 @@ def _progress(quiet: bool):
 
 
 def load_artifact(path: str):
+    """Load an artifact, or a CommandError naming what is wrong with the file (no traceback)."""
     from topology.artifact import ArtifactError, load
 
     try:
@@ -105,6 +103,7 @@ def load_artifact(path: str):
 
 
 def cmd_build(args: argparse.Namespace) -> int:
+    """Read, build and save; bad numbers and bad maps end with a clear error, not a half-written file."""
     from topology.artifact import save
     from topology.build import BuildConfig, BuildError, build, features_dropped, read_map
     from topology.cells import CellParams
@@ -127,12 +126,9 @@ def cmd_build(args: argparse.Namespace) -> int:
     )
     config.pvs = None
     if not args.no_pvs:
-        try:
-            from topology.pvs import pvs_config_from_args
+        from entitynet.commands.pvs_cmd import pvs_config_from_args
 
-            config.pvs = pvs_config_from_args(args)
-        except ImportError:
-            pass
+        config.pvs = pvs_config_from_args(args)
     try:
         say(f"reading {path or 'the bundled Helsinki map'}")
         if args.bbox and not (args.bbox[0] < args.bbox[2] and args.bbox[1] < args.bbox[3]):
@@ -166,6 +162,7 @@ def _positive(value: float, name: str) -> float:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    """Print counts, extent, CRS, digest and the build report: what a user checks after a build."""
     from topology.build import report_lines
 
     topo = load_artifact(args.file)
@@ -196,6 +193,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    """Write the chosen layers (and optionally one PVS) as WGS84 GeoJSON."""
     from topology.export import LAYERS, write_geojson
 
     layers = tuple(x.strip() for x in args.layers.split(",") if x.strip())
@@ -205,10 +203,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     topo = load_artifact(args.file)
     extra = []
     if args.pvs_at:
-        try:
-            from topology.pvs import pvs_geojson_features
-        except ImportError:
-            raise CommandError("this entitynet has no PVS support") from None
+        from topology.export import pvs_geojson_features
+
         if "pvs" not in topo.meta:
             raise CommandError(f"{args.file} has no PVS (it was built with --no-pvs)")
         extra = pvs_geojson_features(topo, *args.pvs_at)

@@ -14,6 +14,7 @@ from entitynet.cli import CommandError
 
 
 def register(sub) -> None:
+    """Add `entitynet users add|list|remove`, with `--users-db` accepted before and after the action."""
     from entitynet.auth import default_db_path
 
     help_db = f"token store (default: $ENTITYNET_USERS_DB or {default_db_path()})"
@@ -48,6 +49,8 @@ def _store(args: argparse.Namespace):
 
 
 def run_add(args: argparse.Namespace) -> int:
+    """Print a new token on stdout (for scripts to capture) and, on stderr, that it cannot be shown again:
+    only its hash is stored."""
     try:
         token = _store(args).add_user(args.name)
     except ValueError as exc:
@@ -58,12 +61,15 @@ def run_add(args: argparse.Namespace) -> int:
 
 
 def run_list(args: argparse.Namespace) -> int:
+    """One line per user: name, a tab, how many tokens they hold (never the tokens: only hashes exist)."""
     for user, n in _store(args).users():
         print(f"{user}\t{n}")
     return 0
 
 
 def run_remove(args: argparse.Namespace) -> int:
+    """Revoke every token of a user; an unknown user is an error so that a typo does not pass silently.
+    A running server notices the change (data_version) and closes their connections."""
     n = _store(args).remove_user(args.name)
     if n == 0:
         raise CommandError(f"no user {args.name!r}")

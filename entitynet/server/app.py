@@ -23,6 +23,7 @@ waiting for long.
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import socket
 import ssl
@@ -59,13 +60,13 @@ class _Conn:
     busy: bool = False  # a write is in progress in the writer task
     writing: bool = False  # the writer task holds bytes the kernel has not taken yet ...
     stalled: float = 0.0  # ... and has observed no progress for this long (entitynet.server.stall)
-    opened_at: float = 0.0
     dirty_since: float | None = None
     closed: bool = False
 
 
-def switch_config_from(config: ServerConfig, tokens: TokenWatch | None = None) -> SwitchConfig:
-    """Digest and cell count from the topology artifact or the config; auth from the token store."""
+def switch_config_from(config: ServerConfig) -> SwitchConfig:
+    """Digest and cell count from the topology artifact or the config; the shell's policies the core enforces
+    (the handshake deadline); `config.switch` overrides the limits."""
     digest, n_cells = config.digest, config.n_cells
     if config.topology:
         from topology import artifact
@@ -77,11 +78,8 @@ def switch_config_from(config: ServerConfig, tokens: TokenWatch | None = None) -
         digest, n_cells = topo.digest, int(topo.n_cells)
     if digest is None or n_cells is None:
         raise ConfigError("give a topology artifact (or digest and n_cells)")
-    authenticate = None
-    if not config.open_mode:
-        authenticate = (tokens or TokenWatch(config)).authenticate
-    return SwitchConfig(n_cells=n_cells, digest=digest, authenticate=authenticate, open_mode=config.open_mode,
-                        **config.switch)
+    overrides = {"handshake_timeout_s": config.handshake_timeout, **config.switch}
+    return SwitchConfig(n_cells=n_cells, digest=digest, open_mode=config.open_mode, **overrides)
 
 
 def _ssl_context(config: ServerConfig) -> ssl.SSLContext | None:
@@ -104,7 +102,9 @@ class Server(WritingMixin):
         self.config = config
         self.clock = config.clock
         self.tokens = None if config.open_mode else TokenWatch(config)  # revocations close connections
-        self.sb = Switchboard(switch_config_from(config, self.tokens), now=self.clock())
+        # the core asks the token store through this callable; it never opens the store itself
+        self.sb = Switchboard(switch_config_from(config), now=self.clock(),
+                              authenticate=None if self.tokens is None else self.tokens.authenticate)
         self.metrics = Metrics()
         self.ssl = _ssl_context(config)
         self.conns: dict[int, _Conn] = {}
@@ -131,9 +131,12 @@ class Server(WritingMixin):
         max_update = 64 + codec.max_payload + 5 * codec.max_publish_cells + 4 * codec.max_str
         self._sure_fit = max(1, self._max_body // max_update)
         self._stall_clock = StallClock(max_credit=0.25)
+        self._timer_scope: trio.CancelScope | None = None  # the sleep of `_timers`, until `_timer_at` ...
+        self._timer_at = math.inf  # ... the core's next deadline (in the core's clock)
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        """Listen, serve and run the flusher, timers and housekeeping until cancelled (one nursery)."""
         cfg = self.config
         if cfg.open_mode:
             logs.event("OPEN MODE: any token is accepted; use only for local testing", logging.WARNING)
@@ -154,6 +157,7 @@ class Server(WritingMixin):
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
+                nursery.start_soon(self._timers)
                 logs.event("listening", host=cfg.host, port=self.port, ws_port=self.ws_port,
                            metrics_port=self.metrics_port, http_port=self.http_port, n_cells=self.sb.config.n_cells,
                            digest=self.sb.config.digest[:16], tls=bool(self.ssl), fd_limit=self.admission.limit)
@@ -228,8 +232,9 @@ class Server(WritingMixin):
 
     def _open(self, stream, kind: str, peer: str, addr: tuple[str, int] | None = None) -> _Conn:
         cid = self.sb.connect(self.clock(), peer=throttle_key(addr[0] if addr else None))  # login back-off
-        conn = _Conn(cid, kind, peer, stream, trio.Event(), self.sb.outbox(cid), opened_at=time.monotonic())
+        conn = _Conn(cid, kind, peer, stream, trio.Event(), self.sb.outbox(cid))
         self.conns[cid] = conn
+        self._rearm()  # its handshake deadline may be the core's earliest
         self.metrics.connections.inc()
         logs.event("connect", logging.DEBUG, cid=cid, kind=kind, peer=peer)
         return conn
@@ -268,8 +273,9 @@ class Server(WritingMixin):
             before = sb.stats["updates_in"]
             sb.receive(conn.cid, msgs[start:end] if start or end < n else msgs, self.clock(), frame_end=end >= n)
             self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
+            self._rearm()
             ob = sb.outbox(conn.cid)
-            if ob is not None and (ob.control or ob.close_after):
+            if ob is not None and (ob.has_control or ob.close_after):
                 self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
             if ob is None or ob.close_after:
                 return
@@ -331,14 +337,7 @@ class Server(WritingMixin):
         t = time.monotonic()
         limit = self.config.stall_timeout
         credit = self._stall_clock.tick(t)  # a late tick (a frozen loop) credits at most 0.25 s
-        hello_by = t - self.config.handshake_timeout
         for conn in list(self.conns.values()):
-            if conn.opened_at < hello_by and not conn.closed:
-                c = self.sb.clients.get(conn.cid)
-                if c is not None and not c.ready and not c.closing:
-                    self.sb.protocol_error(conn.cid, P.ProtocolError(
-                        P.ErrorCode.HANDSHAKE_REQUIRED, f"no HELLO within {self.config.handshake_timeout:g} s"))
-                    self._try_write(conn)
             if not conn.writing:
                 continue
             conn.stalled += credit
@@ -348,7 +347,32 @@ class Server(WritingMixin):
                 conn.writing = False
                 conn.scope.cancel()
 
+    def _rearm(self) -> None:
+        """Wake `_timers` earlier when the core's next deadline moved before the one it sleeps until (a new
+        connection's handshake deadline, a short-lived entity). A heap peek: cheap enough for every frame."""
+        d = self.sb.next_deadline()
+        if d is not None and d < self._timer_at and self._timer_scope is not None:
+            self._timer_at = d
+            self._timer_scope.deadline = trio.current_time() + max(0.0, d - self.clock())
+
+    async def _timers(self) -> None:
+        """Sleep until the core's next deadline (entity expiry or handshake), then let it do what is due: the
+        timing rules live in the core (`Switchboard.expire`), the shell only wakes it, instead of polling."""
+        sb = self.sb
+        while True:
+            d = sb.next_deadline()
+            with trio.CancelScope() as scope:
+                self._timer_scope = scope
+                self._timer_at = math.inf if d is None else d
+                if d is not None:
+                    scope.deadline = trio.current_time() + max(0.0, d - self.clock())
+                await trio.sleep_forever()
+            self._timer_scope = None
+            sb.expire(self.clock())
+            self._wake_dirty()  # LEAVEs and handshake ERRORs go out now
+
     async def _housekeeping(self) -> None:
+        """Every 0.1 s: stall accounting of blocked writes, the token store's revocations, the metrics."""
         m, sb = self.metrics, self.sb
         seen_errors: dict[int, int] = {}
         pushed_msgs = pushed_frames = pushed_drops = 0
@@ -361,7 +385,6 @@ class Server(WritingMixin):
                 for cid in self.tokens.poll(sb):  # revoked tokens: AUTH_FAILED queued, the writer closes
                     if cid in self.conns:
                         self._try_write(self.conns[cid])
-            sb.expire(self.clock())
             counts = sb.counts()
             m.entities.set(counts["entities"])
             m.subscriptions.set(counts["subscriptions"])

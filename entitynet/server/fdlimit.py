@@ -107,6 +107,8 @@ class Admission:
             self.others = max(0, n - self.sockets)
 
     def fds_left(self) -> int:
+        """Descriptors still free under the soft limit: our sockets and everything else the process holds
+        count against it."""
         return self.limit - self.others - self.sockets
 
     def enter(self, client: bool) -> str | None:
@@ -124,6 +126,8 @@ class Admission:
         return reason
 
     def leave(self, client: bool, admitted: bool) -> None:
+        """Undo one `enter`; `admitted` is whether `enter` admitted it (only admitted clients were counted as
+        clients)."""
         self.sockets -= 1
         if client and admitted:
             self.clients -= 1

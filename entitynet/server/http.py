@@ -30,6 +30,8 @@ from entitynet.server.fdlimit import Admission
 
 @dataclass
 class Response:
+    """What a handler returns; the server adds Content-Type and Content-Length itself, so a handler never
+    frames bytes."""
     status: int = 200
     body: bytes = b""
     content_type: str = "text/plain; charset=utf-8"
@@ -40,6 +42,7 @@ Handler = Callable[[h11.Request], "Response | Awaitable[Response]"]
 
 
 def text(status: int, message: str) -> Response:
+    """A plain-text response ending in a newline, for errors and short answers (a terminal prints it cleanly)."""
     return Response(status, (message + "\n").encode())
 
 
@@ -51,13 +54,17 @@ class Router:
         self._prefix: list[tuple[str, Handler]] = []
 
     def add(self, path: str, handler: Handler) -> None:
+        """Serve `handler` at exactly `path` (the query string is ignored when matching)."""
         self._exact[path] = handler
 
     def add_prefix(self, prefix: str, handler: Handler) -> None:
+        """Serve `handler` for every path under `prefix` that has no exact route; the longest prefix wins
+        (the browser viewer's static files)."""
         self._prefix.append((prefix, handler))
         self._prefix.sort(key=lambda item: -len(item[0]))
 
     def resolve(self, target: bytes) -> Handler | None:
+        """The handler for a request target (query string stripped), or None: the server answers 404."""
         path = target.split(b"?", 1)[0].decode("ascii", "replace")
         handler = self._exact.get(path)
         if handler is None:
@@ -67,6 +74,8 @@ class Router:
 
 @dataclass
 class HttpLimits:
+    """Bounds that keep idle, slow or oversized HTTP clients from holding the server's descriptors and
+    memory (each is explained in the module docstring)."""
     header_timeout: float = 5.0
     idle_timeout: float = 15.0
     send_timeout: float = 10.0
@@ -90,6 +99,8 @@ class HttpServer:
         self.open = 0  # connections being served now
 
     async def handle(self, stream: trio.abc.Stream) -> None:
+        """Serve one accepted connection to its end and close it; past `max_connections` or the descriptor
+        guard it answers 503 at once rather than queueing."""
         lim = self.limits
         admitted = False
         reason = self.admission.enter(client=False) if self.admission is not None else None

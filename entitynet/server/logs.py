@@ -10,7 +10,10 @@ log = logging.getLogger("entitynet.server")
 
 
 class JsonFormatter(logging.Formatter):
+    """One JSON object per line with the event's fields as keys (--log-json), for log collectors."""
+
     def format(self, record: logging.LogRecord) -> str:
+        """The record as JSON: time, level, logger, event name and the fields passed to `event`."""
         body = {"ts": round(record.created, 3), "level": record.levelname, "logger": record.name,
                 "event": record.getMessage()}
         body.update(getattr(record, "fields", {}))
@@ -18,6 +21,8 @@ class JsonFormatter(logging.Formatter):
 
 
 def event(name: str, level: int = logging.INFO, **fields) -> None:
+    """Log event `name` with key=value fields; the fields also ride on the record so that JSON output keeps
+    them as keys. Nothing is formatted when the level is off."""
     if log.isEnabledFor(level):
         text = name + "".join(f" {k}={v}" for k, v in fields.items())
         log.log(level, text if not _json else name, extra={"fields": fields, "t": time.time()})

@@ -7,6 +7,9 @@ from prometheus_client.exposition import choose_encoder
 
 
 class Metrics:
+    """One server's Prometheus metrics, in a registry of its own so that several servers in one process
+    (tests, the demo) do not collide."""
+
     def __init__(self) -> None:
         r = self.registry = CollectorRegistry()
         self.connections = Gauge("entitynet_connections", "open client connections", registry=r)

@@ -44,7 +44,5 @@ class TokenWatch:
             return []
         self._version = version
         for cid in closed:
-            c = sb.clients.get(cid)
-            logs.event("token revoked: connection closed", logging.WARNING, cid=cid,
-                       user=c.user_id if c else "?")
+            logs.event("token revoked: connection closed", logging.WARNING, cid=cid, user=sb.user_of(cid) or "?")
         return closed

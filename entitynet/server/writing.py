@@ -33,28 +33,19 @@ class WritingMixin:
         if conn.busy or conn.closed:
             return
         ob = conn.outbox
-        states = ob.states
-        n = len(states)
-        if (conn.fd is not None and 0 < n <= self._fast_batch and not ob.control and not ob.close_after
-                and not ob.overflow):
+        if conn.fd is not None:
             # the common case, kept short (it runs once per frame): only coalesced states, a plain socket
-            if n <= self._sure_fit or sum(map(len, states.values())) <= self._max_body:
-                self._write_states(conn, states, n)
+            taken = ob.take_states(self._fast_batch, self._sure_fit, self._max_body)
+            if taken is not None:
+                self._write_states(conn, *taken)
                 return
-        if len(ob.states) > ob.max_states or ob.overflow or len(ob.control) > ob.max_control:
+        if ob.over_bounds:
             self.sb.check_outbox(conn.cid, ob)  # drops it: SLOW_CONSUMER is now the only thing queued
-        states = ob.states
-        if not ob.control and 0 < len(states) <= min(self.config.max_batch, self._sure_fit):
-            msgs = list(states.values())  # the common case of Outbox.drain, inlined
-            states.clear()
-        else:
-            msgs = ob.drain(self.config.max_batch, self._max_body)  # one frame; the rest stays queued
-        self._write_msgs(conn, msgs)
+        self._write_msgs(conn, ob.drain(self.config.max_batch, self._max_body))  # one frame; the rest waits
 
-    def _write_states(self, conn: _Conn, states: dict[int, bytes], n: int) -> None:
-        """The short path of `_try_write`: all `n` pending states (known to fit one frame) to a plain socket."""
-        body = b"".join(states.values())
-        states.clear()  # in place: the core holds a reference to this dict
+    def _write_states(self, conn: _Conn, n: int, body: bytes) -> None:
+        """The short path of `_try_write`: `n` states joined in `body` (known to fit one frame) to a plain
+        socket."""
         head = P.frame_prefix(n, len(body))
         self.written += n
         self.frames += 1
@@ -91,7 +82,7 @@ class WritingMixin:
                 return
             if n == len(head) + len(body):
                 self._written(conn)
-                if ob.states or ob.control or ob.close_after:
+                if len(ob) or ob.close_after:
                     conn.busy = True
                     conn.wake.set()
                 return

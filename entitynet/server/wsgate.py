@@ -35,12 +35,16 @@ class PrefixedStream(trio.abc.Stream):
         return self.peer
 
     async def send_all(self, data) -> None:
+        """Straight to the socket: only the receiving side has bytes to put back."""
         await self.inner.send_all(data)
 
     async def wait_send_all_might_not_block(self) -> None:
+        """Straight to the socket (part of trio's Stream contract)."""
         await self.inner.wait_send_all_might_not_block()
 
     async def receive_some(self, max_bytes: int | None = None) -> bytes:
+        """The bytes read during the upgrade check first, then the socket's, so trio-websocket sees the
+        whole request."""
         if self._prefix:
             n = len(self._prefix) if max_bytes is None else max_bytes
             data, self._prefix = self._prefix[:n], self._prefix[n:]
@@ -48,6 +52,8 @@ class PrefixedStream(trio.abc.Stream):
         return await self.inner.receive_some(max_bytes)
 
     async def aclose(self) -> None:
+        """Close the socket and set `closed`: the hand-over waits for it, so the socket stays counted until
+        it is really gone."""
         try:
             await self.inner.aclose()
         finally:
@@ -66,9 +72,11 @@ class HandoffListener(trio.abc.Listener):
         await stream.closed.wait()
 
     async def accept(self) -> PrefixedStream:
+        """The next stream handed over; trio-websocket's server calls this in its accept loop."""
         return await self._recv.receive()
 
     async def aclose(self) -> None:
+        """Stop taking streams (trio-websocket closes its listeners on shutdown)."""
         await self._recv.aclose()
 
 

@@ -26,12 +26,14 @@ if TYPE_CHECKING:
 
 
 def throttle_for(cfg: SwitchConfig) -> FailureThrottle:
+    """The failed-login back-off of a switchboard, from its configuration."""
     return FailureThrottle(cfg.auth_fail_free, cfg.auth_fail_base_s, cfg.auth_fail_cap_s)
 
 
-def admit(cfg: SwitchConfig, throttle: FailureThrottle, m: P.Hello, peer: str, session: int,
-          now: float) -> tuple[str | None, P.ProtocolError | None]:
-    """(user id, None) for a HELLO that may join, else (None, the error to close with)."""
+def admit(cfg: SwitchConfig, throttle: FailureThrottle, m: P.Hello, peer: str, session: int, now: float,
+          authenticate: Callable[[str], str | None] | None = None) -> tuple[str | None, P.ProtocolError | None]:
+    """(user id, None) for a HELLO that may join, else (None, the error to close with). `authenticate` is the
+    shell's resolver (token -> user id or None); it is asked only after the back-off let the peer try."""
     if m.version != P.PROTOCOL_VERSION:
         return None, P.ProtocolError(
             ErrorCode.VERSION_MISMATCH, f"server speaks protocol v{P.PROTOCOL_VERSION}, not v{m.version}")
@@ -43,7 +45,7 @@ def admit(cfg: SwitchConfig, throttle: FailureThrottle, m: P.Hello, peer: str, s
             return None, P.ProtocolError(
                 ErrorCode.AUTH_THROTTLED,
                 f"too many failed logins from your address; retry in {math.ceil(wait)} s")
-        user = cfg.authenticate(m.token) if cfg.authenticate and m.token else None
+        user = authenticate(m.token) if authenticate and m.token else None
         if user is None:
             block = throttle.failed(peer, now)
             later = f"; your address may try again in {math.ceil(block)} s" if block > 0.0 else ""

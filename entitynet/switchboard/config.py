@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from entitynet.protocol import CodecLimits
@@ -12,14 +11,15 @@ from entitynet.protocol import CodecLimits
 class SwitchConfig:
     """Everything the core needs to know; no geometry, only the cell count and the topology digest.
 
-    `authenticate(token) -> user id or None` maps auth tokens to users (entitynet.auth); with `open_mode`
-    every token is accepted (local use) and the token itself, or `anon-<session>`, is the user id.
-    Failed logins are throttled per peer address (`auth_fail_*`, see ratelimit.FailureThrottle).
+    Plain data: how tokens become users is not configuration but a dependency, given to the `Switchboard` as
+    its `authenticate` callable (the shell's token store); with `open_mode` every token is accepted (local use)
+    and the token itself, or `anon-<session>`, is the user id. Failed logins are throttled per peer address
+    (`auth_fail_*`, see ratelimit.FailureThrottle). A connection that has not sent HELLO within
+    `handshake_timeout_s` of `connect` is closed with HANDSHAKE_REQUIRED (None: never).
     """
 
     n_cells: int
     digest: str
-    authenticate: Callable[[str], str | None] | None = None
     open_mode: bool = False
     grace_s: float = 5.0  # an entity lives this long past its validity without an update
     max_subscriptions: int = 20_000  # cells per client
@@ -42,6 +42,7 @@ class SwitchConfig:
     auth_fail_free: int = 3  # failed logins per peer address before the back-off starts ...
     auth_fail_base_s: float = 1.0  # ... blocking it this long, doubling with every further failure ...
     auth_fail_cap_s: float = 60.0  # ... up to this
+    handshake_timeout_s: float | None = 10.0  # a connection without HELLO this long is closed
     seed: int | None = None  # for the opaque entity ids; None = unpredictable
 
     def __post_init__(self) -> None:
@@ -51,6 +52,8 @@ class SwitchConfig:
             raise ValueError("grace_s, query_rate must be >= 0 and query_burst >= 1")
         if not (self.churn_rate >= 0 and self.churn_burst >= 1):
             raise ValueError("churn_rate must be >= 0 and churn_burst >= 1")
+        if self.handshake_timeout_s is not None and not self.handshake_timeout_s > 0:
+            raise ValueError("handshake_timeout_s must be > 0 (or None)")
         if not 1 <= self.max_replies_per_frame < self.max_control:
             raise ValueError("max_replies_per_frame must be >= 1 and below max_control")
 

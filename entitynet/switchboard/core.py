@@ -18,84 +18,45 @@ from __future__ import annotations
 
 import random
 from collections import Counter
-
-import msgpack
+from collections.abc import Callable
 
 from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
 from entitynet.switchboard import access
 from entitynet.switchboard.config import SwitchConfig
 from entitynet.switchboard.outbound import OutboundMixin
-from entitynet.switchboard.outbox import Outbox
+from entitynet.switchboard.outbox import Outbox, Outboxes
 from entitynet.switchboard.privacy import claim_refused, identity_shown
 from entitynet.switchboard.ratelimit import TokenBucket
 from entitynet.switchboard.subscribing import SubscriptionsMixin
+from entitynet.switchboard.tables import ClientState, EntityState
 from entitynet.switchboard.timers import ExpiryHeap
 
-_packb = msgpack.Packer(use_bin_type=True).pack
-
-
-class ClientState:
-    __slots__ = (
-        "cid", "session", "user_id", "identity", "audience", "ready", "closing", "subs", "follows",
-        "entities", "bucket", "churn", "outbox", "replies", "refused", "peer", "token",
-    )
-
-    def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket, churn: TokenBucket,
-                 peer: str = ""):
-        self.cid = cid
-        self.session = session
-        self.peer = peer  # the address failed logins are throttled by (access.admit)
-        self.token: str | None = None  # kept to re-check it after a revocation (access.revalidate)
-        self.user_id = f"anon-{session}"
-        self.identity: str | None = None
-        self.audience: frozenset[str] | None = None
-        self.ready = False
-        self.closing = False
-        self.subs: set[int] = set()
-        self.follows: set[int] = set()
-        self.entities: dict[int, int] = {}  # local id -> server id
-        self.bucket = bucket
-        self.churn = churn  # subscription churn budget (cells added + removed)
-        self.outbox = outbox
-        self.replies = 0  # replies queued for the current frame ...
-        self.refused = 0  # ... and requests refused because the frame asked for too many
-
-
-class EntityState:
-    __slots__ = (
-        "eid", "owner", "local", "seq", "cells", "validity_ms", "payload", "viewers", "followers",
-        "enc_plain", "enc_ident", "viewers_tick",
-    )
-
-    def __init__(self, eid: int, owner: ClientState, local: int):
-        self.eid = eid
-        self.owner = owner
-        self.local = local
-        self.seq = -1
-        self.cells: tuple[int, ...] = ()
-        self.validity_ms = 0
-        self.payload = b""
-        self.viewers: set[int] = set()
-        self.followers: set[int] = set()
-        self.enc_plain = b""
-        self.enc_ident: bytes | None = None  # cached encoding with the owner's identity
-        # `viewers` is the full union of subscribers and followers as of this subscription tick (-1: not)
-        self.viewers_tick = -1
+_encode_update = P.encode_update  # the one UPDATE layout (entitynet.protocol.codec), bound for the hot path
+_encode_leave = P.encode_leave
 
 
 class Switchboard(SubscriptionsMixin, OutboundMixin):
-    """The master tables and forwarding (subscriptions in `subscribing.py`, replies and bounds in `outbound.py`)."""
+    """The master tables and forwarding (subscriptions in `subscribing.py`, replies and bounds in `outbound.py`).
 
-    def __init__(self, config: SwitchConfig, now: float = 0.0):
+    Sans-IO: fed connections, decoded messages and `now`; what to send waits in per-client outboxes
+    (`outbox(cid)`, named by `take_dirty()`); what is due (entity expiries, handshake deadlines) happens in
+    `expire(now)`, which the shell calls at `next_deadline()`. `authenticate(token) -> user id | None` is the
+    shell's token resolver (no store is queried here); None refuses every token unless `config.open_mode`.
+    """
+
+    def __init__(self, config: SwitchConfig, now: float = 0.0,
+                 authenticate: Callable[[str], str | None] | None = None):
         self.config = config
+        self.authenticate = authenticate
         self.clients: dict[int, ClientState] = {}
         self.entities: dict[int, EntityState] = {}
         self.subscribers: dict[int, set[int]] = {}  # cell -> client ids
         self.occupants: dict[int, set[int]] = {}  # cell -> entity ids
         self.by_identity: dict[str, set[int]] = {}  # published identity -> client ids
-        self.timers = ExpiryHeap()
-        self._states: dict[int, dict[int, bytes]] = {}  # cid -> its outbox.states (hot path shortcut)
+        self.timers = ExpiryHeap()  # entity id -> validity deadline
+        self.hello_timers = ExpiryHeap()  # client id -> handshake deadline
+        self.outboxes = Outboxes(config.max_pending, config.max_control)
         self._dirty: set[int] = set()
         # Subscription ticks: a viewer set computed at tick T stays exact while none of the entity's cells has
         # changed subscribers since (and its followers have not changed), so most PUBLISHes reuse it.
@@ -116,12 +77,13 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         cid = self._next_cid
         self._next_cid += 1
         session = self._rng.randrange(1, P.MAX_INT)
-        ob = Outbox(self.config.max_pending, self.config.max_control)
+        ob = self.outboxes.open(cid)
         cfg = self.config
         c = ClientState(cid, session, ob, TokenBucket(cfg.query_rate, cfg.query_burst, now),
                         TokenBucket(cfg.churn_rate, cfg.churn_burst, now), peer)
         self.clients[cid] = c
-        self._states[cid] = ob.states
+        if cfg.handshake_timeout_s is not None:
+            self.hello_timers.set(cid, now + cfg.handshake_timeout_s)
         self.stats["connections"] += 1
         return cid
 
@@ -130,16 +92,23 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         c = self.clients.pop(cid, None)
         if c is None:
             return
+        self.hello_timers.cancel(cid)
         if self._shut:
-            self._states.pop(cid, None)
+            self.outboxes.close(cid)
             return
         self._detach(c)
-        self._states.pop(cid, None)
+        self.outboxes.close(cid)
         self._dirty.discard(cid)
 
     def outbox(self, cid: int) -> Outbox | None:
+        """The outbox of a connected client (the shell drains it through its API), or None once it is gone."""
         c = self.clients.get(cid)
         return c.outbox if c else None
+
+    def user_of(self, cid: int) -> str | None:
+        """The user a connected client authenticated as (for the shell's logs), or None."""
+        c = self.clients.get(cid)
+        return c.user_id if c else None
 
     def protocol_error(self, cid: int, err: P.ProtocolError) -> None:
         """The shell could not decode this client's bytes."""
@@ -152,9 +121,8 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         client by client, which costs time proportional to all subscriptions): the switchboard is done."""
         enc = P.encode_message(P.Error(int(ErrorCode.SHUTTING_DOWN), "server shutting down"))
         for c in self.clients.values():
-            c.outbox.states.clear()
-            c.outbox.control.append(enc)
-            c.outbox.close_after = True
+            c.outbox.discard_states()
+            c.outbox.put_last_word(enc)
             c.closing = True
             self._dirty.add(c.cid)
         self.errors[int(ErrorCode.SHUTTING_DOWN)] += len(self.clients)
@@ -190,7 +158,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
             elif t is P.Subscribe:
                 self._subscribe(c, m, now)
             elif t is P.Ping:
-                self._control(c, P.Pong(m.client_ms, P.now_ms(max(now, 0.0))))
+                self._reply_msg(c, P.Pong(m.client_ms, P.now_ms(max(now, 0.0))))
             elif t is P.Unpublish:
                 self._unpublish(c, m)
             elif t is P.Follow:
@@ -211,7 +179,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
     # ------------------------------------------------------------------------------------------ handshake
     def _hello(self, c: ClientState, m: P.Hello, now: float) -> None:
         cfg = self.config
-        user, err = access.admit(cfg, self.auth_throttle, m, c.peer, c.session, now)
+        user, err = access.admit(cfg, self.auth_throttle, m, c.peer, c.session, now, self.authenticate)
         if user is None:
             self._error(c, err.code, err.text)
             return
@@ -219,7 +187,8 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if not cfg.open_mode:
             c.token = m.token
         c.ready = True
-        self._control(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), cfg.wire_limits()))
+        self.hello_timers.cancel(c.cid)
+        self._reply_msg(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), cfg.wire_limits()))
 
     # ------------------------------------------------------------------------------------------ publishing
     def _publish(self, c: ClientState, m: P.Publish, now: float) -> None:
@@ -269,7 +238,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         e.seq = m.seq
         e.validity_ms = m.validity_ms
         e.payload = m.payload
-        e.enc_plain = _packb([P.UPDATE, eid, m.seq, new, m.validity_ms, m.payload, None])
+        e.enc_plain = _encode_update(eid, m.seq, new, m.validity_ms, m.payload)
         e.enc_ident = None
         self.timers.set(eid, now + m.validity_ms / 1000.0 + cfg.grace_s)
 
@@ -301,16 +270,14 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
     def _deliver(self, e: EntityState, viewers: set[int]) -> None:
         if not viewers:
             return
-        states = self._states
         eid = e.eid
         if e.owner.identity is None:
-            enc = e.enc_plain
-            for v in viewers:
-                states[v][eid] = enc
+            self.outboxes.fan_out(viewers, eid, e.enc_plain)
         else:
             clients = self.clients
             for v in viewers:
-                states[v][eid] = self._encoded_for(e, clients[v])
+                c = clients[v]
+                c.outbox.put_state(eid, self._encoded_for(e, c))
         self._dirty |= viewers
         self.stats["deliveries"] += len(viewers)
 
@@ -319,16 +286,11 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if ident is None:
             return e.enc_plain
         if e.enc_ident is None:
-            e.enc_ident = _packb([P.UPDATE, e.eid, e.seq, e.cells, e.validity_ms, e.payload, ident])
+            e.enc_ident = _encode_update(e.eid, e.seq, e.cells, e.validity_ms, e.payload, ident)
         return e.enc_ident
 
     def _leave(self, eid: int, clients: set[int]) -> None:
-        enc = _packb([P.LEAVE, eid])
-        states = self._states
-        for v in clients:
-            st = states.get(v)
-            if st is not None:
-                st[eid] = enc
+        self.outboxes.fan_out_open(clients, eid, _encode_leave(eid))
         self._dirty |= clients
         self.stats["leaves"] += len(clients)
 
@@ -369,7 +331,13 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         e.viewers = set()
 
     def expire(self, now: float) -> int:
-        """Remove entities whose validity (plus grace) ran out without an update; returns how many."""
+        """Do what is due at `now`: remove entities whose validity (plus grace) ran out without an update
+        (returns how many), and close connections that sent no HELLO within `handshake_timeout_s`."""
+        for cid in self.hello_timers.pop_due(now):
+            c = self.clients.get(cid)
+            if c is not None and not c.ready and not c.closing:
+                self._error(c, ErrorCode.HANDSHAKE_REQUIRED,
+                            f"no HELLO within {self.config.handshake_timeout_s:g} s")
         n = 0
         for eid in self.timers.pop_due(now):
             e = self.entities.get(eid)
@@ -380,7 +348,12 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         return n
 
     def next_deadline(self) -> float | None:
-        return self.timers.next_deadline()
+        """When `expire` next has something to do (the earliest entity expiry or handshake deadline), in the
+        clock of the `now`s fed; None when nothing is pending. The shell sleeps until then instead of polling."""
+        a, b = self.timers.next_deadline(), self.hello_timers.next_deadline()
+        if a is None:
+            return b
+        return a if b is None or a <= b else b
 
     # ------------------------------------------------------------------------------------------ queries
     def _query(self, c: ClientState, m: P.Query, now: float) -> None:
@@ -474,6 +447,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
 
     # ------------------------------------------------------------------------------------------ introspection
     def counts(self) -> dict[str, int]:
+        """Table sizes for the metrics."""
         return {
             "clients": len(self.clients),
             "entities": len(self.entities),

@@ -18,7 +18,7 @@ from entitynet.protocol import ErrorCode
 from entitynet.switchboard.outbox import Outbox
 
 if TYPE_CHECKING:
-    from entitynet.switchboard.core import ClientState
+    from entitynet.switchboard.tables import ClientState
 
 log = logging.getLogger("entitynet.switchboard")
 
@@ -35,16 +35,13 @@ class OutboundMixin:
             return dirty
         for cid in dirty:
             c = self.clients.get(cid)
-            if c is None:
-                continue
-            ob = c.outbox
-            if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
+            if c is not None and c.outbox.over_bounds:
                 self.slow_consumer(cid, "outbound queue limit")
         return dirty
 
     def check_outbox(self, cid: int, ob: Outbox) -> bool:
         """False (and the client is being dropped as a slow consumer) when its outbox is beyond its bounds."""
-        if ob.overflow or len(ob.states) > ob.max_states or len(ob.control) > ob.max_control:
+        if ob.over_bounds:
             self.slow_consumer(cid, "outbound queue limit")
             return False
         return True
@@ -54,9 +51,7 @@ class OutboundMixin:
         c = self.clients.get(cid)
         if c is None or c.closing:
             return
-        c.outbox.states.clear()
-        c.outbox.control.clear()
-        c.outbox.overflow = False
+        c.outbox.discard()
         self.stats["slow_consumers"] += 1
         self._error(c, ErrorCode.SLOW_CONSUMER, f"too far behind ({why}); disconnecting")
 
@@ -72,7 +67,7 @@ class OutboundMixin:
             self._dirty.add(c.cid)
         c.replies = c.refused = 0
 
-    def _control(self, c: ClientState, msg: P.Message) -> None:
+    def _reply_msg(self, c: ClientState, msg: P.Message) -> None:
         self._reply(c, P.encode_message(msg))
 
     def _reply(self, c: ClientState, encoded: bytes) -> None:
@@ -90,9 +85,8 @@ class OutboundMixin:
             self.errors[int(code)] += 1
             if c.closing:
                 return
-            c.outbox.control.append(P.encode_message(P.Error(int(code), text)))  # beyond the bound: last word
+            c.outbox.put_last_word(P.encode_message(P.Error(int(code), text)))  # beyond the bound: it must go
             c.closing = True
-            c.outbox.close_after = True
             self._detach(c)
             log.info("closing client", extra={"cid": c.cid, "code": int(code), "reason": text})
         elif c.replies >= self.config.max_replies_per_frame:

@@ -1,40 +1,104 @@
-"""Per-client outbound queue with coalescing.
+"""Per-client outbound queues with coalescing: the boundary between the switchboard core and the I/O shell.
 
 Entity states (UPDATE or LEAVE, already encoded) are keyed by entity id: a newer state replaces an older one
 still pending, so the queue of a client never holds more than one item per entity it can see, however slowly
 it reads. Other messages (WELCOME, ERROR, PONG, QUERY_RESULT, REDIRECT) go to a short FIFO. Both are bounded;
-overflow marks the client as a slow consumer, which the core turns into an error and a close.
+a queue beyond its bounds (`over_bounds`) marks the client as a slow consumer, which the core turns into an
+error and a close.
+
+The core only puts (`put_state`, `put_control`, `put_last_word`, and `Outboxes.fan_out` for the same bytes to
+many clients); the shell only takes (`take_states`, `drain`) and reads the flags. Neither touches the other's
+side, so either can change its data structures without the other noticing.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 
 class Outbox:
-    __slots__ = ("states", "control", "max_states", "max_control", "overflow", "close_after")
+    """One client's pending messages: coalesced entity states and a control FIFO, bounded."""
+
+    __slots__ = ("_states", "_control", "max_states", "max_control", "_overflow", "_close_after")
 
     def __init__(self, max_states: int, max_control: int):
-        self.states: dict[int, bytes] = {}
-        self.control: list[bytes] = []
+        self._states: dict[int, bytes] = {}
+        self._control: list[bytes] = []
         self.max_states = max_states
         self.max_control = max_control
-        self.overflow = False
-        self.close_after = False  # close the connection once what is queued has been written
+        self._overflow = False
+        self._close_after = False
 
     def __len__(self) -> int:
-        return len(self.states) + len(self.control)
+        return len(self._states) + len(self._control)
 
+    # ------------------------------------------------------------------------------------------ state (read)
+    @property
+    def close_after(self) -> bool:
+        """The connection is to be closed once what is queued has been written (a fatal ERROR is queued)."""
+        return self._close_after
+
+    @property
+    def has_control(self) -> bool:
+        """Replies are waiting (WELCOME, PONG, ERROR ...): a shell writes them now, not at the next flush."""
+        return bool(self._control)
+
+    @property
+    def n_states(self) -> int:
+        """Entity states pending (at most one per entity)."""
+        return len(self._states)
+
+    @property
+    def n_control(self) -> int:
+        """Replies pending."""
+        return len(self._control)
+
+    @property
+    def over_bounds(self) -> bool:
+        """More is pending than the bounds allow: the client does not keep up (the core drops it)."""
+        return self._overflow or len(self._states) > self.max_states or len(self._control) > self.max_control
+
+    # ------------------------------------------------------------------------------------------ core side
     def put_state(self, entity: int, encoded: bytes) -> None:
-        states = self.states
-        if len(states) >= self.max_states and entity not in states:
-            self.overflow = True
-            return
-        states[entity] = encoded
+        """Queue an entity's latest state, replacing one still pending. Not refused here: the count is judged
+        by `over_bounds` when the core hands the client to the shell (one check per frame, not per state)."""
+        self._states[entity] = encoded
 
     def put_control(self, encoded: bytes) -> None:
-        if len(self.control) >= self.max_control:
-            self.overflow = True
+        """Queue a reply; beyond `max_control` the client is marked over its bounds instead."""
+        if len(self._control) >= self.max_control:
+            self._overflow = True
             return
-        self.control.append(encoded)
+        self._control.append(encoded)
+
+    def put_last_word(self, encoded: bytes) -> None:
+        """Queue a fatal ERROR beyond the bound (it must go out) and close once it is written."""
+        self._control.append(encoded)
+        self._close_after = True
+
+    def discard_states(self) -> None:
+        """Forget the pending states (shutdown: nobody needs them any more)."""
+        self._states.clear()
+
+    def discard(self) -> None:
+        """Forget everything pending and the overflow mark (a slow consumer gets only its last word)."""
+        self._states.clear()
+        self._control.clear()
+        self._overflow = False
+
+    # ------------------------------------------------------------------------------------------ shell side
+    def take_states(self, max_messages: int, sure_fit: int, max_body: int) -> tuple[int, bytes] | None:
+        """The writer's short path: when only states are pending (no replies, no close, not over bounds), at
+        most `max_messages` of them, and they fit `max_body` bytes (certain below `sure_fit` states), take them
+        all as (count, joined bytes); else None and nothing is taken (use `drain`)."""
+        states = self._states
+        n = len(states)
+        if 0 < n <= max_messages and not self._control and not self._close_after and not self._overflow:
+            if n <= sure_fit or sum(map(len, states.values())) <= max_body:
+                body = b"".join(states.values())
+                states.clear()
+                return n, body
+        return None
 
     def drain(self, max_messages: int | None = None, max_bytes: int | None = None) -> list[bytes]:
         """Take queued messages for one frame: control first, then entity states in first-queued order.
@@ -43,20 +107,24 @@ class Outbox:
         oversized one cannot block the queue; the core keeps every message far below a frame). The returned
         list is always a new list: the control FIFO stays the outbox's own, so what was taken is never sent
         again (and never counted against `max_control`)."""
-        control = self.control
-        states = self.states
-        self.control = []
+        control = self._control
+        states = self._states
+        self._control = []
         if max_messages is None and max_bytes is None:
             control.extend(states.values())
-            states.clear()  # in place: the core holds a reference to this dict
+            states.clear()
             return control
         n_max = len(control) + len(states) if max_messages is None else max(1, max_messages)
         b_max = -1 if max_bytes is None else max_bytes
-        out: list[bytes] = []
+        if not control and len(states) <= n_max and (b_max < 0 or sum(map(len, states.values())) <= b_max):
+            out = list(states.values())  # the common case: every pending state fits one frame
+            states.clear()
+            return out
+        out = []
         size = 0
         for i, m in enumerate(control):
             if len(out) >= n_max or (out and b_max >= 0 and size + len(m) > b_max):
-                self.control = control[i:]
+                self._control = control[i:]
                 return out
             out.append(m)
             size += len(m)
@@ -73,3 +141,43 @@ class Outbox:
             for k in taken:
                 del states[k]
         return out
+
+
+class Outboxes:
+    """The outboxes of all clients, by client id: lets the core queue the same bytes for many clients in one
+    call (a PUBLISH reaches every viewer of its cells) at the cost of a dict store per client, which is what
+    the forwarding hot path can afford."""
+
+    __slots__ = ("_boxes", "_states", "max_states", "max_control")
+
+    def __init__(self, max_states: int, max_control: int):
+        self._boxes: dict[int, Outbox] = {}
+        self._states: dict[int, dict[int, bytes]] = {}  # client id -> its outbox's states (the fan-out path)
+        self.max_states = max_states
+        self.max_control = max_control
+
+    def open(self, cid: int) -> Outbox:
+        """A new client's outbox."""
+        ob = Outbox(self.max_states, self.max_control)
+        self._boxes[cid] = ob
+        self._states[cid] = ob._states
+        return ob
+
+    def close(self, cid: int) -> None:
+        """The client is gone: nothing more is queued for it (its Outbox object stays valid for the shell)."""
+        self._boxes.pop(cid, None)
+        self._states.pop(cid, None)
+
+    def fan_out(self, cids: Iterable[int], entity: int, encoded: bytes) -> None:
+        """`put_state(entity, encoded)` on the outbox of every client in `cids` (all open)."""
+        states = self._states
+        for v in cids:
+            states[v][entity] = encoded
+
+    def fan_out_open(self, cids: Iterable[int], entity: int, encoded: bytes) -> None:
+        """As `fan_out`, skipping clients that are gone (LEAVEs to sets that may name closed clients)."""
+        states = self._states
+        for v in cids:
+            st = states.get(v)
+            if st is not None:
+                st[entity] = encoded

@@ -23,6 +23,9 @@ from typing import Protocol
 
 
 class Party(Protocol):
+    """What the privacy rules need of a client (the core's ClientState has it): a structural type, so that the
+    rules can be tested without a switchboard."""
+
     user_id: str
     identity: str | None
     audience: frozenset[str] | None

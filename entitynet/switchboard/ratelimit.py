@@ -5,6 +5,9 @@ from __future__ import annotations
 
 
 class TokenBucket:
+    """A classic token bucket fed an explicit `now`: bounds a client's query rate and subscription churn with a
+    burst allowance, so that one client cannot make the switch do unbounded work."""
+
     __slots__ = ("rate", "burst", "tokens", "last")
 
     def __init__(self, rate: float, burst: float, now: float):

@@ -14,7 +14,7 @@ from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
 
 if TYPE_CHECKING:
-    from entitynet.switchboard.core import ClientState
+    from entitynet.switchboard.tables import ClientState
 
 
 class SubscriptionsMixin:
@@ -88,14 +88,14 @@ class SubscriptionsMixin:
                 o = occ.get(cell)
                 if o:
                     cand |= o
-            states = c.outbox.states
+            put = c.outbox.put_state
             n_snap = 0
             for eid in cand:
                 e = ents[eid]
                 if cid in e.viewers or e.owner is c:
                     continue
                 e.viewers.add(cid)
-                states[eid] = self._encoded_for(e, c)
+                put(eid, self._encoded_for(e, c))
                 n_snap += 1
             if n_snap:
                 self._dirty.add(cid)
@@ -116,7 +116,7 @@ class SubscriptionsMixin:
         e.viewers_tick = -1
         if c.cid not in e.viewers and e.owner is not c:
             e.viewers.add(c.cid)
-            c.outbox.states[e.eid] = self._encoded_for(e, c)
+            c.outbox.put_state(e.eid, self._encoded_for(e, c))
             self._dirty.add(c.cid)
 
     def _unfollow(self, c: ClientState, m: P.Unfollow) -> None:

@@ -11,6 +11,9 @@ import heapq
 
 
 class ExpiryHeap:
+    """Deadlines by key (entity expiries, handshake deadlines): re-arming is O(log n) without a search, and
+    the earliest live deadline is what the shell sleeps until."""
+
     def __init__(self) -> None:
         self._heap: list[tuple[float, int, int]] = []
         self._gen: dict[int, int] = {}  # key -> live generation
@@ -22,6 +25,7 @@ class ExpiryHeap:
 
     @property
     def heap_size(self) -> int:
+        """Entries in the heap, stale ones included (a metric of the lazy deletion's overhead)."""
         return len(self._heap)
 
     def set(self, key: int, deadline: float) -> None:
@@ -34,10 +38,12 @@ class ExpiryHeap:
             self._compact()
 
     def cancel(self, key: int) -> None:
+        """Disarm the timer of `key` (its heap entry turns stale and is skipped later)."""
         self._gen.pop(key, None)
         self._deadline.pop(key, None)
 
     def next_deadline(self) -> float | None:
+        """The earliest live deadline, or None (stale entries on top are dropped on the way)."""
         heap = self._heap
         while heap and self._gen.get(heap[0][1]) != heap[0][2]:
             heapq.heappop(heap)

@@ -7,7 +7,7 @@ client computes from the same payload (the golden-vector test checks it). Length
 never recomputed in JavaScript, for the same reason.
 
 The PVS is not shipped whole (13.5 MB of lists for Helsinki): the page gets the view-cell grid and the
-resolved grid -> view cell index (the one `topology.pvs.PvsIndex.lookup_cell` uses), and asks for one view
+resolved grid -> view cell index (the one `topology.pvs_index.PvsIndex.lookup_cell` uses), and asks for one view
 cell's list when its camera enters it (`pvs_cells`).
 """
 
@@ -73,8 +73,8 @@ def extrapolation_limits() -> dict[str, Any]:
 def grid_json(x0: float, y0: float, size: float, max_height: float, index: np.ndarray,
               view_distance: float) -> dict[str, Any]:
     """A view-cell grid (topology/viewcells.py `ViewGrid`) with every grid cell resolved to the view cell that
-    answers for it (`topology.pvs._resolve_grid`, the table `PvsIndex.lookup_cell` reads)."""
-    from topology.pvs import _resolve_grid
+    answers for it (`topology.pvs_index._resolve_grid`, the table `PvsIndex.lookup_cell` reads)."""
+    from topology.pvs_index import _resolve_grid
 
     index = np.asarray(index)
     nz, ny, nx = (int(n) for n in index.shape)

@@ -58,7 +58,7 @@ class ViewerSite:
         self._files = {p.relative_to(static_dir).as_posix(): p for p in static_dir.rglob("*") if p.is_file()}
         self._pvs = None
         if "pvs" in topo.meta:
-            from topology.pvs import PvsIndex
+            from topology.pvs_index import PvsIndex
 
             self._pvs = PvsIndex.from_topology(topo)
         self._n_view_cells = self._pvs.grid.n_view_cells if self._pvs is not None else 0

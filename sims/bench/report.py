@@ -14,6 +14,7 @@ from typing import Any
 
 
 def machine() -> dict[str, Any]:
+    """The report's `machine` block, so that figures from different hosts are not compared blindly."""
     return {
         "cores": os.cpu_count(),
         "python": sys.version.split()[0],
@@ -23,6 +24,8 @@ def machine() -> dict[str, Any]:
 
 
 def write_report(suite: str, body: dict[str, Any], out: str | os.PathLike | None) -> dict[str, Any]:
+    """The report object of DESIGN.md's contract (suite, machine, params, results; peer, ratio and notes
+    when given), written as JSON to `out` when it is set."""
     report = {
         "suite": suite,
         "machine": machine(),

@@ -1,9 +1,10 @@
 """`entitynet bench switch`: the shard server (a real subprocess) against Redis pub/sub, same load generator.
 
-Workload on the bundled map (or --topology): N publishing entities (70 % pedestrians at 1.4 m/s, 30 % cars at
-8 m/s) walk the street network; like the client core, each sends an update when its cell-occupation validity
-runs out (it reaches the next cell breakpoint) and otherwise every 5-15 s; cars longer than a breakpoint occupy
-two cells. They are multiplexed over a few publisher connections (one frame per connection per 5 ms tick).
+Workload on the bundled map (or --topology): N publishing entities (`sims.mobility.Walkers`: 70 % pedestrians
+at 1.4 m/s, 30 % cars at 8 m/s) walk the street network; like the client core, each sends an update when its
+cell-occupation validity runs out (it reaches the next cell breakpoint) and otherwise every 5-15 s; cars longer
+than a breakpoint occupy two cells. They are multiplexed over a few publisher connections (one frame per
+connection per 5 ms tick).
 V viewers subscribe to the PVS of a view cell over a random street node (half at street level, half above the
 roofs); an artifact without a PVS falls back to the cells within 500 m, and the report's notes say so.
 
@@ -18,13 +19,10 @@ measurement window; RSS growth from "viewers subscribed, no entities" to "all en
 
 from __future__ import annotations
 
-import heapq
 import json
 import math
 import os
 import random
-import re
-import select
 import shutil
 import socket
 import struct
@@ -41,98 +39,20 @@ import msgpack
 import numpy as np
 
 from entitynet import protocol as P
+from sims.bench.switch_readers import LAT_BINS, ReaderLoop, Ready, Tally, reader_process
+from sims.mobility import Walkers
 
 PAYLOAD = struct.Struct("<dII")  # send time, loadgen entity id, seq  (+ padding: a dead-reckoning model)
 PAD = b"\x00" * 32
 TICK = 0.005
-LAT_BIN = 1e-4  # latency histogram: 0.1 ms bins up to 5 s ...
-LAT_FINE = 50_000
-LAT_COARSE = 0.01  # ... then 10 ms bins up to 120 s; the last bin holds everything slower
-LAT_BINS = LAT_FINE + 11_501
 
 
 # ---------------------------------------------------------------------------------------------- workload
-class Walkers:
-    """Entities moving on the street graph; `due(now)` yields (entity, cells, validity_ms) of updates."""
-
-    def __init__(self, topo, n: int, rng: random.Random):
-        self.topo = topo
-        self.rng = rng
-        self.length = topo.edge_length.astype(float)
-        self.edge_nodes = topo.edge_nodes
-        self.n = n
-        usable = np.flatnonzero(self.length > 1.0)
-        self.edge = [int(rng.choice(usable)) for _ in range(n)]
-        self.off = [rng.uniform(0, self.length[e]) for e in self.edge]
-        self.dir = [rng.choice((1, -1)) for _ in range(n)]
-        self.car = [rng.random() < 0.3 for _ in range(n)]
-        self.speed = [8.0 if c else 1.4 for c in self.car]
-        self.seq = [0] * n
-        self.t = [0.0] * n
-        self.heap: list[tuple[float, int]] = []
-
-    def start(self, now: float) -> list[tuple[int, tuple[int, ...], int]]:
-        out = []
-        for i in range(self.n):
-            self.t[i] = now
-            out.append(self._update(i, now))
-        return out
-
-    def due(self, now: float) -> list[tuple[int, tuple[int, ...], int]]:
-        out = []
-        heap = self.heap
-        while heap and heap[0][0] <= now:
-            _, i = heapq.heappop(heap)
-            self._advance(i, now)
-            out.append(self._update(i, now))
-        return out
-
-    def _advance(self, i: int, now: float) -> None:
-        dist = self.speed[i] * max(0.0, now - self.t[i])
-        self.t[i] = now
-        e, s, d = self.edge[i], self.off[i] + self.dir[i] * dist, self.dir[i]
-        for _ in range(100):
-            L = self.length[e]
-            if 0.0 <= s <= L:
-                break
-            over = s - L if s > L else -s
-            node = int(self.edge_nodes[e][1] if s > L else self.edge_nodes[e][0])
-            cand = [int(x) for x in self.topo.edges_of_node(node) if int(x) != e] or [e]
-            e = self.rng.choice(cand)
-            if int(self.edge_nodes[e][0]) == node:
-                d, s = 1, min(over, self.length[e])
-            else:
-                d, s = -1, max(self.length[e] - over, 0.0)
-        self.edge[i], self.off[i], self.dir[i] = e, min(max(s, 0.0), self.length[e]), d
-
-    def _update(self, i: int, now: float) -> tuple[int, tuple[int, ...], int]:
-        e, s, d = self.edge[i], self.off[i], self.dir[i]
-        starts, cells = self.topo.cell_pieces(e)
-        k = max(int(np.searchsorted(starts, s, side="right")) - 1, 0)
-        occ = [int(cells[k])]
-        if self.car[i]:
-            aft = min(max(s - d * 4.5, 0.0), self.length[e])
-            ka = max(int(np.searchsorted(starts, aft, side="right")) - 1, 0)
-            if ka != k:
-                occ.append(int(cells[ka]))
-        # validity: until the front reaches the next breakpoint (or the edge end) in its direction
-        if d > 0:
-            nxt = float(starts[k + 1]) if k + 1 < len(starts) else self.length[e]
-            gap = nxt - s
-        else:
-            gap = s - float(starts[k])
-        validity = min(60.0, max(0.5, gap / self.speed[i]))
-        refresh = self.rng.uniform(5.0, 15.0)
-        heapq.heappush(self.heap, (now + min(validity, refresh), i))
-        self.seq[i] += 1
-        return i, tuple(dict.fromkeys(occ)), int(validity * 1000)
-
-
 def pvs_viewer_cells(topo, n: int, rng: random.Random) -> list[tuple[int, ...]] | None:
     """Cells in the PVS of the view cell of a random street node, half at street level and half above the roofs
     (None when the artifact has no PVS)."""
     try:
-        from topology.pvs import PvsIndex
+        from topology.pvs_index import PvsIndex
 
         index = PvsIndex.from_topology(topo)
     except Exception as exc:  # no PVS, or one this version of topology.pvs cannot read: fall back, say so
@@ -161,102 +81,10 @@ def viewer_cells(topo, n: int, radius: float, rng: random.Random) -> list[tuple[
     return out
 
 
-# ---------------------------------------------------------------------------------------------- accounting
-class Tally:
-    """Useful deliveries (once per viewer, entity, seq) and a latency histogram, during the window only.
-
-    Vectorised: the load generator counts several hundred thousand deliveries per second in one Python
-    process, so reads only pull the 16-byte payload heads out with one regex scan (every payload ends in 32
-    zero bytes and a fixed trailer), and every 10 ms the collected heads are deduplicated and binned in numpy.
-    """
-
-    REC = np.dtype([("t", "<f8"), ("e", "<u4"), ("s", "<u4")])
-
-    def __init__(self, n_viewers: int, n_entities: int):
-        self.last = np.zeros((n_viewers, n_entities), dtype=np.uint32)
-        self.count = 0
-        self.dups = 0
-        self.hist = np.zeros(LAT_BINS, dtype=np.int64)
-        self.window = (math.inf, math.inf)  # deliveries received in [start, end) are counted
-        self.pending: list[tuple[int, list[bytes], float]] = []
-
-    def add(self, v: int, heads: list[bytes], t_recv: float) -> None:
-        self.pending.append((v, heads, t_recv))
-
-    def flush(self) -> None:
-        pending, self.pending = self.pending, []
-        if not pending:
-            return
-        counts = np.array([len(h) for _, h, _ in pending])
-        rec = np.frombuffer(b"".join(b"".join(h) for _, h, _ in pending), dtype=self.REC)
-        v = np.repeat(np.array([x[0] for x in pending], dtype=np.int64), counts)
-        t_recv = np.repeat(np.array([x[2] for x in pending]), counts)
-        e = rec["e"].astype(np.int64)
-        s = rec["s"].astype(np.int64)
-        key = (v << 52) | (e << 32) | s
-        _, first = np.unique(key, return_index=True)
-        dups = len(rec) - len(first)
-        first.sort()
-        v, e, s, t_sent, t_recv = v[first], e[first], s[first], rec["t"][first], t_recv[first]
-        new = s > self.last[v, e]
-        np.maximum.at(self.last, (v, e), s.astype(np.uint32))
-        n_new = int(new.sum())
-        self.dups += dups + len(s) - n_new
-        new &= (t_recv >= self.window[0]) & (t_recv < self.window[1])
-        n_new = int(new.sum())
-        if n_new:
-            self.count += n_new
-            lat = np.maximum(t_recv[new] - t_sent[new], 0.0)
-            b = np.where(lat < LAT_FINE * LAT_BIN, lat / LAT_BIN,
-                         LAT_FINE + (lat - LAT_FINE * LAT_BIN) / LAT_COARSE).astype(np.int64)
-            np.clip(b, 0, LAT_BINS - 1, out=b)
-            self.hist += np.bincount(b, minlength=LAT_BINS)
-
-    def quantile(self, q: float) -> float | None:
-        total = int(self.hist.sum())
-        if not total:
-            return None
-        b = int(np.searchsorted(np.cumsum(self.hist), q * total))
-        if b < LAT_FINE:
-            return (b + 0.5) * LAT_BIN * 1000.0
-        return (LAT_FINE * LAT_BIN + (b - LAT_FINE + 0.5) * LAT_COARSE) * 1000.0
-
-
-class Scanner:
-    """Pulls the 16-byte payload heads out of a byte stream, keeping an incomplete tail for the next read."""
-
-    def __init__(self, pattern: bytes, keep: int = 128):
-        self.re = re.compile(pattern, re.S)
-        self.buf = b""
-        self.keep = keep
-
-    def feed(self, data: bytes) -> list[bytes]:
-        buf = self.buf + data if self.buf else data
-        heads = self.re.findall(buf)
-        if heads:
-            end = buf.rfind(heads[-1]) + 16 + 34  # past the last record (head, padding, trailer)
-            rest = buf[end:]
-        else:
-            rest = buf
-        self.buf = rest[-self.keep :] if len(rest) > self.keep else rest
-        return heads
-
-
-class Ready:
-    """Counts a marker (subscription acknowledged) across reads until `need` have been seen."""
-
-    def __init__(self, marker: bytes, need: int):
-        self.marker, self.need, self.tail = marker, need, b""
-
-    def feed(self, data: bytes) -> bool:
-        buf = self.tail + data
-        self.need -= buf.count(self.marker) - self.tail.count(self.marker)
-        self.tail = buf[-len(self.marker) :]
-        return self.need <= 0
-
-
 # ---------------------------------------------------------------------------------------------- drivers
 class OursDriver:
+    """The load generator speaking entitynet's protocol: HELLO, SUBSCRIBE and PUBLISH frames, UPDATE heads."""
+
     name = "entitynet"
     # an UPDATE's payload: bin8 of 48 bytes (c4 30), our 16-byte head, 32 zero bytes, identity nil (c0)
     pattern = rb"\xc4\x30(.{16})\x00{32}\xc0"
@@ -265,14 +93,17 @@ class OursDriver:
         self.port, self.digest = port, digest
 
     def publisher_hello(self) -> bytes:
+        """What a publisher connection sends first."""
         return P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "bench", self.digest)])
 
     def viewer_hello(self, cells) -> tuple[bytes, Ready]:
+        """A viewer's opening bytes and the marker that says its subscription is in place."""
         data = P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "bench", self.digest), P.Subscribe(tuple(cells), ()),
                                P.Ping(1)])
         return data, Ready(P.encode_message(P.Pong(1, 0))[:3], 1)  # the PONG after the subscription
 
     def publish_bytes(self, batch, now: float) -> bytes:
+        """One frame of PUBLISHes for (entity, seq, cells, validity_ms) items, stamped with `now`."""
         msgs = [msgpack.packb([P.PUBLISH, i, seq, cells, val, PAYLOAD.pack(now, i, seq) + PAD])
                 for i, seq, cells, val in batch]
         return P.frame(P.payload_from_encoded(msgs))
@@ -286,6 +117,8 @@ def _resp(*args: bytes) -> bytes:
 
 
 class RedisDriver:
+    """The same load against Redis pub/sub: one channel per cell, PUBLISH to every occupied cell."""
+
     name = "redis"
     # a pub/sub message: ... $48 CRLF, our 16-byte head, 32 zero bytes, CRLF
     pattern = rb"\$48\r\n(.{16})\x00{32}\r\n"
@@ -294,12 +127,15 @@ class RedisDriver:
         self.port = port
 
     def publisher_hello(self) -> bytes:
+        """Redis needs no handshake."""
         return b""
 
     def viewer_hello(self, cells) -> tuple[bytes, Ready]:
+        """SUBSCRIBE to the cells' channels; ready when every channel is acknowledged."""
         return _resp(b"SUBSCRIBE", *[b"c%d" % c for c in cells]), Ready(b"$9\r\nsubscribe\r\n", len(cells))
 
     def publish_bytes(self, batch, now: float) -> bytes:
+        """A pipeline of PUBLISH commands, one per occupied cell of each item."""
         out = []
         for i, seq, cells, _val in batch:
             payload = PAYLOAD.pack(now, i, seq) + PAD
@@ -309,91 +145,6 @@ class RedisDriver:
 
 
 # ---------------------------------------------------------------------------------------------- one run
-class ReaderLoop:
-    """Sockets in one epoll loop: a read costs one syscall and a regex scan, not a task switch."""
-
-    def __init__(self, tally: Tally | None):
-        self.ep = select.epoll()
-        self.handlers: dict[int, Any] = {}
-        self.socks: list[socket.socket] = []
-        self.tally = tally
-        self.ready = 0
-        self.stop = False
-
-    def add(self, sock: socket.socket, handler) -> None:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setblocking(False)
-        self.socks.append(sock)
-        self.handlers[sock.fileno()] = handler
-        self.ep.register(sock.fileno(), select.EPOLLIN)
-
-    def viewer(self, v: int, pattern: bytes, ready: Ready):
-        scan = Scanner(pattern)
-        state = {"ready": False}
-
-        def handle(data: bytes, t: float) -> None:
-            if not state["ready"] and ready.feed(data):
-                state["ready"] = True
-                self.ready += 1
-            heads = scan.feed(data)
-            if heads:
-                self.tally.add(v, heads, t)
-
-        return handle
-
-    def run(self, on_tick=None) -> None:
-        next_flush = time.monotonic() + 0.01
-        while not self.stop:
-            events = self.ep.poll(0.005)
-            t = time.time()
-            for fd, _ in events:
-                try:
-                    data = os.read(fd, 262144)
-                except BlockingIOError:
-                    continue
-                except OSError:
-                    data = b""
-                if not data:
-                    self.ep.unregister(fd)
-                    continue
-                self.handlers[fd](data, t)
-            if time.monotonic() >= next_flush:
-                if self.tally is not None:
-                    self.tally.flush()
-                if on_tick is not None:
-                    on_tick(self)
-                next_flush = time.monotonic() + 0.01
-        for s in self.socks:
-            s.close()
-
-
-def _reader_process(driver, viewers, n_entities: int, shared, pipe) -> None:
-    """One load-generator reader process: connects its share of the viewers and tallies what they get."""
-    ready_v, w0, w1, stop = shared
-    tally = Tally(len(viewers), n_entities)
-    loop = ReaderLoop(tally)
-    for k, cells in enumerate(viewers):
-        s = socket.create_connection(("127.0.0.1", driver.port))
-        hello, ready = driver.viewer_hello(cells)
-        s.sendall(hello)
-        loop.add(s, loop.viewer(k, driver.pattern, ready))
-    reported = 0
-
-    def tick(lp: ReaderLoop) -> None:
-        nonlocal reported
-        if lp.ready > reported:
-            with ready_v.get_lock():
-                ready_v.value += lp.ready - reported
-            reported = lp.ready
-        tally.window = (w0.value, w1.value)
-        lp.stop = bool(stop.value)
-
-    loop.run(tick)
-    tally.flush()
-    pipe.send((tally.count, tally.dups, tally.hist, time.process_time()))
-    pipe.close()
-
-
 def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=None) -> dict[str, Any]:
     import multiprocessing as mp
 
@@ -408,7 +159,7 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
     for r in range(n_readers):
         a, b = ctx.Pipe(duplex=False)
         share = view_cells[r::n_readers]
-        pr = ctx.Process(target=_reader_process, args=(driver, share, p["entities"], (ready_v, w0, w1, stop), b),
+        pr = ctx.Process(target=reader_process, args=(driver, share, p["entities"], (ready_v, w0, w1, stop), b),
                          daemon=True)
         pr.start()
         readers.append((pr, a))
@@ -577,6 +328,7 @@ def _topology_path(args, progress, quick: bool) -> str:
 
 
 def run(args, progress) -> dict[str, Any]:
+    """The suite: our server, then Redis, with the same viewers and walkers; the report body."""
     from topology.artifact import load
 
     quick = bool(getattr(args, "quick", False))

@@ -50,6 +50,8 @@ def cells_per_block(topo) -> tuple[float, float, int]:
 
 
 def run(args, progress) -> dict:
+    """The suite (`entitynet bench topology`): read, build and load times, cell counts, artifact size and cells
+    per city block on the bundled map (its figures are the ones in README)."""
     repeat = 1 if args.quick else 3
     src = None  # the bundled Helsinki map: the figures in README are for it
     progress("reading the bundled Helsinki map")

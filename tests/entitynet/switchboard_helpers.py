@@ -11,7 +11,8 @@ def make(**kw) -> Switchboard:
     kw.setdefault("digest", "d")
     kw.setdefault("open_mode", True)
     kw.setdefault("seed", 1)
-    return Switchboard(SwitchConfig(**kw))
+    authenticate = kw.pop("authenticate", None)
+    return Switchboard(SwitchConfig(**kw), authenticate=authenticate)
 
 
 def join(sb: Switchboard, token: str = "", now: float = 0.0) -> int:

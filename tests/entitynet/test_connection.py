@@ -10,7 +10,7 @@ import trio
 
 from entitynet import protocol as P
 from entitynet.connection import Connection, HandshakeRefused, QueryRefused
-from tests.entitynet.server_helpers import DIGEST, running
+from tests.entitynet.server_helpers import DIGEST, Raw, running
 
 
 async def _wait(pred, timeout=5.0):
@@ -96,3 +96,46 @@ async def test_websocket_transport():
         await pub.publish(P.Publish(1, 1, (3,), 10_000, b"ws"))
         await _wait(lambda: len(seen) == 1)
         n.cancel_scope.cancel()
+
+
+async def test_redirect_moves_viewer_and_entities_to_the_named_shard():
+    """Shard A (a scripted fake) welcomes us, then REDIRECTs to shard B (a real server): the connection dials
+    B, re-sends its subscription and its entities' latest states there, and closes A."""
+    listeners = await trio.open_tcp_listeners(0, host="127.0.0.1")
+    a_port = listeners[0].socket.getsockname()[1]
+    got_at_a: list[P.Message] = []
+    a_closed = trio.Event()
+
+    async with running() as b, trio.open_nursery() as n:
+        async def shard_a(task_status=trio.TASK_STATUS_IGNORED):
+            task_status.started()
+            stream = await listeners[0].accept()
+            raw = Raw(stream)
+            hello = await raw.read()
+            assert hello and isinstance(hello[0], P.Hello)
+            await raw.send(P.Welcome(P.PROTOCOL_VERSION, 1, 0))
+            with trio.fail_after(5):
+                while not any(isinstance(m, P.Publish) for m in got_at_a):
+                    got_at_a.extend(await raw.read() or [])
+            await raw.send(P.Redirect(2, f"127.0.0.1:{b.port}"))
+            while await raw.read() is not None:  # until the client closes A
+                pass
+            a_closed.set()
+
+        await n.start(shard_a)
+        seen: list[P.Message] = []
+        c = Connection(("127.0.0.1", a_port), DIGEST, on_message=seen.append, backoff=(0.01, 0.05))
+        await c.subscribe((7,))
+        await c.publish(P.Publish(1, 1, (7,), 30_000, b"moved"))
+        await n.start(c.run)
+        watcher = await Raw.connect(b)
+        await watcher.send(P.Subscribe((7,), ()))
+        upd = await watcher.expect(P.Update)  # the entity reached B without being published again
+        assert upd.payload == b"moved"
+        await _wait(lambda: a_closed.is_set() and c.address == ("127.0.0.1", b.port) and c.connected.is_set())
+        assert any(isinstance(m, P.Redirect) for m in seen)
+        assert len(b.sb.entities) == 1
+        await watcher.send(P.Publish(5, 1, (7,), 30_000, b"at-b"))  # our subscription moved to B as well
+        await _wait(lambda: any(isinstance(m, P.Update) and m.payload == b"at-b" for m in seen))
+        n.cancel_scope.cancel()
+    await listeners[0].aclose()

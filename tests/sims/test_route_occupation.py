@@ -15,8 +15,9 @@ import pytest
 
 from entitynet.client.network import netview
 from entitynet.client.path import Path
-from sims.behaviours import speed_profile, vehicle_halts
-from sims.bench.dr_bench import _new_acc, _sample_path, run_entity
+from sims.bench.dr_bench import _new_acc, run_entity
+from sims.bench.dr_data import _sample_path
+from sims.mobility import Halts, speed_profile, vehicle_halts
 from tests.topology.routemaps import route_map_xml, true_route
 from topology.build import build, read_map
 
@@ -33,7 +34,7 @@ def test_bus_on_a_spoiled_relation_stays_in_its_published_occupation(tmp_path, v
     acc = _new_acc()
     for seed in range(6):  # bounded: 6 runs of about 80 s of simulated time each
         rng = random.Random(seed)
-        halts = vehicle_halts([truth.length / 2], [], rng, dwell=(10.0, 20.0), p_red=0.0, red=(0.0, 0.0))
+        halts = vehicle_halts([truth.length / 2], [], rng, Halts(dwell=(10.0, 20.0), p_red=0.0, red=(0.0, 0.0)))
         prof = speed_profile(truth.length, halts, rng, cruise=10.5, accel=1.2, decel=1.5)
         ent = _sample_path(truth, prof, 12.0, f"bus {variant} {seed}", "bus", stored)
         run_entity(topo, ent, "network", 5.0, acc)

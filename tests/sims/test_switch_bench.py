@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from entitynet import protocol as P
-from sims.bench.switch_bench import PAD, PAYLOAD, OursDriver, RedisDriver, Scanner, Tally, _resp
+from sims.bench.switch_bench import PAD, PAYLOAD, OursDriver, RedisDriver, _resp
+from sims.bench.switch_readers import Scanner, Tally
 
 
 def _ours_stream(recs) -> bytes:

@@ -59,9 +59,9 @@ def route_map_xml(variant: str = "ok", *, island: bool = False) -> str:
 
 def true_route(topo) -> list[tuple[int, int]]:
     """The route as the bus drives it: shortest vehicle paths through its corners (0,1) (3,1) (3,4) (5,4)."""
+    from topology.matching import network_graph
     from topology.projection import LocalProjection
     from topology.raw import VEHICLE
-    from topology.routes import network_graph
 
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
     g = network_graph(topo, VEHICLE)

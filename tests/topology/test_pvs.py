@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import types
 
 import numpy as np
@@ -12,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from topology.polygons import Polygons
-from topology.pvs import PvsConfig, PvsIndex, add_pvs_arguments, compute_pvs, pvs_config_from_args
+from topology.pvs import PvsConfig, compute_pvs
+from topology.pvs_index import PvsIndex
 from topology.pvs_reference import ReferenceConfig, Scene, in_range, reference_visible, synthetic_city, target_points
 
 FAST = dict(workers=1, raster=2.0, ray_spacing=1.5)
@@ -183,16 +183,6 @@ def test_bad_inputs_are_rejected():
         PvsConfig(view_distance=-1).validate()
     with pytest.raises(ValueError):
         PvsConfig.from_quality("ultra")
-
-
-def test_cli_options():
-    p = argparse.ArgumentParser()
-    add_pvs_arguments(p)
-    cfg = pvs_config_from_args(p.parse_args(["--pvs-quality", "fast", "--view-distance", "300"]))
-    assert cfg.quality == "fast" and cfg.view_distance == 300.0 and cfg.samples == 2
-    assert pvs_config_from_args(p.parse_args([])) == PvsConfig.from_quality("default") == PvsConfig()
-    with pytest.raises(SystemExit):
-        p.parse_args(["--view-cell-size", "-3"])
 
 
 @pytest.fixture(scope="module")

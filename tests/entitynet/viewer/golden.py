@@ -97,11 +97,11 @@ def _bad_payloads() -> list[tuple[str, bytes]]:
 
 def _pvs_lookups() -> dict:
     """A small view-cell grid with holes (view cells left out inside buildings, a whole column), its JSON as the
-    page gets it, and the view cell `topology.pvs.PvsIndex.lookup_cell` answers at positions in and off it."""
+    page gets it, and the view cell `topology.pvs_index.PvsIndex.lookup_cell` answers at positions in and off it."""
     import numpy as np
 
-    from topology.pvs import PvsIndex
-    from topology.viewcells import ViewGrid
+    from topology.pvs_index import PvsIndex
+    from topology.viewgrid import ViewGrid
 
     nz, ny, nx = 3, 4, 5
     index = np.arange(nz * ny * nx, dtype=np.int32).reshape(nz, ny, nx)

@@ -1,4 +1,4 @@
-// Camera position -> view cell -> PVS, as topology/pvs.py `PvsIndex.cells_at` answers it: positions are
+// Camera position -> view cell -> PVS, as topology/pvs_index.py `PvsIndex.cells_at` answers it: positions are
 // clamped to the grid and a grid cell inside a building answers with the resolved view cell (geometry.json
 // ships the resolved index). One view cell's list is fetched from the server when the camera first enters it.
 // Without a PVS in the artifact: every cell whose footprint centre is within 500 m (as sims/demo.py does).

@@ -10,7 +10,7 @@ pytestmark = pytest.mark.skipif(not FEED.exists(), reason="../shared/data/hsl-gt
 
 
 def test_read_feed_keeps_tram_and_bus_shapes_with_their_stops():
-    from proxies.gtfs import read_feed, trip_stops
+    from topology.gtfs import read_feed, trip_stops
 
     feed = read_feed(FEED, modes=("tram",))
     assert feed.shapes and all(feed.routes[feed.shape_route[s]][0] == "tram" for s in feed.shapes)
@@ -23,12 +23,8 @@ def test_read_feed_keeps_tram_and_bus_shapes_with_their_stops():
 
 def test_tram_shapes_match_onto_the_tram_network_of_a_synthetic_map():
     """A synthetic tram line laid along one real tram shape (projected): the matcher must find it."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
-    from client_fixtures import make_topology
-
-    from proxies.gtfs import match_shapes, read_feed
+    from tests.entitynet.client_fixtures import make_topology
+    from topology.gtfs import match_shapes, read_feed
     from topology.projection import LocalProjection
     from topology.raw import TRAM
 

@@ -9,10 +9,10 @@ import pytest
 
 from entitynet.client.network import netview
 from entitynet.client.path import Path
-from proxies.gtfs import STOP_SHAPE, GtfsError, match_shapes, read_feed
 from tests.topology.routemaps import route_map_xml, true_route
 from tests.topology.test_osm_reader import LAT0, LON0, D
 from topology.build import build, read_map
+from topology.gtfs import STOP_SHAPE, GtfsError, match_shapes, read_feed
 
 # the stops of the route map's bus route (grid units: 2 east per node, 1 north), near its corner nodes
 STOPS = [("s1", "First", 0.5, 1), ("s2", "Corner", 6, 1), ("s3", "North", 6, 4), ("s4", "Last", 9.5, 4)]

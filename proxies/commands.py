@@ -1,0 +1,248 @@
+"""`entitynet proxy siri | gtfs-rt | replay`: registered through the `entitynet.commands` entry-point group
+(`entitynet` itself never imports `proxies`)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+log = logging.getLogger("proxies")
+
+
+def _command_error(msg: str) -> Exception:
+    from entitynet.cli import CommandError
+
+    return CommandError(msg)
+
+
+def _hms(text: str) -> float:
+    try:
+        h, m, s = (int(p) for p in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected HH:MM:SS, got {text!r}") from None
+    return float(h * 3600 + m * 60 + s)
+
+
+def _hostport(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit():
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    return host, int(port)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("proxy", help="transit proxies (SIRI, GTFS-realtime) and the SIRI replay producer")
+    ps = p.add_subparsers(dest="proxy_command", metavar="KIND", required=True)
+
+    s = ps.add_parser("siri", help="poll a SIRI StopMonitoring SOAP service and publish its vehicles")
+    s.add_argument("--url", required=True, help="the SOAP service's address")
+    s.add_argument("--wsdl", metavar="FILE_OR_URL", help="the operator's WSDL (default: our minimal one)")
+    s.add_argument("--mode", choices=("auto", "multiple", "single"), default="auto",
+                   help="GetMultipleStopMonitoring (all stops per request) or one GetStopMonitoring per stop")
+    s.add_argument("--stops", metavar="FILE", help="stop ids to poll, one per line (default: every route stop)")
+    _common(s)
+    s.set_defaults(func=run_siri)
+
+    g = ps.add_parser("gtfs-rt", help="poll GTFS-realtime feeds and publish their vehicles")
+    g.add_argument("--vehicle-positions", metavar="URL", help="VehiclePositions feed")
+    g.add_argument("--trip-updates", metavar="URL", help="TripUpdates feed")
+    _common(g)
+    g.set_defaults(func=run_gtfsrt)
+
+    r = ps.add_parser("replay", help="serve SIRI StopMonitoring and GTFS-realtime from a GTFS schedule")
+    r.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS zip")
+    r.add_argument("--host", default="127.0.0.1")
+    r.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 = any free port)")
+    r.add_argument("--start", type=_hms, default=_hms("08:00:00"), metavar="HH:MM:SS",
+                   help="service time at startup (default 08:00:00); runs with the wall clock")
+    r.add_argument("--delay-sigma", type=float, default=90.0, metavar="S", help="spread of initial delays")
+    r.add_argument("--step-sigma", type=float, default=20.0, metavar="S", help="delay change per stop")
+    r.add_argument("--granularity", type=float, default=60.0, metavar="S", help="ETA rounding (default 60 s)")
+    r.add_argument("--latency", type=float, default=0.0, metavar="S", help="seconds before every answer")
+    r.add_argument("--fault-rate", type=float, default=0.0, metavar="R", help="fraction of answers that fail")
+    r.add_argument("--locations", action="store_true", help="include VehicleLocation in SIRI answers")
+    r.add_argument("--traced-bus-fraction", type=float, default=0.5, help="buses with a tracker (trams: all)")
+    r.add_argument("--bbox", metavar="LON0,LAT0,LON1,LAT1", help="only trips stopping inside")
+    r.add_argument("--topology", metavar="ART", help="only trips stopping on this map")
+    r.add_argument("--truth", metavar="FILE.jsonl", help="record true positions here every second")
+    r.add_argument("--seed", type=int, default=1)
+    r.set_defaults(func=run_replay)
+
+
+def _common(p) -> None:
+    p.add_argument("--server", type=_hostport, required=True, metavar="HOST:PORT", help="the switchboard")
+    p.add_argument("--token", default="", help="auth token for the server")
+    p.add_argument("--topology", metavar="ART", help="topology artifact (default: the bundled Helsinki map)")
+    p.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS schedule: routes and stops of the vehicles")
+    p.add_argument("--poll", type=float, default=20.0, metavar="S", help="seconds between polls (default 20)")
+    p.add_argument("--timeout", type=float, default=10.0, metavar="S", help="HTTP timeout (default 10)")
+    p.add_argument("--stale-after", type=float, default=300.0, metavar="S",
+                   help="retire a vehicle without news for this long (default 300)")
+    p.add_argument("--metrics-port", type=int, metavar="PORT", help="serve Prometheus /metrics here")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+
+
+def _say(msg: str) -> None:
+    print(f"[proxy] {msg}", file=sys.stderr, flush=True)
+
+
+def _load(args):
+    from topology.artifact import ArtifactError, load
+
+    if args.topology:
+        try:
+            topo = load(args.topology)
+        except (ArtifactError, OSError, ValueError) as exc:
+            raise _command_error(f"cannot load topology {args.topology}: {exc}") from None
+    else:
+        from entitynet.topology_cache import bundled_topology
+
+        topo, _path = bundled_topology(_say, with_pvs=False)
+    if not Path(args.gtfs).exists():
+        raise _command_error(f"GTFS feed {args.gtfs} not found")
+    from proxies.routes import cached_routes
+    from proxies.schedule import ScheduleError
+
+    t0 = time.perf_counter()
+    try:
+        book = cached_routes(topo, args.gtfs, say=_say)
+    except ScheduleError as exc:
+        raise _command_error(str(exc)) from None
+    _say(f"{len(book.routes)} trips on {len({id(r) for r in book.routes.values()})} routes over the map, "
+         f"{len(book.stops)} stops ({time.perf_counter() - t0:.1f} s)")
+    if not book.routes:
+        raise _command_error("no trip of the GTFS feed runs over the map")
+    return topo, book
+
+
+def _run_shell(args, topo, book, make_poller) -> int:
+    import trio
+
+    from proxies.shell import ProxyConfig, ProxyShell
+
+    cfg = ProxyConfig(args.server, args.token, args.poll, 1.0, args.timeout, args.stale_after)
+    shell = ProxyShell(topo, book, cfg)
+    if args.metrics_port is not None:
+        from prometheus_client import start_http_server
+
+        start_http_server(args.metrics_port, addr="127.0.0.1", registry=shell.metrics.registry)
+
+    async def main():
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, make_poller(shell))
+            start = time.monotonic()
+            while args.duration is None or time.monotonic() - start < args.duration:
+                await trio.sleep(min(10.0, args.duration or 10.0))
+                c = shell.fleet.counters
+                _say(f"vehicles {len(shell.fleet.vehicles)} | polls {c.polls} | discarded "
+                     f"{c.discarded_fraction:.1%} | publishes {c.publishes} | last error {shell.last_error}")
+            n.cancel_scope.cancel()
+
+    from entitynet.connection import HandshakeRefused
+
+    refused = None
+    try:
+        trio.run(main)
+    except BaseException as exc:  # noqa: B036 - only a refusal (maybe inside exception groups) is ours to report
+        refused = _find(exc, HandshakeRefused)
+        if refused is None:
+            raise
+    if refused is not None:
+        raise _command_error(str(refused))
+    return 0
+
+
+def _find(exc: BaseException, kind: type) -> BaseException | None:
+    """The first exception of `kind` in `exc` or the exception groups nested in it."""
+    if isinstance(exc, kind):
+        return exc
+    if isinstance(exc, BaseExceptionGroup):
+        for e in exc.exceptions:
+            got = _find(e, kind)
+            if got is not None:
+                return got
+    return None
+
+
+def run_siri(args) -> int:
+    from proxies.siri_client import StopMonitoringClient
+    from proxies.siri_xml import SiriError
+
+    topo, book = _load(args)
+    if args.stops:
+        try:
+            wanted = [ln.strip() for ln in Path(args.stops).read_text().splitlines() if ln.strip()]
+        except OSError as exc:
+            raise _command_error(f"cannot read {args.stops}: {exc}") from None
+        book.stops = wanted
+    try:
+        client = StopMonitoringClient(args.url, args.wsdl, timeout=args.timeout, mode=args.mode)
+    except SiriError as exc:
+        raise _command_error(str(exc)) from None
+    _say(f"{client.mode} StopMonitoring on {args.url}: {client.requests_for(book.stops)} request(s) per poll")
+    return _run_shell(args, topo, book, lambda shell: shell.siri_poller(client))
+
+
+def run_gtfsrt(args) -> int:
+    if not (args.vehicle_positions or args.trip_updates):
+        raise _command_error("give --vehicle-positions URL and/or --trip-updates URL")
+    topo, book = _load(args)
+    return _run_shell(args, topo, book,
+                      lambda shell: shell.gtfsrt_poller(args.vehicle_positions, args.trip_updates))
+
+
+def run_replay(args) -> int:
+    import trio
+
+    from proxies.replay_core import ReplayWorld
+    from proxies.replay_http import ReplayConfig, ReplayService, record_truth, wall_service_clock
+    from proxies.schedule import ScheduleError, read_schedule
+    from proxies.siri_xml import ServiceClock
+
+    if not 0.0 <= args.fault_rate <= 1.0:
+        raise _command_error("--fault-rate must be between 0 and 1")
+    if args.latency < 0 or args.granularity < 0:
+        raise _command_error("--latency and --granularity must be >= 0")
+    bbox = None
+    if args.bbox:
+        try:
+            bbox = tuple(float(v) for v in args.bbox.split(","))
+            assert len(bbox) == 4
+        except (ValueError, AssertionError):
+            raise _command_error(f"--bbox wants LON0,LAT0,LON1,LAT1, got {args.bbox!r}") from None
+    elif args.topology:
+        import numpy as np
+
+        from topology.artifact import load
+        from topology.projection import LocalProjection
+
+        topo = load(args.topology)
+        x0, y0, x1, y1 = topo.meta["bounds"]
+        ll = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"])).to_wgs84(
+            np.array([[x0, y0], [x1, y1]], dtype=np.float64))
+        bbox = (float(ll[:, 0].min()), float(ll[:, 1].min()), float(ll[:, 0].max()), float(ll[:, 1].max()))
+    t0 = time.perf_counter()
+    try:
+        sched = read_schedule(args.gtfs, bbox=bbox)
+    except ScheduleError as exc:
+        raise _command_error(str(exc)) from None
+    world = ReplayWorld(sched, seed=args.seed, delay_sigma=args.delay_sigma, step_sigma=args.step_sigma,
+                        granularity=args.granularity, traced_bus_fraction=args.traced_bus_fraction,
+                        locations=args.locations)
+    clock = ServiceClock.for_date(sched.service_date)
+    cfg = ReplayConfig(args.host, args.port, args.latency, args.fault_rate, seed=args.seed)
+    service = ReplayService(world, clock, wall_service_clock(args.start), cfg)
+
+    async def main():
+        async with trio.open_nursery() as n:
+            await n.start(service.serve)
+            _say(f"replay of {len(world.runs)} departures ({time.perf_counter() - t0:.1f} s to load) on "
+                 f"http://{args.host}:{service.port}/siri and /gtfs-rt/vehicle-positions, /gtfs-rt/trip-updates")
+            if args.truth:
+                n.start_soon(record_truth, service, args.truth)
+
+    trio.run(main)
+    return 0

@@ -1,0 +1,334 @@
+"""The transit proxy's core (sans-IO): tracker answers in, honest-client messages out.
+
+`ingest` takes the calls of one poll (SIRI MonitoredStopVisits or GTFS-rt StopTimeUpdates, as `siri_xml.Call`),
+keeps only traced vehicles on the map's routes (the rest is counted as discarded), and updates each vehicle's
+`EtaMotion`. `fixes` takes GTFS-rt VehiclePositions: the position goes to the vehicle's client core as a phone's
+fix would. `tick(now)` moves every vehicle, feeds its position to its `entitynet.client.Player` (its route as the
+a-priori path, its stops as known halts) every `fix_interval` seconds and returns what the players publish;
+vehicles whose data is older than `stale_after`, or that reached the end of their route on the map, leave.
+
+Clocks: the producer's times are mapped to ours by the offset `received - ResponseTimestamp` with the smallest
+value seen lately (the answer with the least latency tells the offset best, as NTP does), so a service that
+answers several seconds late does not shift every ETA by its latency.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from entitynet.client import FixRejected, Path, Player, netview
+from entitynet.client.entities import entity_type
+from entitynet.protocol import Publish, Unpublish
+from proxies.eta_motion import EtaMotion, Limits
+from proxies.routes import RouteBook, TransitRoute
+from proxies.siri_xml import Call
+
+
+@dataclass
+class Counters:
+    calls: int = 0
+    used: int = 0
+    untraced: int = 0
+    off_map: int = 0
+    polls: int = 0
+    fixes: int = 0
+    publishes: int = 0
+    retired_stale: int = 0
+    retired_done: int = 0
+    vehicles_seen: set[str] = field(default_factory=set)
+
+    @property
+    def discarded_fraction(self) -> float:
+        return 1.0 - self.used / self.calls if self.calls else 0.0
+
+
+@dataclass
+class Vehicle:
+    ref: str
+    trip: str
+    route: TransitRoute
+    entity: int
+    motion: EtaMotion
+    player: Player
+    index_of: dict[int, int]  # trip stop index -> route stop index
+    last_data: float
+    last_fix: float = -math.inf
+    positions: bool = False  # a position feed gives its fixes (the ETA motion only fills gaps)
+
+
+class Fleet:
+    def __init__(self, topo, book: RouteBook, *, fix_interval: float = 2.0, stale_after: float = 300.0,
+                 granularity: float = 60.0, threshold: float = 8.0, accuracy: float = 3.0,
+                 first_entity: int = 1, entry_horizon: float = 20.0) -> None:
+        self.topo = topo
+        self.net = netview(topo)
+        self.book = book
+        self.fix_interval = fix_interval
+        self.stale_after = stale_after
+        self.granularity = granularity
+        self.threshold = threshold
+        self.accuracy = accuracy
+        self.entry_horizon = entry_horizon
+        self.position_gap = 60.0  # s without a position before the ETA motion feeds the fixes again
+        self.vehicles: dict[str, Vehicle] = {}
+        self.counters = Counters()
+        self._next_entity = first_entity
+        self._paths: dict[int, Path] = {}
+        self._poly: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._offsets: deque[float] = deque(maxlen=20)
+        self.pending: list[Publish | Unpublish] = []
+
+    # ---- clocks -----------------------------------------------------------------------------------------
+    def clock_offset(self, response_time: float, received: float) -> float:
+        """local - producer, from this answer and the recent ones (smallest wins)."""
+        if math.isfinite(response_time) and math.isfinite(received):
+            self._offsets.append(received - response_time)
+        return min(self._offsets) if self._offsets else 0.0
+
+    # ---- routes ---------------------------------------------------------------------------------------------
+    def path_of(self, route: TransitRoute) -> Path:
+        p = self._paths.get(id(route))
+        if p is None:
+            p = self._paths[id(route)] = Path(self.net, route.edges)
+        return p
+
+    def _project(self, route: TransitRoute, x: float, y: float, s_near: float) -> float | None:
+        """Path coordinate of a reported location near the route (within 50 m), preferring the nearest to
+        `s_near` where the route passes twice."""
+        got = self._poly.get(id(route))
+        if got is None:
+            pts = []
+            for e, d in route.edges:
+                p = self.topo.edge_polyline(e)
+                pts.append(p if d > 0 else p[::-1])
+            xy = np.concatenate(pts)
+            cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+            got = self._poly[id(route)] = (xy, cum)
+        xy, cum = got
+        a, b = xy[:-1], xy[1:]
+        ab = b - a
+        ll = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+        p = np.array([x, y])
+        t = np.clip(np.einsum("ij,ij->i", p - a, ab) / ll, 0.0, 1.0)
+        d = np.hypot(*(a + t[:, None] * ab - p).T)
+        s = cum[:-1] + t * (cum[1:] - cum[:-1])
+        ok = d <= 50.0
+        if not ok.any():
+            return None
+        cost = np.where(ok, d + 0.05 * np.abs(s - s_near), np.inf)
+        return float(s[int(np.argmin(cost))])
+
+    def _new_vehicle(self, ref: str, trip: str, route: TransitRoute, line: str) -> Vehicle:
+        et = entity_type("tram" if route.mode == "tram" else "bus")
+        motion = EtaMotion([st.s for st in route.stops], [(st.sched_arr, st.sched_dep) for st in route.stops],
+                           Limits(vmax=min(et.vmax, 14.0 if route.mode == "tram" else 15.0), accel=et.amax * 0.8,
+                                  brake=et.brake), granularity=self.granularity)
+        path = self.path_of(route)
+        stops = [path.locate(min(st.s, path.length)) for st in route.stops]
+        player = Player(self.topo, self._next_entity, et, route=route.edges, stops=stops,
+                        accuracy=self.accuracy, threshold=self.threshold)
+        self._next_entity += 1
+        return Vehicle(ref, trip, route, player.entity, motion, player,
+                       {st.index: i for i, st in enumerate(route.stops)}, 0.0)
+
+    # ---- input ---------------------------------------------------------------------------------------------
+    def ingest(self, calls: list[Call], response_time: float, received: float, *,
+               to_local=None) -> None:
+        """One poll's calls. `to_local(lon, lat) -> (x, y)` maps VehicleLocation when given."""
+        c = self.counters
+        c.polls += 1
+        c.calls += len(calls)
+        off = self.clock_offset(response_time, received)
+        by_vehicle: dict[str, list[Call]] = {}
+        for call in calls:
+            if not call.vehicle or not call.monitored:
+                c.untraced += 1
+                continue
+            by_vehicle.setdefault(call.vehicle, []).append(call)
+        for ref, vcalls in by_vehicle.items():
+            found = self.book.route_of(vcalls[0].journey)
+            if found is None:
+                c.off_map += len(vcalls)
+                continue
+            trip, route = found
+            veh = self.vehicles.get(ref)
+            if veh is not None and veh.trip != trip:
+                self.pending.extend(self._retire(ref))  # the vehicle started its next trip: a new route
+                veh = None
+            index_of = veh.index_of if veh is not None else {st.index: i for i, st in enumerate(route.stops)}
+            stop_index: dict[str, list[int]] = {}
+            for i, st in enumerate(route.stops):
+                stop_index.setdefault(st.stop_id, []).append(i)
+            etas, etds, aimed = {}, {}, {}
+            at_stop = None
+            loc = None
+            for call in vcalls:
+                # the stop id says which stop; the order (SIRI Order / VisitNumber, GTFS-rt stop_sequence: not
+                # always the trip's index + 1 in real feeds) only where the route passes a stop twice
+                cand = stop_index.get(call.stop_id, ())
+                i = cand[0] if len(cand) == 1 else None
+                if i is None and call.order:
+                    i = index_of.get(call.order - 1)
+                    if cand and i not in cand:
+                        i = cand[0]
+                if i is None or call.expected_arrival is None:
+                    continue
+                etas[i] = call.expected_arrival + off
+                if call.expected_departure is not None:
+                    etds[i] = call.expected_departure + off
+                if call.aimed_arrival is not None:
+                    aimed[i] = call.aimed_arrival + off
+                if call.at_stop:
+                    at_stop = i if at_stop is None else min(at_stop, i)
+                if call.lon is not None and to_local is not None:
+                    loc = (call.lon, call.lat)
+            if not etas:
+                c.off_map += len(vcalls)
+                continue
+            c.used += 1
+            c.vehicles_seen.add(ref)
+            nxt = min(etas)
+            if veh is None:
+                veh = self._new_vehicle(ref, trip, route, vcalls[0].line)
+                if not self._place(veh, nxt, etas[nxt], at_stop, received, loc, to_local):
+                    continue  # not on the map yet
+                self.vehicles[ref] = veh
+            loc_s = None
+            if loc is not None:
+                x, y = to_local(*loc)
+                loc_s = self._project(route, x, y, veh.motion.s)
+            veh.motion.observe(received, etas, etds, at_stop, aimed, loc_s)
+            veh.last_data = received
+
+    def _place(self, veh: Vehicle, nxt: int, eta: float, at_stop: int | None, now: float, loc,
+               to_local) -> bool:
+        m, route = veh.motion, veh.route
+        if loc is not None:
+            x, y = to_local(*loc)
+            s = self._project(route, x, y, route.stops[nxt].s)
+            if s is not None:
+                m.place(min(s, route.stops[nxt].s), now, nxt)
+                return True
+        if at_stop is not None or nxt == 0 and eta - now <= 0.0:
+            m.place(route.stops[nxt].s, now, nxt)
+            m.standing = True
+            return True
+        s_next = route.stops[nxt].s
+        left = max(eta - now, 0.0)
+        if nxt > 0:
+            prev = route.stops[nxt - 1]
+            run = max(route.stops[nxt].sched_arr - prev.sched_dep, 1.0)
+            frac = min(max(1.0 - left / run, 0.0), 1.0)
+            s = prev.s + frac * (s_next - prev.s)
+        else:
+            # entering the map: where it is before its first stop here is a guess (the schedule's speed from its
+            # previous stop, off the map), so it appears only `entry_horizon` seconds before that stop
+            if left > self.entry_horizon:
+                return False
+            s = max(s_next - left * route.stops[nxt].approach_speed, 0.0)
+        m.place(s, now, nxt)
+        return True
+
+    def ingest_positions(self, positions, offset: float, to_local) -> None:
+        """GTFS-rt VehiclePositions (`gtfsrt.Position`, producer times + `offset` = local): each position is a
+        fix for the vehicle's client core, as a phone's would be; a vehicle seen first is placed where the
+        position projects onto its route. The ETA motion is moved up to the position, so that it carries on
+        from there should the positions stop."""
+        c = self.counters
+        c.polls += 1
+        for pos in positions:
+            c.calls += 1
+            if not pos.vehicle or not pos.trip_id:
+                c.untraced += 1
+                continue
+            found = self.book.route_of(pos.trip_id)
+            if found is None:
+                c.off_map += 1
+                continue
+            trip, route = found
+            x, y = to_local(pos.lon, pos.lat)
+            veh = self.vehicles.get(pos.vehicle)
+            if veh is not None and veh.trip != trip:
+                self.pending.extend(self._retire(pos.vehicle))
+                veh = None
+            s = self._project(route, x, y, veh.motion.s if veh is not None else 0.0)
+            if s is None:
+                c.off_map += 1
+                continue
+            t = pos.t + offset
+            if veh is None:
+                veh = self._new_vehicle(pos.vehicle, trip, route, pos.route_id)
+                nxt = next((i for i, st in enumerate(route.stops) if st.s > s + 1.0), len(route.stops) - 1)
+                veh.motion.place(s, t, nxt)
+                self.vehicles[pos.vehicle] = veh
+            c.used += 1
+            c.vehicles_seen.add(pos.vehicle)
+            veh.motion.observe(t, {}, location_s=s)
+            veh.positions = True
+            self.fix(pos.vehicle, x, y, t, pos.speed, pos.bearing)
+
+    def fix(self, ref: str, x: float, y: float, t: float, speed: float | None = None,
+            heading: float | None = None) -> None:
+        """A vehicle position (local metres): fed to the vehicle's client core as it is, when newer."""
+        veh = self.vehicles.get(ref)
+        if veh is None or t <= veh.last_fix:
+            return
+        try:
+            self.pending.extend(veh.player.feed(x, y, t, self.accuracy, speed=speed, heading=heading))
+        except FixRejected:
+            return
+        veh.last_fix = t
+        veh.last_data = max(veh.last_data, t)
+        self.counters.fixes += 1
+
+    # ---- time ----------------------------------------------------------------------------------------------
+    def position(self, veh: Vehicle, now: float) -> tuple[float, float, float, float]:
+        """(x, y, speed, heading) of the vehicle's motion at `now`."""
+        s, v = veh.motion.advance(now)
+        path = self.path_of(veh.route)
+        x, y = path.xy(s)
+        x1, y1 = path.xy(min(s + 2.0, path.length))
+        x0, y0 = path.xy(max(s - 2.0, 0.0))
+        heading = math.degrees(math.atan2(x1 - x0, y1 - y0)) % 360.0
+        return x, y, v, heading
+
+    def tick(self, now: float, *, motion_fixes: bool = True) -> list[Publish | Unpublish]:
+        """Move every vehicle to `now`; returns what to send. `motion_fixes=False` when a GTFS-rt position
+        feed provides the fixes (the motion then only fills the gaps between positions)."""
+        out = self.pending
+        self.pending = []
+        for ref in list(self.vehicles):
+            veh = self.vehicles[ref]
+            if now - veh.last_data > self.stale_after or veh.motion.finished:
+                if veh.motion.finished:
+                    self.counters.retired_done += 1
+                else:
+                    self.counters.retired_stale += 1
+                out.extend(self._retire(ref))
+                continue
+            gap = self.fix_interval if not veh.positions else max(self.fix_interval, self.position_gap)
+            if motion_fixes and now - veh.last_fix >= gap:
+                x, y, v, heading = self.position(veh, now)
+                msgs = veh.player.feed(x, y, now, self.accuracy, speed=v, heading=heading, speed_accuracy=0.3)
+                veh.last_fix = now
+                self.counters.fixes += 1
+            else:
+                msgs = veh.player.tick(now)
+            out.extend(msgs)
+        self.counters.publishes += sum(1 for m in out if isinstance(m, Publish))
+        return out
+
+    def _retire(self, ref: str) -> list[Unpublish]:
+        veh = self.vehicles.pop(ref, None)
+        return veh.player.leave() if veh is not None else []
+
+    def ghost_xy(self, ref: str, now: float) -> tuple[float, float] | None:
+        """Where a viewer sees the vehicle now (its published model extrapolated), or None."""
+        veh = self.vehicles.get(ref)
+        if veh is None or veh.player.ghost is None or not veh.player.published:
+            return None
+        return veh.player.ghost.xy_at(now)

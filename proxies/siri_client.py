@@ -1,0 +1,158 @@
+"""The SIRI StopMonitoring consumer: zeep on the operator's WSDL, synchronous (the proxy's shell runs it in a
+worker thread, off the trio loop).
+
+zeep builds and sends the request from the WSDL (RPC/literal as in the CEN `siri_wsProducer.wsdl`, or our own
+minimal `proxies/wsdl/siri-sm.wsdl`); the answer comes back raw and is read by `siri_xml.parse_response`. Two
+facts about the CEN WSDLs under zeep 4.3 are handled here: `WsServiceRequestInfoStructure` comes out with the
+`RequestTimestamp` element several times (zeep wants a value for every copy and emits them all, which the XSD
+rejects: `DedupPlugin` drops the extra copies on the way out), and `RequestExtension` is required (an empty one
+is passed). The service address in a WSDL is a placeholder: the operation is bound to `--url`.
+
+Errors come out classified, so the shell can count them: `SoapFault`, `HttpError` (status), `Timeout`,
+`Unreachable`, `SiriError` (not a usable answer).
+"""
+
+from __future__ import annotations
+
+import itertools
+from datetime import UTC, datetime, timedelta
+from importlib import resources
+from pathlib import Path
+
+import requests
+import zeep
+import zeep.exceptions
+from lxml import etree
+from zeep.plugins import Plugin
+from zeep.transports import Transport
+
+from proxies.siri_xml import SiriError, SoapFault, parse_response
+
+SIRI = "http://www.siri.org.uk/siri"
+
+
+class HttpError(SiriError):
+    def __init__(self, status: int, text: str = ""):
+        super().__init__(f"HTTP {status}{': ' + text if text else ''}")
+        self.status = status
+
+
+class Timeout(SiriError):
+    pass
+
+
+class Unreachable(SiriError):
+    pass
+
+
+def default_wsdl() -> str:
+    """Our own minimal StopMonitoring WSDL shipped with the package (see proxies/wsdl/README.md)."""
+    return str(resources.files("proxies") / "wsdl" / "siri-sm.wsdl")
+
+
+class DedupPlugin(Plugin):
+    """Drop repeated RequestTimestamp children of ServiceRequestInfo (a zeep artefact of the CEN WSDL)."""
+
+    def egress(self, envelope, http_headers, operation, binding_options):
+        for info in envelope.iter("ServiceRequestInfo", "{*}ServiceRequestInfo"):
+            seen = False
+            for el in list(info):
+                if isinstance(el.tag, str) and el.tag.endswith("RequestTimestamp"):
+                    if seen:
+                        info.remove(el)
+                    seen = True
+        return envelope, http_headers
+
+
+class StopMonitoringClient:
+    """GetMultipleStopMonitoring (all stops in one request, in chunks of `chunk`) or, where the service offers
+    only that, one GetStopMonitoring per stop."""
+
+    def __init__(self, url: str, wsdl: str | None = None, *, timeout: float = 10.0, requestor: str = "entitynet",
+                 chunk: int = 500, preview_s: int = 600, mode: str = "auto") -> None:
+        self.url = url
+        self.wsdl = wsdl or default_wsdl()
+        if not Path(self.wsdl).exists() and "://" not in self.wsdl:
+            raise SiriError(f"WSDL {self.wsdl} not found")
+        session = requests.Session()
+        self.transport = Transport(session=session, timeout=timeout, operation_timeout=timeout)
+        try:
+            self.client = zeep.Client(self.wsdl, transport=self.transport, plugins=[DedupPlugin()])
+        except (zeep.exceptions.Error, etree.XMLSyntaxError, OSError, requests.RequestException) as exc:
+            raise SiriError(f"cannot load WSDL {self.wsdl}: {exc}") from None
+        self.binding = self._find_binding()
+        ops = self.client.wsdl.bindings[self.binding]._operations
+        if mode == "auto":
+            mode = "multiple" if "GetMultipleStopMonitoring" in ops else "single"
+        if (mode == "multiple" and "GetMultipleStopMonitoring" not in ops) or "GetStopMonitoring" not in ops:
+            raise SiriError(f"the WSDL's binding {self.binding} has no {mode} StopMonitoring operation")
+        self.mode = mode
+        self.service = self.client.create_service(self.binding, url)
+        self.requestor = requestor
+        self.chunk = max(1, int(chunk))
+        self.preview = timedelta(seconds=int(preview_s))
+        self._ids = itertools.count(1)
+        info = self.client.get_type(self._info_type())
+        self._stamp_fields = [name for name, _el in info.elements if name.startswith("RequestTimestamp")]
+
+    def _find_binding(self) -> str:
+        for name, binding in self.client.wsdl.bindings.items():
+            if "GetStopMonitoring" in binding._operations and "Soap12" not in type(binding).__name__:
+                return name
+        raise SiriError(f"no SOAP binding with GetStopMonitoring in {self.wsdl}")
+
+    def _info_type(self) -> str:
+        op = self.client.wsdl.bindings[self.binding]._operations["GetStopMonitoring"]
+        part = op.input.body.type.elements[0][1]
+        return part.type.qname.text
+
+    def _info(self, now: datetime) -> dict:
+        d = {name: now for name in self._stamp_fields}
+        d["RequestorRef"] = self.requestor
+        d["MessageIdentifier"] = f"entitynet-{next(self._ids)}"
+        return d
+
+    def requests_for(self, stops: list[str]) -> int:
+        return (len(stops) + self.chunk - 1) // self.chunk if self.mode == "multiple" else len(stops)
+
+    def fetch(self, stops: list[str]) -> list[bytes]:
+        """The raw answers for `stops` (one per request). Raises the classified errors above."""
+        out = []
+        now = datetime.now(UTC)
+        if self.mode == "multiple":
+            for i in range(0, len(stops), self.chunk):
+                filters = [{"MonitoringRef": s, "PreviewInterval": self.preview}
+                           for s in stops[i:i + self.chunk]]
+                req = {"RequestTimestamp": now, "MessageIdentifier": f"entitynet-{next(self._ids)}",
+                       "StopMonitoringFIlter": filters, "version": "2.0"}
+                out.append(self._call("GetMultipleStopMonitoring", now, req))
+        else:
+            for s in stops:
+                req = {"RequestTimestamp": now, "PreviewInterval": self.preview,
+                       "MonitoringRef": s, "version": "2.0"}
+                out.append(self._call("GetStopMonitoring", now, req))
+        return out
+
+    def _call(self, op: str, now: datetime, req: dict) -> bytes:
+        try:
+            with self.client.settings(raw_response=True):
+                resp = getattr(self.service, op)(ServiceRequestInfo=self._info(now), Request=req,
+                                                 RequestExtension={})
+        except requests.Timeout as exc:
+            raise Timeout(f"no answer within {self.transport.operation_timeout} s: {exc}") from None
+        except requests.ConnectionError as exc:
+            raise Unreachable(f"cannot reach {self.url}: {exc}") from None
+        except requests.RequestException as exc:
+            raise Unreachable(f"request to {self.url} failed: {exc}") from None
+        except (zeep.exceptions.Error, ValueError, TypeError) as exc:
+            raise SiriError(f"cannot build the {op} request: {exc}") from None
+        data = resp.content
+        if resp.status_code >= 400:
+            if b"Fault" in data[:4096] or b"Fault" in data[-4096:]:
+                parse_response(data)  # raises the SoapFault with its code and text
+            raise HttpError(resp.status_code, resp.reason or "")
+        return data
+
+
+__all__ = ["StopMonitoringClient", "DedupPlugin", "HttpError", "Timeout", "Unreachable", "SiriError", "SoapFault",
+           "default_wsdl", "SIRI"]

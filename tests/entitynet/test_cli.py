@@ -1,0 +1,59 @@
+"""The CLI finds the subcommands of packages above it through the `entitynet.commands` entry-point group."""
+
+from __future__ import annotations
+
+from importlib.metadata import EntryPoint
+
+import pytest
+
+from entitynet import cli
+
+
+def register_hello(sub) -> None:
+    """A plugin command for the tests: `entitynet hello` prints a greeting."""
+    p = sub.add_parser("hello", help="say hello")
+    p.set_defaults(func=lambda args: print("hello from a plugin") or 0)
+
+
+def register_broken(sub) -> None:
+    """A plugin whose registration fails (a bug in the plugin, not in entitynet)."""
+    raise RuntimeError("plugin bug")
+
+
+def _fake_entry_points(monkeypatch, *eps: tuple[str, str]) -> None:
+    found = [EntryPoint(name, value, cli.PLUGIN_GROUP) for name, value in eps]
+    monkeypatch.setattr(cli, "entry_points", lambda group: [e for e in found if e.group == group])
+
+
+def test_installed_plugins_give_demo_and_bench():
+    """The real installed metadata (pyproject.toml): sims registers demo and bench."""
+    names = [name for name, _register in cli.discover_plugins()]
+    assert {"demo", "bench"} <= set(names)
+    commands = cli.build_parser()._subparsers._group_actions[0].choices
+    assert {"topology", "serve", "users", "demo", "bench"} <= set(commands)
+
+
+def test_a_plugin_command_runs(monkeypatch, capsys):
+    _fake_entry_points(monkeypatch, ("hello", f"{__name__}:register_hello"))
+    assert cli.main(["hello"]) == 0
+    assert "hello from a plugin" in capsys.readouterr().out
+
+
+def test_a_broken_plugin_warns_and_the_rest_works(monkeypatch, capsys, tmp_path):
+    _fake_entry_points(monkeypatch, ("gone", "no_such_module_for_entitynet:register"),
+                       ("broken", f"{__name__}:register_broken"), ("hello", f"{__name__}:register_hello"))
+    assert cli.main(["hello"]) == 0
+    out = capsys.readouterr()
+    assert "hello from a plugin" in out.out
+    assert "warning: command 'gone'" in out.err and "no_such_module_for_entitynet" in out.err
+    assert "warning: command 'broken' unavailable: plugin bug" in out.err
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["gone"])
+    assert exc.value.code == 2  # argparse: no such command
+
+
+def test_a_plugin_cannot_shadow_a_built_in(monkeypatch, capsys):
+    _fake_entry_points(monkeypatch, ("serve", f"{__name__}:register_hello"))
+    parser = cli.build_parser()
+    assert "plugin command 'serve' ignored" in capsys.readouterr().err
+    assert parser.parse_args(["serve", "--topology", "x.enttopo"]).port == 7400

@@ -1,0 +1,35 @@
+"""The demo's transit: replay producer -> SIRI over loopback HTTP -> proxy -> the demo's server."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import trio
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
+from server_helpers import running  # noqa: E402
+
+from proxies.demo_transit import run_transit  # noqa: E402
+
+
+async def test_transit_vehicles_reach_the_server(line_topo, line_book, line_feed):
+    lines: list[str] = []
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server:
+        async with trio.open_nursery() as n:
+            shell = await n.start(lambda task_status: run_transit(
+                line_topo, ("127.0.0.1", server.port), line_feed, lines.append, poll=0.5, start=8 * 3600 + 600.0,
+                book=line_book, task_status=task_status))
+            with trio.fail_after(10.0):
+                while (server.metrics.registry.get_sample_value("entitynet_entities") or 0) < 3:  # as the server counts
+                    await trio.sleep(0.05)
+            assert len(shell.fleet.vehicles) >= 3
+            n.cancel_scope.cancel()
+    assert any(line.startswith("transit: replay of") for line in lines)
+
+
+def test_demo_command_refuses_a_missing_feed(tmp_path, capsys):
+    from entitynet import cli
+
+    assert cli.main(["demo", "--transit", str(tmp_path / "nope.zip"), "--duration", "1"]) == 2
+    assert "GTFS feed" in capsys.readouterr().err

@@ -1,0 +1,202 @@
+"""The proxies end to end on loopback: replay producer (real HTTP) -> proxy shell -> real server -> a viewer.
+Every fault of the tracker is injected through the replay's /control endpoint."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import requests
+import trio
+from replay_helpers import make_service, replay_running, url
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
+from server_helpers import Raw, running  # noqa: E402
+
+from entitynet import protocol as P  # noqa: E402
+from proxies.shell import ProxyConfig, ProxyShell  # noqa: E402
+from proxies.siri_client import StopMonitoringClient  # noqa: E402
+
+
+async def _viewer(server, topo) -> Raw:
+    v = await Raw.connect(server, digest=topo.digest)
+    await v.send(P.Subscribe(tuple(range(topo.n_cells)), ()))
+    await v.send(P.Ping(1))
+    await v.expect(P.Pong)
+    return v
+
+
+async def _updates(v: Raw, seconds: float) -> tuple[set[int], set[int]]:
+    """Entities updated and entities that left, over `seconds`."""
+    upd, left = set(), set()
+    with trio.move_on_after(seconds):
+        while True:
+            msgs = await v.read(seconds)
+            if msgs is None:
+                break
+            for m in msgs:
+                if isinstance(m, P.Update):
+                    upd.add(m.entity)
+                elif isinstance(m, P.Leave):
+                    left.add(m.entity)
+    return upd, left
+
+
+async def _control(service, query: str) -> None:
+    r = await trio.to_thread.run_sync(requests.post, url(service, f"/control?{query}"))
+    assert r.status_code == 200
+
+
+def _shell(topo, book, server, **kw) -> ProxyShell:
+    cfg = ProxyConfig(("127.0.0.1", server.port), poll=kw.pop("poll", 0.3), tick=0.2, timeout=kw.pop("timeout", 2.0),
+                      stale_after=kw.pop("stale_after", 300.0))
+    return ProxyShell(topo, book, cfg)
+
+
+async def _wait(pred, seconds: float = 10.0) -> None:
+    with trio.fail_after(seconds):
+        while not pred():
+            await trio.sleep(0.05)
+
+
+async def test_siri_proxy_publishes_vehicles_and_survives_every_fault(line_topo, line_book, line_feed):
+    service = make_service(line_feed, slow_s=3.0)
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):
+        viewer = await _viewer(server, line_topo)
+        shell = _shell(line_topo, line_book, server, timeout=1.0)
+        client = StopMonitoringClient(url(service), mode="multiple", timeout=1.0)
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, shell.siri_poller(client))
+            await _wait(lambda: len(shell.fleet.vehicles) >= 3)
+            upd, _ = await _updates(viewer, 1.0)
+            assert len(upd) >= 3  # the vehicles reach a viewer through the server
+            before = set(shell.fleet.vehicles)
+            for fault, kind in [("soap", "soap_fault"), ("http500", "http_5xx"), ("http404", "http_4xx"),
+                                ("garbage", "malformed"), ("truncated", "malformed"), ("slow", "timeout")]:
+                good = shell.good_polls
+                await _control(service, f"fault={fault}&count=2")
+                await _wait(lambda kind=kind: shell.metrics.value("entitynet_proxy_errors_total", kind=kind) >= 2)
+                await _wait(lambda good=good: shell.good_polls > good)  # recovered, no restart
+            # an empty delivery is an answer: the vehicles carry on, nothing counted as an error
+            await _control(service, "fault=empty&count=2")
+            await trio.sleep(1.0)
+            assert before & set(shell.fleet.vehicles)
+            assert shell.fleet.counters.retired_stale == 0  # nobody lost over the faults
+            upd, _ = await _updates(viewer, 0.5)
+            assert upd
+            assert 0.0 < shell.fleet.counters.discarded_fraction < 1.0
+            assert shell.metrics.value("entitynet_proxy_publishes_total") > 0
+            n.cancel_scope.cancel()
+
+
+async def test_an_outage_keeps_vehicles_moving_and_stale_ones_leave_then_come_back(line_topo, line_book, line_feed):
+    service = make_service(line_feed)
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):
+        viewer = await _viewer(server, line_topo)
+        shell = _shell(line_topo, line_book, server, stale_after=2.0)
+        client = StopMonitoringClient(url(service), mode="multiple", timeout=1.0)
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, shell.siri_poller(client))
+            await _wait(lambda: len(shell.fleet.vehicles) >= 3)
+            moving = {r: v.motion.s for r, v in shell.fleet.vehicles.items() if not v.motion.standing}
+            await _control(service, "outage=4")
+            await trio.sleep(1.2)  # within stale_after: still on the map, still moving on their ETAs
+            still = {r: v.motion.s for r, v in shell.fleet.vehicles.items() if r in moving}
+            assert still and any(still[r] > moving[r] for r in still)
+            upd, left = await _updates(viewer, 2.5)  # past stale_after: they leave
+            assert left and shell.fleet.counters.retired_stale > 0
+            assert shell.metrics.value("entitynet_proxy_errors_total", kind="http_5xx") >= 2
+            await _wait(lambda: len(shell.fleet.vehicles) >= 3, 10.0)  # the outage ends: back without a restart
+            upd, _ = await _updates(viewer, 1.0)
+            assert upd
+            n.cancel_scope.cancel()
+
+
+async def test_a_server_that_goes_away_is_reconnected_and_the_fleet_republished(line_topo, line_book, line_feed):
+    service = make_service(line_feed)
+    s = trio.socket.socket()
+    await s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    async with replay_running(service):
+        async with trio.open_nursery() as outer:
+            shell = None
+            async with running(digest=line_topo.digest, n_cells=line_topo.n_cells, port=port) as server:
+                shell = _shell(line_topo, line_book, server)
+                client = StopMonitoringClient(url(service), mode="multiple", timeout=1.0)
+                await outer.start(shell.run, shell.siri_poller(client))
+                await _wait(lambda: len(shell.fleet.vehicles) >= 3 and shell.fleet.counters.publishes >= 3)
+            await trio.sleep(0.5)  # the server is gone
+            async with running(digest=line_topo.digest, n_cells=line_topo.n_cells, port=port) as server2:
+                viewer = await _viewer(server2, line_topo)
+                await _wait(lambda: shell.conn.connects >= 2, 10.0)
+                upd, _ = await _updates(viewer, 1.5)
+                assert len(upd) >= 3  # the whole fleet is back on the new server
+            outer.cancel_scope.cancel()
+
+
+async def test_gtfs_rt_proxy_positions_and_trip_updates(line_topo, line_book, line_feed):
+    service = make_service(line_feed)
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):
+        viewer = await _viewer(server, line_topo)
+        shell = _shell(line_topo, line_book, server)
+        poller = shell.gtfsrt_poller(url(service, "/gtfs-rt/vehicle-positions"), url(service, "/gtfs-rt/trip-updates"))
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, poller)
+            await _wait(lambda: len(shell.fleet.vehicles) >= 3 and shell.fleet.counters.fixes >= 3)
+            assert any(v.positions for v in shell.fleet.vehicles.values())
+            upd, _ = await _updates(viewer, 1.0)
+            assert len(upd) >= 3
+            for fault, kind in [("truncated", "malformed_protobuf"), ("garbage", "malformed_protobuf"),
+                                ("http503", "http_5xx")]:
+                good = shell.good_polls
+                await _control(service, f"fault={fault}&count=1")
+                await _wait(lambda kind=kind: shell.metrics.value("entitynet_proxy_errors_total", kind=kind) >= 1)
+                await _wait(lambda good=good: shell.good_polls > good)
+            assert shell.fleet.counters.retired_stale == 0
+            n.cancel_scope.cancel()
+
+
+async def test_an_unforeseen_error_in_a_poll_is_counted_and_survived(line_topo, line_book, line_feed):
+    service = make_service(line_feed)
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):
+        shell = _shell(line_topo, line_book, server)
+        real = shell.siri_poller(StopMonitoringClient(url(service), mode="multiple", timeout=1.0))
+        calls = []
+
+        def flaky():
+            calls.append(1)
+            if len(calls) == 2:
+                raise KeyError("something nobody foresaw")
+            return real()
+
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, flaky)
+            await _wait(lambda: shell.metrics.value("entitynet_proxy_errors_total", kind="other") == 1)
+            await _wait(lambda: shell.good_polls >= 2 and len(calls) >= 3)
+            n.cancel_scope.cancel()
+
+
+def test_a_refused_handshake_is_a_clean_command_error(line_topo, line_book):
+    """A server that refuses the proxy (wrong topology digest) ends the command with a message, no traceback."""
+    import argparse
+
+    from entitynet.cli import CommandError
+    from proxies import commands
+
+    got: list[BaseException] = []
+
+    def command(args) -> None:
+        try:
+            commands._run_shell(args, line_topo, line_book, lambda shell: lambda: [])
+        except CommandError as exc:
+            got.append(exc)
+
+    async def serve_and_run():
+        async with running(digest="another-map", n_cells=line_topo.n_cells) as server:
+            args = argparse.Namespace(server=("127.0.0.1", server.port), token="", poll=0.5, timeout=1.0,
+                                      stale_after=300.0, metrics_port=None, duration=5.0)
+            await trio.to_thread.run_sync(command, args)
+
+    trio.run(serve_and_run)
+    assert got and "refused" in str(got[0]) and "digest" in str(got[0])

@@ -1,0 +1,31 @@
+"""`sims` brings `entitynet demo` and `entitynet bench`, and other packages can add bench suites."""
+
+from __future__ import annotations
+
+from importlib.metadata import EntryPoint
+
+import pytest
+
+import sims.bench
+from entitynet.cli import main
+
+
+def test_bench_suites_include_installed_plugins(monkeypatch):
+    extra = [EntryPoint("proxy", "proxies.bench_proxy", sims.bench.SUITE_GROUP),
+             EntryPoint("dr", "somewhere.else", sims.bench.SUITE_GROUP)]
+    monkeypatch.setattr(sims.bench, "entry_points", lambda group: [e for e in extra if e.group == group])
+    suites = sims.bench.all_suites()
+    assert suites["proxy"] == "proxies.bench_proxy"
+    assert suites["dr"] == "sims.bench.dr_bench"  # a plugin does not replace a built-in suite
+    assert {"topology", "pvs", "dr", "switch"} <= set(suites)
+
+
+def test_bench_rejects_an_unknown_suite(capsys):
+    with pytest.raises(SystemExit):
+        main(["bench", "nonesuch"])
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_demo_checks_its_numbers(capsys):
+    assert main(["demo", "--entities", "0"]) == 2
+    assert "--entities must be at least 1" in capsys.readouterr().err
