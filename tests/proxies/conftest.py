@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import io
 import os
-import sys
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
 
 # ../shared beside the clone (as CI has it); ENTITYNET_SHARED overrides (a worktree elsewhere)
 SHARED = Path(os.environ.get("ENTITYNET_SHARED") or Path(__file__).resolve().parents[2] / ".." / "shared")
@@ -74,8 +71,7 @@ def write_feed(path: Path, *, headway: int = 300, start: str = "07:50:00", end: 
 
 def make_line_topology():
     """A tram line (two tracks' worth: one edge each way is not needed, edges are two-way) along the x axis."""
-    from client_fixtures import make_topology
-
+    from tests.entitynet.client_fixtures import make_topology
     from topology.raw import TRAM, VEHICLE
 
     xs = np.arange(LINE_X[0], LINE_X[1] + 1.0, 110.0)

@@ -2,15 +2,10 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import trio
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
-from server_helpers import running  # noqa: E402
-
-from proxies.demo_transit import run_transit  # noqa: E402
+from proxies.demo_transit import run_transit
+from tests.entitynet.server_helpers import running
 
 
 async def test_transit_vehicles_reach_the_server(line_topo, line_book, line_feed):

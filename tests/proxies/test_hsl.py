@@ -4,10 +4,10 @@ validate against the CEN XSD with real stop and trip codes, and the whole chain'
 from __future__ import annotations
 
 import pytest
-from conftest import CEN_SERVICES_XSD, needs_feed
 
 from proxies.replay_core import ReplayWorld
 from proxies.sim import run_sim
+from tests.proxies.conftest import CEN_SERVICES_XSD, needs_feed
 
 pytestmark = needs_feed
 

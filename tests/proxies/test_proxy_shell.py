@@ -3,19 +3,14 @@ Every fault of the tracker is injected through the replay's /control endpoint.""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import requests
 import trio
-from replay_helpers import make_service, replay_running, url
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "entitynet"))
-from server_helpers import Raw, running  # noqa: E402
-
-from entitynet import protocol as P  # noqa: E402
-from proxies.shell import ProxyConfig, ProxyShell  # noqa: E402
-from proxies.siri_client import StopMonitoringClient  # noqa: E402
+from entitynet import protocol as P
+from proxies.shell import ProxyConfig, ProxyShell
+from proxies.siri_client import StopMonitoringClient
+from tests.entitynet.server_helpers import Raw, running
+from tests.proxies.replay_helpers import make_service, replay_running, url
 
 
 async def _viewer(server, topo) -> Raw:

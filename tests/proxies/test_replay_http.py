@@ -6,9 +6,9 @@ import json
 
 import requests
 import trio
-from replay_helpers import make_service, replay_running, url
 
 from proxies.replay_http import record_truth
+from tests.proxies.replay_helpers import make_service, replay_running, url
 
 
 async def test_truth_endpoint_and_recording(line_feed, tmp_path):

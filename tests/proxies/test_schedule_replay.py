@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import CEN_SERVICES_XSD, STOP_X, needs_xsd
 
 from proxies.replay_core import ReplayWorld, _profile_distance, min_run_time
 from proxies.schedule import nmtoken, parse_gtfs_time, read_schedule
+from tests.proxies.conftest import CEN_SERVICES_XSD, STOP_X, needs_xsd
 
 
 def test_frequencies_expand_into_departures_every_headway(line_feed):

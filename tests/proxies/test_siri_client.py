@@ -6,11 +6,11 @@ from __future__ import annotations
 import pytest
 import requests
 import trio
-from conftest import CEN_SERVICES_XSD, CEN_WSDL, STOP_X, needs_xsd
-from replay_helpers import make_service, replay_running, url
 
 from proxies.siri_client import HttpError, StopMonitoringClient, Timeout, Unreachable
 from proxies.siri_xml import SiriError, SoapFault, parse_response
+from tests.proxies.conftest import CEN_SERVICES_XSD, CEN_WSDL, STOP_X, needs_xsd
+from tests.proxies.replay_helpers import make_service, replay_running, url
 
 STOPS = [f"S{i}" for i in range(len(STOP_X))]
 
