@@ -26,6 +26,8 @@ def register_demo(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="random seed")
     p.add_argument("--port", type=int, default=0, help="server TCP port (default: any free port)")
     p.add_argument("--no-pvs", action="store_true", help="use an artifact without PVS (subscribe by distance)")
+    p.add_argument("--http-port", type=int, default=8400, metavar="PORT",
+                   help="serve the 3D browser viewer here (default 8400; 0 = any free port; -1 = no viewer)")
     p.add_argument("--transit", metavar="GTFS", help="add trams and buses from this GTFS feed through the SIRI "
                    "replay producer and the transit proxy (needs the proxies package)")
     p.set_defaults(func=run_demo_command)
@@ -60,8 +62,15 @@ def run_demo_command(args: argparse.Namespace) -> int:
     config = DemoConfig(
         entities=args.entities, viewers=args.viewers, connections=args.connections, duration=args.duration,
         summary_every=args.summary_every, seed=args.seed, port=args.port, transit=args.transit,
+        http_port=None if args.http_port < 0 else args.http_port, bus_share=0.03, tram_share=0.03,
     )  # fmt: skip
-    trio.run(run_demo, topo, path, config, lambda m: print(m, flush=True))
+    try:
+        trio.run(run_demo, topo, path, config, lambda m: print(m, flush=True))
+    except* OSError as group:
+        first = group.exceptions[0]
+        while isinstance(first, BaseExceptionGroup):
+            first = first.exceptions[0]
+        raise CommandError(f"cannot listen: {first} (choose another --http-port, or 0 for any free port)") from None
     return 0
 
 

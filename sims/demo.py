@@ -37,6 +37,8 @@ class DemoConfig:
     viewers: int = 24
     connections: int = 4
     car_share: float = 0.3
+    bus_share: float = 0.0  # the CLI's demo adds a few buses and trams (random routes, as the others)
+    tram_share: float = 0.0
     duration: float | None = None  # seconds; None = until Ctrl-C
     summary_every: float = 5.0
     fix_interval: float = 1.0
@@ -45,6 +47,7 @@ class DemoConfig:
     host: str = "127.0.0.1"
     port: int = 0
     transit: str | None = None  # a GTFS feed: trams and buses through the replay producer and the SIRI proxy
+    http_port: int | None = None  # serve the browser viewer here (0: any free port; None: none)
 
 
 @dataclass
@@ -106,22 +109,43 @@ class Viewer:
         return msgs
 
 
-async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print) -> Stats:
+def _plural(kind: str) -> str:
+    return kind + ("es" if kind.endswith("s") else "s")
+
+
+def _entity_kind(rng: random.Random, config: DemoConfig) -> str:
+    r = rng.random()
+    for kind, share in (("car", config.car_share), ("bus", config.bus_share), ("tram", config.tram_share)):
+        if r < share:
+            return kind
+        r -= share
+    return "pedestrian"
+
+
+async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print,
+                   task_status=trio.TASK_STATUS_IGNORED) -> Stats:
+    """Run the demo; `task_status.started(server)` once its clients and viewers are connected."""
     rng = random.Random(config.seed)
     net = netview(topo)
     cells_at = pvs_lookup(topo, say)
     stats = Stats()
     async with trio.open_nursery() as nursery:
         server: Server = await nursery.start(
-            serve, ServerConfig(host=config.host, port=config.port, topology=str(artifact), open_mode=True)
+            serve, ServerConfig(host=config.host, port=config.port, topology=str(artifact), open_mode=True,
+                                ws_port=None if config.http_port is None else 0, http_port=config.http_port)
         )
         address = (config.host, server.port)
         say(f"shard server listening on {config.host}:{server.port} (open mode: no tokens, local use only)")
+        if server.http_port is not None:
+            from entitynet.viewer.routes import BUILD_HINT, BUNDLE, STATIC
+
+            say(f"open the 3D viewer: http://{config.host}:{server.http_port}/")
+            if not (STATIC / BUNDLE).exists():
+                say(BUILD_HINT)
 
         async with trio.open_nursery() as clients:
             movers = [
-                Mover(topo, net, i + 1, "car" if rng.random() < config.car_share else "pedestrian", rng)
-                for i in range(config.entities)
+                Mover(topo, net, i + 1, _entity_kind(rng, config), rng) for i in range(config.entities)
             ]
             kinds = Counter(m.etype.name for m in movers)
             conns = [Connection(address, topo.digest, on_message=lambda m: None) for _ in range(config.connections)]
@@ -133,7 +157,7 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print) -
                 v.conn = Connection(address, topo.digest, on_message=v.on_message)
                 await clients.start(v.conn.run)
             say(
-                f"{len(movers)} entities ({', '.join(f'{n} {k}s' for k, n in sorted(kinds.items()))}) over "
+                f"{len(movers)} entities ({', '.join(f'{n} {_plural(k)}' for k, n in sorted(kinds.items()))}) over "
                 f"{len(conns)} connections; {len(viewers)} viewers ({n_high} above the roofs)"
             )
 
@@ -141,6 +165,7 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print) -
                 run_transit = demo_part("transit")  # optional part, from the proxies package
                 await clients.start(run_transit, topo, address, config.transit, say)
 
+            task_status.started(server)
             stop = trio.Event()
             clients.start_soon(_stop_on_signal, stop)
             if config.duration is not None:

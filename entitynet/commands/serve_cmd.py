@@ -16,6 +16,8 @@ def register(sub) -> None:
     p.add_argument("--port", type=int, default=7400, help="TCP port (default 7400; 0 = any free port)")
     p.add_argument("--ws-port", type=int, metavar="PORT", help="also listen for WebSocket clients here")
     p.add_argument("--metrics-port", type=int, metavar="PORT", help="serve Prometheus /metrics here")
+    p.add_argument("--http-port", type=int, metavar="PORT",
+                   help="serve the browser viewer (and /metrics) here; needs --ws-port (docs/viewer.md)")
     p.add_argument("--tls-cert", metavar="PEM", help="TLS certificate chain (with --tls-key)")
     p.add_argument("--tls-key", metavar="PEM", help="TLS private key")
     p.add_argument("--open", action="store_true",
@@ -45,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("--flush-ms and --grace must be >= 0")
     config = ServerConfig(
         host=args.host, port=args.port, ws_port=args.ws_port, metrics_port=args.metrics_port,
+        http_port=args.http_port,
         tls_cert=args.tls_cert, tls_key=args.tls_key, topology=args.topology, open_mode=args.open,
         users_db=args.users_db, flush_interval=args.flush_ms / 1000.0, switch={"grace_s": args.grace},
         log_json=args.log_json,

@@ -111,10 +111,12 @@ class Server(WritingMixin):
         self.port: int | None = None
         self.ws_port: int | None = None
         self.metrics_port: int | None = None
+        self.http_port: int | None = None  # the browser viewer (entitynet/viewer/routes.py)
         self._nursery: trio.Nursery | None = None
         self._stopping = False
         self.admission = fdlimit.Admission(config.max_clients, config.fd_reserve)
-        self.http: HttpServer | None = None  # the metrics (and later viewer) HTTP server
+        self.http: HttpServer | None = None  # the metrics HTTP server
+        self.viewer_http = self._viewer_http() if config.http_port is not None else None
         self.written = 0  # messages written
         self.frames = 0  # frames written
         self._lat_n = 0
@@ -149,13 +151,15 @@ class Server(WritingMixin):
                                    max_message=self.sb.config.codec.max_frame, stopping=lambda: self._stopping)
                 await listen.open(nursery)
                 self.port, self.ws_port, self.metrics_port = listen.port, listen.ws_port, listen.http_port
+                if self.viewer_http is not None:
+                    self.http_port = await listen.open_http(nursery, cfg.http_port, self.viewer_http)
                 self.admission.measure()  # the (raised) limit and what is open besides clients: listeners, ...
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
                 nursery.start_soon(self._timers)
                 logs.event("listening", host=cfg.host, port=self.port, ws_port=self.ws_port,
-                           metrics_port=self.metrics_port, n_cells=self.sb.config.n_cells,
+                           metrics_port=self.metrics_port, http_port=self.http_port, n_cells=self.sb.config.n_cells,
                            digest=self.sb.config.digest[:16], tls=bool(self.ssl), fd_limit=self.admission.limit)
                 task_status.started(self)
         finally:
@@ -169,6 +173,12 @@ class Server(WritingMixin):
         limits = HttpLimits(header_timeout=cfg.http_header_timeout, idle_timeout=cfg.http_idle_timeout,
                             max_connections=cfg.http_max_connections, max_request_bytes=cfg.http_max_request)
         return HttpServer(router, limits, self.admission, name="metrics")
+
+    def _viewer_http(self) -> HttpServer:
+        """The viewer's routes (and /metrics) for --http-port: entitynet/viewer/routes.py."""
+        from entitynet.viewer.routes import viewer_http
+
+        return viewer_http(self)
 
     async def stop(self) -> None:
         """Graceful shutdown: tell every client SHUTTING_DOWN, let writers flush briefly, then cancel."""

@@ -24,6 +24,7 @@ class ServerConfig:
     port: int | None = 7400  # TCP; None = no TCP listener
     ws_port: int | None = None  # WebSocket; None = no WebSocket listener
     metrics_port: int | None = None  # Prometheus /metrics over HTTP
+    http_port: int | None = None  # the browser viewer (entitynet/viewer) and /metrics; needs ws_port, topology
     tls_cert: str | None = None
     tls_key: str | None = None
     topology: str | None = None

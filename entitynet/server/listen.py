@@ -72,6 +72,10 @@ class Listeners:
         if cfg.metrics_port is not None and self.http is not None:
             self.http_port = await self._listen(nursery, cfg.metrics_port, self.http.handle)
 
+    async def open_http(self, nursery: trio.Nursery, port: int, http: HttpServer) -> int:
+        """Another HTTP listener (the browser viewer's) on `port`; returns the port bound."""
+        return await self._listen(nursery, port, http.handle)
+
     async def _listen(self, nursery: trio.Nursery, port: int, handler) -> int:
         listeners = await trio.open_tcp_listeners(port, host=self.config.host)
         for listener in listeners:
