@@ -37,9 +37,6 @@ class TransitRoute:
     length: float
     stops: list[RouteStop] = field(default_factory=list)  # in travel order, s non-decreasing
 
-    def stop_by_index(self) -> dict[int, RouteStop]:
-        return {st.index: st for st in self.stops}
-
 
 @dataclass
 class RouteBook:

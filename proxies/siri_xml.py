@@ -56,9 +56,6 @@ class ServiceClock:
     def iso(self, s: float) -> str:
         return (self.midnight + timedelta(seconds=round(s, 3))).isoformat()
 
-    def seconds(self, when: datetime) -> float:
-        return (when - self.midnight).total_seconds()
-
     def epoch(self, s: float) -> float:
         return self.midnight.timestamp() + s
 

@@ -124,11 +124,6 @@ class Kinematic1D:
         self.p11 = p11 - k1 * p11
         return y
 
-    def state_at(self, t: float) -> tuple[float, float, float]:
-        """Predicted (s, v, a) at t without changing the filter."""
-        dt = max(t - self.t, 0.0)
-        return self.s + self.v * dt + 0.5 * self.a * dt * dt, self.v + self.a * dt, self.a
-
     def flip(self, total: float) -> None:
         """Re-express the state on the reversed path (s -> total - s); the covariance is unchanged."""
         self.s, self.v, self.a = total - self.s, -self.v, -self.a

@@ -100,10 +100,6 @@ class NetView:
     def end_node(self, de: DirEdge) -> int:
         return self.edge_to[de[0]] if de[1] > 0 else self.edge_from[de[0]]
 
-    def offset_of(self, de: DirEdge, d: float) -> float:
-        """Edge offset at distance d along the directed edge."""
-        return d if de[1] > 0 else self.edge_len[de[0]] - d
-
     def dist_of(self, de: DirEdge, offset: float) -> float:
         return offset if de[1] > 0 else self.edge_len[de[0]] - offset
 
