@@ -34,6 +34,8 @@ def _hostport(text: str) -> tuple[str, int]:
 
 
 def register(sub) -> None:
+    """Add `entitynet proxy siri|gtfs-rt|replay` to the CLI (found through the `entitynet.commands` entry
+    point, so entitynet never imports proxies)."""
     p = sub.add_parser("proxy", help="transit proxies (SIRI, GTFS-realtime) and the SIRI replay producer")
     ps = p.add_subparsers(dest="proxy_command", metavar="KIND", required=True)
 
@@ -168,6 +170,8 @@ def _find(exc: BaseException, kind: type) -> BaseException | None:
 
 
 def run_siri(args) -> int:
+    """`entitynet proxy siri`: poll a SIRI StopMonitoring service for the map's stops (or those of
+    `--stops`) and publish its vehicles until stopped."""
     from proxies.siri_client import StopMonitoringClient
     from proxies.siri_xml import SiriError
 
@@ -187,6 +191,8 @@ def run_siri(args) -> int:
 
 
 def run_gtfsrt(args) -> int:
+    """`entitynet proxy gtfs-rt`: poll GTFS-realtime VehiclePositions and/or TripUpdates and publish the
+    vehicles; at least one feed URL is required."""
     if not (args.vehicle_positions or args.trip_updates):
         raise _command_error("give --vehicle-positions URL and/or --trip-updates URL")
     topo, book = _load(args)
@@ -195,6 +201,8 @@ def run_gtfsrt(args) -> int:
 
 
 def run_replay(args) -> int:
+    """`entitynet proxy replay`: serve a schedule's simulated vehicles as SIRI (and GTFS-rt), with
+    optional latency and faults, so a proxy can be tried and measured without a real operator."""
     import trio
 
     from proxies.replay_core import ReplayWorld

@@ -29,6 +29,8 @@ STEP = 0.5  # s: integration step
 
 @dataclass
 class Limits:
+    """Motion bounds of one vehicle type: the floor `v_min` keeps a vehicle from standing between stops,
+    `dwell` is the stop time when no departure is known."""
     vmax: float
     accel: float = 1.0
     brake: float = 1.0
@@ -206,4 +208,5 @@ class EtaMotion:
 
     @property
     def finished(self) -> bool:
+        """Standing at the last stop of the route: the vehicle can leave the map."""
         return self.standing and self.target >= len(self.stop_s) - 1

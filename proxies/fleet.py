@@ -30,6 +30,8 @@ from proxies.siri_xml import Call
 
 @dataclass
 class Counters:
+    """What the proxy did with its input, so that discarded data (untraced, off the map) is visible in
+    the metrics and the benchmark rather than silently lost."""
     calls: int = 0
     used: int = 0
     untraced: int = 0
@@ -43,11 +45,14 @@ class Counters:
 
     @property
     def discarded_fraction(self) -> float:
+        """Share of the received calls that were not used (0 before any call)."""
         return 1.0 - self.used / self.calls if self.calls else 0.0
 
 
 @dataclass
 class Vehicle:
+    """One proxied vehicle: its trip and route, the ETA motion that moves it and the Player that
+    publishes it as an honest client would."""
     ref: str
     trip: str
     route: TransitRoute
@@ -61,6 +66,9 @@ class Vehicle:
 
 
 class Fleet:
+    """The proxy core (sans-IO): tracker answers in, PUBLISH/UNPUBLISH out, one Player per vehicle
+    (see the module docstring for the clock mapping and when vehicles leave)."""
+
     def __init__(self, topo, book: RouteBook, *, fix_interval: float = 2.0, stale_after: float = 300.0,
                  granularity: float = 60.0, threshold: float = 8.0, accuracy: float = 3.0,
                  first_entity: int = 1, entry_horizon: float = 20.0) -> None:
@@ -91,6 +99,7 @@ class Fleet:
 
     # ---- routes ---------------------------------------------------------------------------------------------
     def path_of(self, route: TransitRoute) -> Path:
+        """The Path of a route, built once per route object (trips of one shape share it)."""
         p = self._paths.get(id(route))
         if p is None:
             p = self._paths[id(route)] = Path(self.net, route.edges)

@@ -26,6 +26,8 @@ class FeedError(ValueError):
 
 @dataclass(frozen=True)
 class Position:
+    """A GTFS-rt VehiclePosition as a plain record: the proxy feeds it to the vehicle's client core as
+    a phone's fix."""
     vehicle: str
     trip_id: str
     route_id: str

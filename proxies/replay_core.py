@@ -118,10 +118,12 @@ class Run:
 
     @property
     def begin(self) -> float:
+        """Arrival time at the first stop (service-day seconds): the first SIRI visit of the run."""
         return float(self.arr_t[0])
 
     @property
     def end(self) -> float:
+        """Arrival time at the last stop (service-day seconds): the run is over after it."""
         return float(self.arr_t[-1])
 
     def distance(self, now: float) -> tuple[float, int, bool]:

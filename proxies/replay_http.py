@@ -37,6 +37,8 @@ MAX_BODY = 4 << 20
 
 @dataclass
 class ReplayConfig:
+    """How the replay service misbehaves (latency, fault rate, slow answers) and how much it answers,
+    so a proxy's fault handling can be exercised on loopback."""
     host: str = "127.0.0.1"
     port: int = 0
     latency: float = 0.0  # seconds before every answer
@@ -141,6 +143,8 @@ class ReplayService:
 
     # ------------------------------------------------------------------------------------------ HTTP
     async def serve(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        """Listen and answer SOAP/GTFS-rt requests until cancelled; reports itself (with the bound
+        port, for port 0) through `task_status`."""
         listeners = await trio.open_tcp_listeners(self.config.port, host=self.config.host)
         self.port = listeners[0].socket.getsockname()[1]
         task_status.started(self)

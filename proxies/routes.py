@@ -21,6 +21,8 @@ from proxies.schedule import Pattern, Schedule, nmtoken, read_schedule
 
 @dataclass
 class RouteStop:
+    """A trip's stop placed on its route's path coordinate, with the schedule times the ETA motion
+    falls back on past the tracker's last ETA."""
     stop_id: str
     index: int  # position in the trip's stop list (SIRI Order - 1)
     s: float  # path coordinate on the route
@@ -31,14 +33,13 @@ class RouteStop:
 
 @dataclass
 class TransitRoute:
+    """A matched shape as a chain of directed edges (the vehicles' a-priori path) with the stops
+    along it; shared by the trips that use that shape and stop list."""
     shape_id: str
     mode: str  # "tram" | "bus"
     edges: list[tuple[int, int]]
     length: float
     stops: list[RouteStop] = field(default_factory=list)  # in travel order, s non-decreasing
-
-    def stop_by_index(self) -> dict[int, RouteStop]:
-        return {st.index: st for st in self.stops}
 
 
 @dataclass

@@ -62,6 +62,8 @@ class Departure:
 
 @dataclass
 class Schedule:
+    """The GTFS feed reduced to what the proxy and the replay need, in local metres around
+    (lon0, lat0) so that distances along shapes are plain arithmetic."""
     routes: dict[str, tuple[str, str]]  # route_id -> (mode, short name)
     stops: dict[str, tuple[str, float, float]]  # stop_id -> (name, lon, lat)
     shapes: dict[str, np.ndarray]  # shape_id -> (n, 2) local metres
@@ -72,11 +74,14 @@ class Schedule:
     service_date: str  # YYYYMMDD of the first calendar entry
 
     def to_xy(self, lon, lat) -> np.ndarray:
+        """Local metres of lon/lat (arrays allowed), by the equirectangular approximation: exact enough
+        over a city, and the inverse of `to_lonlat`."""
         k = math.cos(math.radians(self.lat0))
         lon, lat = np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
         return np.stack([np.radians(lon - self.lon0) * EARTH_R * k, np.radians(lat - self.lat0) * EARTH_R], axis=-1)
 
     def to_lonlat(self, x: float, y: float) -> tuple[float, float]:
+        """Lon/lat of a local point: what the replay reports as a VehicleLocation."""
         k = math.cos(math.radians(self.lat0))
         return self.lon0 + math.degrees(x / (EARTH_R * k)), self.lat0 + math.degrees(y / EARTH_R)
 

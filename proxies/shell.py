@@ -46,11 +46,14 @@ class ProxyMetrics:
                                   registry=r)
 
     def value(self, name: str, **labels) -> float:
+        """Current value of a counter or gauge sample (0 if never set): for tests and the benchmark."""
         v = self.registry.get_sample_value(name, labels or None)
         return 0.0 if v is None else v
 
 
 def error_kind(exc: BaseException) -> str:
+    """The metrics label of a failed poll (soap_fault, http_5xx, timeout, ...), so operators can tell
+    an overloaded service from an unreachable one."""
     if isinstance(exc, SoapFault):
         return "soap_fault"
     if isinstance(exc, HttpError):
@@ -68,6 +71,8 @@ def error_kind(exc: BaseException) -> str:
 
 @dataclass
 class ProxyConfig:
+    """Where the proxy publishes and how often it polls; `stale_after` retires vehicles the tracker
+    has stopped reporting."""
     server: tuple[str, int] | str
     token: str = ""
     poll: float = 20.0
@@ -96,6 +101,7 @@ class ProxyShell:
         self.ready = trio.Event()  # set after the first good poll
 
     def to_local(self, lon: float, lat: float) -> tuple[float, float]:
+        """Map a reported lon/lat into the artifact's local frame (VehicleLocation, GTFS-rt positions)."""
         p = self._proj.to_local(np.array([lon]), np.array([lat]))[0]
         return float(p[0]), float(p[1])
 
@@ -172,6 +178,8 @@ class ProxyShell:
 
     def gtfsrt_poller(self, vehicle_positions: str | None, trip_updates: str | None,
                       session: requests.Session | None = None) -> Callable[[], None]:
+        """A blocking poller for `run`: fetch the GTFS-rt feeds, classify failures as the SIRI ones
+        (so they share metrics) and feed positions and trip updates to the fleet."""
         session = session or requests.Session()
         timeout = self.config.timeout
 

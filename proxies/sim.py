@@ -21,6 +21,8 @@ from proxies.siri_xml import ServiceClock, build_response, parse_response
 
 @dataclass
 class SimResult:
+    """What a virtual-time run measured: position errors against the truth, publishes, CPU and the
+    error over time (for the outage's recovery)."""
     errors: list[float] = field(default_factory=list)
     publishes: int = 0
     vehicle_seconds: float = 0.0
@@ -30,6 +32,7 @@ class SimResult:
     series: list[tuple[float, float]] = field(default_factory=list)  # (seconds from start, mean error then)
 
     def summary(self) -> dict:
+        """The report's figures: error mean/p95/max, updates per vehicle minute, CPU per vehicle hour."""
         e = np.array(self.errors) if self.errors else np.zeros(1)
         vmin = self.vehicle_seconds / 60.0
         vh = self.vehicle_seconds / 3600.0

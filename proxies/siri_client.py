@@ -32,17 +32,19 @@ SIRI = "http://www.siri.org.uk/siri"
 
 
 class HttpError(SiriError):
+    """The service answered with an HTTP error status (kept, so 4xx and 5xx are counted apart)."""
+
     def __init__(self, status: int, text: str = ""):
         super().__init__(f"HTTP {status}{': ' + text if text else ''}")
         self.status = status
 
 
 class Timeout(SiriError):
-    pass
+    """No answer within the timeout: counted apart from refusals, since a slow service may recover."""
 
 
 class Unreachable(SiriError):
-    pass
+    """No connection at all (DNS, refused, reset): the service or the network is down."""
 
 
 def default_wsdl() -> str:
@@ -54,6 +56,7 @@ class DedupPlugin(Plugin):
     """Drop repeated RequestTimestamp children of ServiceRequestInfo (a zeep artefact of the CEN WSDL)."""
 
     def egress(self, envelope, http_headers, operation, binding_options):
+        """zeep's outgoing hook: remove the duplicate RequestTimestamp before the envelope is sent."""
         for info in envelope.iter("ServiceRequestInfo", "{*}ServiceRequestInfo"):
             seen = False
             for el in list(info):
@@ -113,6 +116,7 @@ class StopMonitoringClient:
         return d
 
     def requests_for(self, stops: list[str]) -> int:
+        """How many requests one poll of `stops` takes in the chosen mode (reported at start-up)."""
         return (len(stops) + self.chunk - 1) // self.chunk if self.mode == "multiple" else len(stops)
 
     def fetch(self, stops: list[str]) -> list[bytes]:

@@ -35,6 +35,8 @@ class SiriError(ValueError):
 
 
 class SoapFault(SiriError):
+    """The service answered with a SOAP fault; the fault code and text are kept for the log."""
+
     def __init__(self, code: str, text: str):
         super().__init__(f"SOAP fault {code}: {text}")
         self.code, self.text = code, text
@@ -49,17 +51,18 @@ class ServiceClock:
 
     @classmethod
     def for_date(cls, yyyymmdd: str, utc_offset_h: float = 2.0) -> ServiceClock:
+        """The clock of a GTFS service date (YYYYMMDD) at a fixed UTC offset (Helsinki winter time
+        by default, the bundled feed's)."""
         tz = timezone(timedelta(hours=utc_offset_h))
         d = datetime.strptime(yyyymmdd or "20220222", "%Y%m%d").replace(tzinfo=tz)
         return cls(d)
 
     def iso(self, s: float) -> str:
+        """Wall time of a service-day second, as the ISO 8601 SIRI writes."""
         return (self.midnight + timedelta(seconds=round(s, 3))).isoformat()
 
-    def seconds(self, when: datetime) -> float:
-        return (when - self.midnight).total_seconds()
-
     def epoch(self, s: float) -> float:
+        """POSIX seconds of a service-day second."""
         return self.midnight.timestamp() + s
 
 
@@ -119,6 +122,7 @@ def build_response(visits: list[Visit], now: float, clock: ServiceClock, *, prod
 
 
 def build_fault(code: str = "soapenv:Server", text: str = "service unavailable") -> bytes:
+    """A SOAP 1.1 fault envelope: what the replay answers when it injects a fault."""
     return (
         f'<?xml version="1.0" encoding="UTF-8"?><soapenv:Envelope xmlns:soapenv="{SOAP_ENV}"><soapenv:Body>'
         f"<soapenv:Fault><faultcode>{escape(code)}</faultcode><faultstring>{escape(text)}</faultstring>"
@@ -148,6 +152,8 @@ class Call:
 
 @dataclass
 class Delivery:
+    """One parsed StopMonitoring answer: the calls and the producer's ResponseTimestamp, which the fleet
+    uses to estimate the producer's clock offset."""
     response_time: float  # the producer's ResponseTimestamp (POSIX seconds)
     calls: list[Call]
     version: str

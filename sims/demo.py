@@ -33,6 +33,7 @@ Say = Callable[[str], None]
 
 @dataclass
 class DemoConfig:
+    """The demo's knobs (population, viewers, connections, duration) with defaults a laptop runs live."""
     entities: int = 300
     viewers: int = 24
     connections: int = 4
@@ -52,6 +53,7 @@ class DemoConfig:
 
 @dataclass
 class Stats:
+    """Totals the demo prints and returns, so a run (and its test) can check that traffic flowed."""
     published: int = 0
     deliveries: int = 0
     rejected_fixes: int = 0
@@ -70,6 +72,8 @@ def distance_cells_at(topo, view_distance: float = 500.0) -> Callable[[float, fl
 
 
 def pvs_lookup(topo, say: Say) -> Callable[[float, float, float], np.ndarray]:
+    """The viewers' `cells_at`: the artifact's PVS, or, without one, every cell within 500 m (said
+    once, so the demo still runs on a map built without PVS)."""
     if "pvs" in topo.meta:
         from topology.pvs_index import PvsIndex
 
@@ -93,6 +97,8 @@ class Viewer:
         self.deliveries = 0
 
     def on_message(self, msg: P.Message) -> None:
+        """Feed deliveries to the ghost store; on WELCOME forget old ghosts (entity ids are per server
+        session) and adopt the server's limits."""
         if isinstance(msg, P.Update | P.Leave):
             if isinstance(msg, P.Update):
                 self.deliveries += 1
@@ -102,6 +108,7 @@ class Viewer:
             self.subs.apply_limits(msg.limits)  # the next move subscribes within them (max_subscriptions, ...)
 
     def move(self, dt: float) -> list[P.Subscribe]:
+        """Walk or fly the camera by dt and return the SUBSCRIBE difference for its new PVS."""
         self.traj.advance(self.speed * dt)
         x, y = self.traj.position()
         msgs = self.subs.move_camera(x, y, self.z)
@@ -124,7 +131,8 @@ def _entity_kind(rng: random.Random, config: DemoConfig) -> str:
 
 async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print,
                    task_status=trio.TASK_STATUS_IGNORED) -> Stats:
-    """Run the demo; `task_status.started(server)` once its clients and viewers are connected."""
+    """Run the live demo on loopback (server, honest clients, viewers, optional transit) until `duration` or
+    Ctrl-C, printing summaries; returns the totals. `task_status.started(server)` once everything is connected."""
     rng = random.Random(config.seed)
     net = netview(topo)
     cells_at = pvs_lookup(topo, say)

@@ -13,6 +13,8 @@ from topology.networks import PEDESTRIAN, TRAM, VEHICLE
 
 @dataclass(frozen=True, slots=True)
 class EntityType:
+    """What the client core needs to know of a kind of entity: its networks, body, speed caps and the
+    filter and hysteresis settings, so one Player handles walkers, cars and trams alike."""
     code: int
     name: str
     networks: int
@@ -31,6 +33,7 @@ class EntityType:
 
     @property
     def length(self) -> float:
+        """Body length (the sum of the parts): the occupation covers [s - length, s] behind the front."""
         return sum(self.parts)
 
 
@@ -54,6 +57,8 @@ BY_CODE: dict[int, EntityType] = {t.code: t for t in TYPES.values()}
 
 
 def entity_type(name_or_type: str | EntityType) -> EntityType:
+    """Resolve a type name (as given on the command line or by a proxy) or pass a type through;
+    an unknown name is a `ValueError` listing the known ones."""
     if isinstance(name_or_type, EntityType):
         return name_or_type
     try:

@@ -11,6 +11,8 @@ import math
 
 
 class Kinematic1D:
+    """One-axis Kalman filter on (s, v, a) with hand-written scalar covariance terms: numpy would cost
+    more per fix than the arithmetic itself."""
     __slots__ = ("s", "v", "a", "p00", "p01", "p02", "p11", "p12", "p22", "t", "q", "accel")
 
     def __init__(self, s: float, t: float, r: float, *, q: float = 0.5, accel: bool = True,
@@ -22,6 +24,8 @@ class Kinematic1D:
         self.q, self.accel = q, accel
 
     def predict(self, t: float) -> None:
+        """Advance the state and covariance to t (no-op if t is not later). The plain reference that the
+        written-out copy inside `update` is tested against."""
         dt = t - self.t
         if dt <= 0.0:
             return
@@ -124,17 +128,14 @@ class Kinematic1D:
         self.p11 = p11 - k1 * p11
         return y
 
-    def state_at(self, t: float) -> tuple[float, float, float]:
-        """Predicted (s, v, a) at t without changing the filter."""
-        dt = max(t - self.t, 0.0)
-        return self.s + self.v * dt + 0.5 * self.a * dt * dt, self.v + self.a * dt, self.a
-
     def flip(self, total: float) -> None:
         """Re-express the state on the reversed path (s -> total - s); the covariance is unchanged."""
         self.s, self.v, self.a = total - self.s, -self.v, -self.a
 
     def shift(self, ds: float) -> None:
+        """Move the origin of s by ds (the path was trimmed in front): the state keeps its meaning."""
         self.s -= ds
 
     def speed_sigma(self) -> float:
+        """Standard deviation of the speed estimate: reversing needs the speed to be negative beyond it."""
         return math.sqrt(max(self.p11, 0.0))

@@ -22,6 +22,8 @@ from entitynet.protocol import Leave, Update
 
 @dataclass(slots=True)
 class Ghost:
+    """A received entity as a viewer holds it: the decoded model to extrapolate, its cells (for
+    visibility) and when it expires in receiver time."""
     entity: int
     seq: int
     cells: tuple[int, ...]
@@ -31,6 +33,9 @@ class Ghost:
 
 
 class GhostStore:
+    """A viewer's received entities, kept while invisible until their validity ends so that they
+    reappear at once when their cells become visible again."""
+
     def __init__(self, net: NetView | None, *, clock_offset: float = 0.0) -> None:
         """`clock_offset`: add to a payload's t0 to get receiver time (from PING/PONG); 0 on a shared clock."""
         self.net = net
@@ -43,6 +48,8 @@ class GhostStore:
         return len(self.ghosts)
 
     def receive(self, msg: Update | Leave, now: float) -> None:
+        """Apply an UPDATE or LEAVE: older sequence numbers are ignored, undecodable payloads counted
+        (`bad_payloads`) and skipped, and life is capped at the horizon whatever validity is claimed."""
         if isinstance(msg, Leave):
             self.ghosts.pop(msg.entity, None)
             return
@@ -69,6 +76,7 @@ class GhostStore:
         return gone
 
     def is_visible(self, g: Ghost) -> bool:
+        """Whether any of the ghost's cells is in the viewer's current PVS (only those are drawn)."""
         return not self.visible_cells.isdisjoint(g.cells)
 
     def positions(self, now: float, visible_only: bool = True) -> dict[int, tuple[float, float]]:

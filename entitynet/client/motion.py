@@ -28,6 +28,8 @@ KIND_NETWORK, KIND_AREA, KIND_WORLD = 1, 2, 3
 
 @dataclass(frozen=True, slots=True)
 class NetworkModel:
+    """Path-constrained dead reckoning: receivers extrapolate along the published edges with the same
+    code the player uses to decide when it has drifted too far."""
     t0: float
     path: Path
     s0: float
@@ -51,6 +53,7 @@ class NetworkModel:
 
     @property
     def length(self) -> float:
+        """Body length from the parts, for the occupation of the body behind the front."""
         return sum(self.parts)
 
     def _state(self, dt: float) -> tuple[float, float]:
@@ -66,9 +69,11 @@ class NetworkModel:
         return min(sb + ds, self.stop_s), v
 
     def s_at(self, t: float) -> float:
+        """Path coordinate of the front at t, clamped to the end of the path (the model never leaves it)."""
         return min(self._state(t - self.t0)[0], self.path.length)
 
     def speed_at(self, t: float) -> float:
+        """Extrapolated speed at t (zero past the horizon, where the model stands)."""
         return self._state(t - self.t0)[1]
 
     def time_to(self, d: float) -> float:
@@ -88,6 +93,7 @@ class NetworkModel:
         return tb + time_to_travel(self.s0 + d - sb, vb, -b, vb)
 
     def xy_at(self, t: float) -> tuple[float, float]:
+        """Where receivers draw the front at t: `s_at` mapped onto the path's geometry."""
         return self.path.xy(self.s_at(t))
 
     def xy_speed_at(self, t: float) -> tuple[float, float, float]:
@@ -126,6 +132,8 @@ class NetworkModel:
 
 @dataclass(frozen=True, slots=True)
 class AreaModel:
+    """Constant velocity inside an area node (a square, a parking lot), where there are no edges to
+    follow; the speed is capped by the type's `max_speed`."""
     t0: float
     area: int
     x: float
@@ -137,11 +145,13 @@ class AreaModel:
     kind = KIND_AREA
 
     def xy_at(self, t: float) -> tuple[float, float]:
+        """Position at t, the velocity capped and the time clamped to [t0, t0 + HORIZON]."""
         dt = horizon_dt(t - self.t0)
         vx, vy = capped_velocity(self.vx, self.vy, max_speed(self.etype))
         return self.x + vx * dt, self.y + vy * dt
 
     def xy_speed_at(self, t: float) -> tuple[float, float, float]:
+        """(x, y, speed) at t, the shape every model answers for the player's per-fix drift check."""
         x, y = self.xy_at(t)
         if t - self.t0 > HORIZON:
             return x, y, 0.0
@@ -150,6 +160,8 @@ class AreaModel:
 
 @dataclass(frozen=True, slots=True)
 class WorldModel:
+    """The DIS world-frame baselines (FPW, FVW, periodic) the network model is benchmarked against,
+    under the same speed cap and horizon."""
     t0: float
     x: float
     y: float
@@ -162,6 +174,7 @@ class WorldModel:
     kind = KIND_WORLD
 
     def xy_at(self, t: float) -> tuple[float, float]:
+        """Position at t under constant acceleration, with the speed cap applied only where it binds."""
         dt = horizon_dt(t - self.t0)
         vx, vy, ax, ay = self.vx, self.vy, self.ax, self.ay
         cap2 = max_speed(self.etype) ** 2
@@ -175,6 +188,7 @@ class WorldModel:
         return self.x + dx, self.y + dy
 
     def xy_speed_at(self, t: float) -> tuple[float, float, float]:
+        """(x, y, speed) at t, the shape every model answers for the player's per-fix drift check."""
         x, y = self.xy_at(t)
         if t - self.t0 > HORIZON:
             return x, y, 0.0

@@ -68,6 +68,7 @@ class NetView:
         return x0 + t * (self.gx[k + 1] - x0), y0 + t * (self.gy[k + 1] - y0)
 
     def cell_at(self, edge: int, offset: float) -> int:
+        """Visibility cell at an offset along an undirected edge: the plain lookup `Path.cell` writes out."""
         lo, hi = self.bp_off[edge], self.bp_off[edge + 1]
         k = bisect_right(self.bp_start, offset, lo, hi) - 1
         return self.bp_cell[max(k, lo)]
@@ -95,16 +96,15 @@ class NetView:
 
     # ---- directed edges -----------------------------------------------------------------------------------
     def start_node(self, de: DirEdge) -> int:
+        """Node a directed edge leaves from (edge_from when travelling forward, edge_to otherwise)."""
         return self.edge_from[de[0]] if de[1] > 0 else self.edge_to[de[0]]
 
     def end_node(self, de: DirEdge) -> int:
+        """Node a directed edge arrives at: where the junction rule and choice tests look."""
         return self.edge_to[de[0]] if de[1] > 0 else self.edge_from[de[0]]
 
-    def offset_of(self, de: DirEdge, d: float) -> float:
-        """Edge offset at distance d along the directed edge."""
-        return d if de[1] > 0 else self.edge_len[de[0]] - d
-
     def dist_of(self, de: DirEdge, offset: float) -> float:
+        """Distance travelled along the directed edge at an edge offset (offsets count from edge_from)."""
         return offset if de[1] > 0 else self.edge_len[de[0]] - offset
 
     def heading(self, de: DirEdge, at_end: bool) -> tuple[float, float]:
@@ -171,9 +171,12 @@ class NetView:
         return hit
 
     def is_junction_cell(self, cell: int) -> bool:
+        """Whether a cell is a junction cell (around a node where ways meet) rather than a street or area cell."""
         return self.cell_kind[cell] == CELL_JUNCTION
 
     def edges_near_nodes(self, nodes: list[int], networks: int) -> list[int]:
+        """Edges of the given networks touching any of the nodes, sorted: the candidate set for
+        continuity placement (sorted so ties resolve the same way every run)."""
         out = set()
         for n in nodes:
             for e in self.node_edges[n]:

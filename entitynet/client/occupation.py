@@ -35,6 +35,8 @@ from entitynet.client.path import Path
 
 @dataclass(frozen=True, slots=True)
 class Occupation:
+    """The cells to publish and how long they stay right: the validity period is the shorter of the
+    front and aft periods, and the covered interval tells the player when to recompute."""
     cells: tuple[int, ...]
     validity: float  # seconds (the shorter period, capped and floored), finite
     front_period: float  # seconds, may be math.inf

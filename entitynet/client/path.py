@@ -14,6 +14,8 @@ from entitynet.client.network import DirEdge, NetView
 
 
 class Path:
+    """Consecutive directed edges with one coordinate s, so that long bodies, hairpins and short edges
+    need no special cases. Paths are not changed in place (cached ids and cumulative lengths stay valid)."""
     __slots__ = ("net", "edges", "cum", "_ids")
 
     def __init__(self, net: NetView, edges: Sequence[DirEdge], *, _cum: list[float] | None = None) -> None:
@@ -37,6 +39,7 @@ class Path:
 
     @property
     def length(self) -> float:
+        """Total length in metres (the last cumulative length): `xy` and `cell` clamp s to [0, length]."""
         return self.cum[-1]
 
     def edge_ids(self) -> list[int]:
@@ -69,7 +72,8 @@ class Path:
         return e, (d if d_ > 0 else length - d)
 
     def xy(self, s: float) -> tuple[float, float]:
-        # `locate` and `NetView.point` written out (called on every fix, twice)
+        """Local (x, y) at path coordinate s, clamped to the path; `locate` and `NetView.point` written out
+        because it runs twice per fix."""
         cum = self.cum
         k = bisect_right(cum, s) - 1
         if k < 0:
@@ -102,7 +106,8 @@ class Path:
         return x0 + t * (gx[k + 1] - x0), y0 + t * (gy[k + 1] - y0)
 
     def cell(self, s: float) -> int:
-        # `locate` and `NetView.cell_at` written out (several times per publish)
+        """Visibility cell at path coordinate s, clamped to the path; `locate` and `NetView.cell_at`
+        written out because it runs several times per publish."""
         cum = self.cum
         k = bisect_right(cum, s) - 1
         if k < 0:
@@ -218,6 +223,7 @@ class Path:
         return Path(net, self.edges + ahead, _cum=cum)
 
     def reversed(self) -> Path:
+        """The same way travelled the other way (s becomes length - s): for an entity that turns round."""
         return Path(self.net, [(e, -d) for e, d in reversed(self.edges)])
 
     def trimmed(self, keep_from: float) -> tuple[Path, float]:

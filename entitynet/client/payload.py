@@ -117,6 +117,8 @@ def _encode_network_checked(t0: float, path: Path, s0: float, v: float, a: float
 
 
 def encode(model: Model) -> bytes:
+    """The model as the quantised msgpack payload of the wire format above; the player decodes its own
+    payload so that its ghost equals every receiver's."""
     t0 = _q(model.t0, 1000.0)
     if isinstance(model, NetworkModel):
         edges = [(e + 1) * d for e, d in model.path.edges]

@@ -148,6 +148,8 @@ class Placer:
 
     # ---- first fix -----------------------------------------------------------------------------------------
     def first(self, x: float, y: float) -> Fix | None:
+        """First placement of an entity, from the topology's placement index (None: the map has none of
+        the type's networks); continuity takes over after it."""
         p = self.topo.placement_index().place(x, y, self.networks)
         if p is None:
             return None
@@ -155,6 +157,8 @@ class Placer:
 
     # ---- continuity ----------------------------------------------------------------------------------------
     def table(self, edge: int) -> _SegTable:
+        """The cached segment table of the edges within two hops of `edge`, the only candidates continuity
+        projects a fix onto (built once per edge, reused for every later fix near it)."""
         t = self._tables.get(edge)
         if t is None:
             net = self.net
@@ -256,6 +260,7 @@ class Placer:
         return sorted(out)
 
     def ring(self, area: int) -> np.ndarray:
+        """Exterior ring of an area polygon as a contiguous array, cached: point-in-area runs per fix."""
         r = self._rings.get(area)
         if r is None:
             r = np.ascontiguousarray(self.topo.area_polygons.exterior(area))

@@ -19,6 +19,9 @@ class LimitExceeded(ValueError):
 
 
 class Subscriptions:
+    """A viewer's subscription state (PVS cells, follows, query pacing) that turns camera moves into
+    SUBSCRIBE differences and keeps within the server's limits before the server has to refuse."""
+
     def __init__(self, cells_at: Callable[[float, float, float], Iterable[int]], *, max_follows: int = 16,
                  query_interval: float = 1.0, max_subscriptions: int | None = None) -> None:
         self.cells_at = cells_at
@@ -63,6 +66,8 @@ class Subscriptions:
         return [Subscribe(added, removed)]
 
     def follow(self, entity: int) -> list[Follow]:
+        """FOLLOW an entity wherever it goes (nothing if already followed); raises `LimitExceeded` past
+        `max_follows` so the server's limit is never tripped."""
         if entity in self.follows:
             return []
         if len(self.follows) >= self.max_follows:
@@ -71,6 +76,7 @@ class Subscriptions:
         return [Follow(entity)]
 
     def unfollow(self, entity: int) -> list[Unfollow]:
+        """Stop following an entity (nothing to send if it was not followed)."""
         if entity not in self.follows:
             return []
         self.follows.discard(entity)
