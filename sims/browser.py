@@ -96,6 +96,7 @@ class Page:
         return box[0].get("result", {})
 
     async def goto(self, url: str) -> None:
+        """Navigate and fail with the browser's own reason (a refused connection, a bad address)."""
         result = await self.send("Page.navigate", {"url": url})
         if result.get("errorText"):
             raise BrowserError(f"cannot open {url}: {result['errorText']}")

@@ -22,6 +22,8 @@ from sims.demo import DemoConfig, run_demo
 
 
 async def measure(topo, path, entities: int, settle: float, seconds: float, screenshot: str | None) -> dict:
+    """One live demo of `entities` and the page in headless Chromium: time to the first entity, then frame times
+    over `seconds` once `settle` has passed (the page's own requestAnimationFrame clock)."""
     config = DemoConfig(entities=entities, viewers=0, connections=4, duration=settle + seconds + 120,
                         summary_every=1e9, http_port=0, bus_share=0.03, tram_share=0.03)
     async with trio.open_nursery() as nursery:
@@ -73,6 +75,8 @@ async def measure_library(topo, path, lib: str, n: int, settle: float, seconds: 
 
 
 def main() -> None:
+    """`python -m sims.viewer_bench`: the viewer's frame time at each entity count (and, with --libraries, per
+    WebGL library), printed as JSON."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--entities", type=int, nargs="+", default=[500, 2000])
     ap.add_argument("--settle", type=float, default=10.0)

@@ -64,6 +64,7 @@ class ViewerSite:
         self._n_view_cells = self._pvs.grid.n_view_cells if self._pvs is not None else 0
 
     def add_to(self, router: Router) -> None:
+        """Mount the page, its config, geometry, per-view-cell PVS and static files on the server's router."""
         router.add("/", self.index)
         router.add("/index.html", self.index)
         router.add("/viewer/config.json", self.config)
@@ -72,20 +73,27 @@ class ViewerSite:
         router.add_prefix("/static/", self.static)
 
     def config_dict(self) -> dict[str, Any]:
+        """What the page needs to join as a viewer: the WebSocket port (read now: it is known only once the
+        listener is open), TLS, the digest its HELLO must carry, and whether a token is needed."""
         return {"ws_port": self._ws_port(), "tls": self.tls, "digest": self.topo.digest,
                 "auth": "open" if self.open_mode else "token", "protocol_version": 1}
 
     def config(self, request: h11.Request) -> Response:
+        """GET /viewer/config.json: 503 with the reason when the server has no WebSocket port to join."""
         if self._ws_port() is None:
             return text(503, "this server has no WebSocket port (start it with --ws-port)")
         return Response(200, _json(self.config_dict()), "application/json", [_NO_STORE])
 
     def geometry(self, request: h11.Request) -> Response:
+        """GET /viewer/geometry.json: the city, encoded once at start, gzipped when the browser accepts it
+        (0.87 MB becomes 0.32 MB)."""
         if _accepts_gzip(request):
             return Response(200, self._geometry_gz, "application/json", [("Content-Encoding", "gzip")])
         return Response(200, self._geometry, "application/json")
 
     def pvs(self, request: h11.Request) -> Response:
+        """GET /viewer/pvs/N.json: one view cell's visible cells, fetched as the camera enters it, so the page
+        never downloads the whole PVS."""
         name = request.target.split(b"?", 1)[0].decode("ascii", "replace").rsplit("/", 1)[-1]
         if self._pvs is None:
             return text(404, "the artifact has no PVS")
@@ -95,11 +103,13 @@ class ViewerSite:
         return Response(200, _json(pvs_cells(self.topo, self._pvs, int(stem))), "application/json")
 
     def index(self, request: h11.Request) -> Response:
+        """GET /: the page, or 503 saying how to build the bundle when `npm run build` has not run."""
         if BUNDLE not in self._files:
             return text(503, BUILD_HINT)
         return self._file("index.html")
 
     def static(self, request: h11.Request) -> Response:
+        """GET /static/...: only files listed at start are served, so no request path reaches the file system."""
         path = request.target.split(b"?", 1)[0].decode("ascii", "replace").removeprefix("/static/")
         if path == BUNDLE and BUNDLE not in self._files:
             return text(503, BUILD_HINT)
