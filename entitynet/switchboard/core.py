@@ -34,6 +34,7 @@ from entitynet.switchboard.timers import ExpiryHeap
 
 _encode_update = P.encode_update  # the one UPDATE layout (entitynet.protocol.codec), bound for the hot path
 _encode_leave = P.encode_leave
+_fan_out_to = Outboxes.fan_out_to
 
 
 class Switchboard(SubscriptionsMixin, OutboundMixin):
@@ -249,7 +250,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
                 if cell_tick.get(cell, 0) > t:
                     break
             else:  # nobody (un)subscribed to these cells or (un)followed it: the viewers are the same
-                self._deliver(e, e.viewers)
+                self._deliver(e, e.viewers, e.targets)
                 return
         viewers: set[int] = set()
         subs = self.subscribers
@@ -260,19 +261,22 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if e.followers:
             viewers |= e.followers
         viewers.discard(c.cid)
-        self._deliver(e, viewers)
+        targets = self.outboxes.targets(viewers) if viewers else ()
+        self._deliver(e, viewers, targets)
         gone = e.viewers - viewers
         if gone:
             self._leave(eid, gone)
         e.viewers = viewers
+        e.targets = targets
         e.viewers_tick = self._tick
 
-    def _deliver(self, e: EntityState, viewers: set[int]) -> None:
+    def _deliver(self, e: EntityState, viewers: set[int], targets: tuple) -> None:
+        """Queue the entity's new state for `viewers` (whose outboxes `targets` names, made with the set)."""
         if not viewers:
             return
         eid = e.eid
         if e.owner.identity is None:
-            self.outboxes.fan_out(viewers, eid, e.enc_plain)
+            _fan_out_to(targets, eid, e.enc_plain)
         else:
             clients = self.clients
             for v in viewers:
@@ -329,6 +333,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if e.viewers:
             self._leave(eid, e.viewers)
         e.viewers = set()
+        e.targets = ()
 
     def expire(self, now: float) -> int:
         """Do what is due at `now`: remove entities whose validity (plus grace) ran out without an update
