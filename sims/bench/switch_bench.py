@@ -40,11 +40,13 @@ import numpy as np
 
 from sims.bench.switch_drivers import PAD, PAYLOAD, TICK, NatsDriver, OursDriver, RedisDriver
 from sims.bench.switch_ladder import (
+    DOWN_STEPS,
     FULL_STEPS,
     QUICK_STEPS,
     OfferedCounter,
     capacity,
     past_saturation,
+    qualifies,
     ratio,
     step_row,
 )
@@ -160,6 +162,7 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
                 measured = True
                 rss_loaded = ps.memory_info().rss
                 cpu0 = sum(ps.cpu_times()[:2])
+                busy0 = _machine_busy(psutil)
                 sent0, msgs0, wall0 = sent, msgs_out, now
                 counting = offered is not None
                 srv0 = _scrape_or_none(scrape, progress)
@@ -168,6 +171,7 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
                 counting = False
                 wall = now - wall0
                 cpu = sum(ps.cpu_times()[:2]) - cpu0
+                busy = _machine_busy(psutil) - busy0
                 srv1 = _scrape_or_none(scrape, progress)
                 break
             send(walkers.due(now), now)
@@ -202,6 +206,8 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
         "latency_p50_ms": tally.quantile(0.5),
         "latency_p99_ms": tally.quantile(0.99),
         "server_cpu_s": cpu,
+        "server_cpu_cores": cpu / wall,
+        "machine_busy_cores": busy / wall,  # every process on the machine: others' load shows here
         "cpu_s_per_million_deliveries": cpu / max(count / 1e6, 1e-9),
         "rss_bytes_per_entity": (rss_loaded - rss_viewers) / len(walkers.seq),
         "rss_empty_bytes": rss_empty,
@@ -228,6 +234,12 @@ def _topology_path(args, progress, quick: bool) -> str:
     with_pvs = not quick or bundled_artifact_path(True).exists()
     _, path = bundled_topology(progress, with_pvs=with_pvs)
     return str(path)
+
+
+def _machine_busy(psutil) -> float:
+    """CPU seconds the whole machine has been busy (all processes, all cores) since boot."""
+    t = psutil.cpu_times()
+    return t.user + t.system + getattr(t, "nice", 0.0) + getattr(t, "irq", 0.0) + getattr(t, "softirq", 0.0)
 
 
 def _scrape_or_none(scrape, progress) -> dict[str, float] | None:
@@ -336,43 +348,52 @@ def run(args, progress) -> dict[str, Any]:
             all_cells = _view_cells(topo, max(v for _, v in steps), p, notes, progress)
             p["mean_cells_per_viewer"] = float(np.mean([len(c) for c in all_cells[: p["viewers"]]]))
             climbing = list(ladder)
-            for k, (n_ent, n_view) in enumerate(steps):
+
+            def step(system: str, n_ent: int, n_view: int, standard_step: bool) -> dict[str, Any] | None:
+                """One system at one step (fresh server); its row, or None (and a note) when it failed."""
                 view_cells = all_cells[:n_view]
-                offered = OfferedCounter(view_cells, p["n_cells"])
                 pk = dict(p, entities=n_ent, viewers=n_view)
-                if k:
+                if not standard_step:
                     pk.update(warmup_s=p["ladder_warmup_s"], window_s=p["ladder_window_s"])
 
-                def walkers_factory(n=n_ent):
-                    return Walkers(topo, n, random.Random(p["seed"] + 1))
+                def walkers_factory():
+                    return Walkers(topo, n_ent, random.Random(p["seed"] + 1))
 
+                progress(f"step {n_ent} entities x {n_view} viewers: {system}")
+                try:
+                    with started(system, exes[system], topo_path, topo.digest, p, plan, Path(tmpd),
+                                 progress) as (driver, proc, scrape):
+                        res = _run_load(driver, proc, walkers_factory, view_cells, pk, progress, scrape,
+                                        OfferedCounter(view_cells, p["n_cells"]))
+                except (RuntimeError, OSError) as exc:
+                    progress(f"{system} at {n_ent} x {n_view} failed: {exc!r}")
+                    notes.append(f"{system} at {n_ent} x {n_view} failed: {exc!r}")
+                    return None
+                if standard_step:
+                    standard[system] = res
+                row = step_row(n_ent, n_view, res)
+                ladder[system].append(row)
+                shown = ("offered_deliveries_per_s", "deliveries_per_s", "latency_p99_ms", "machine_busy_cores")
+                progress(f"{system}: {json.dumps({x: row[x] for x in shown}, default=float)}")
+                return row
+
+            for k, (n_ent, n_view) in enumerate(steps):  # upward from the standard load
                 for system in list(climbing):
-                    progress(f"step {k + 1}/{len(steps)}: {n_ent} entities x {n_view} viewers, {system}")
-                    try:
-                        with started(system, exes[system], topo_path, topo.digest, p, plan, Path(tmpd),
-                                     progress) as (driver, proc, scrape):
-                            res = _run_load(driver, proc, walkers_factory, view_cells, pk, progress, scrape,
-                                            offered)
-                    except (RuntimeError, OSError) as exc:
-                        progress(f"{system} at {n_ent} x {n_view} failed: {exc!r}")
-                        notes.append(f"{system} at {n_ent} x {n_view} failed: {exc!r}")
-                        climbing.remove(system)
-                        continue
-                    if k == 0:
-                        standard[system] = res
-                    row = step_row(n_ent, n_view, res)
-                    ladder[system].append(row)
-                    progress(f"{system}: {json.dumps({x: row[x] for x in ('offered_deliveries_per_s', 'deliveries_per_s', 'latency_p99_ms')}, default=float)}")  # noqa: E501
-                    if past_saturation(row):
+                    row = step(system, n_ent, n_view, k == 0)
+                    if row is None or past_saturation(row):
                         climbing.remove(system)
                     elif (row["loadgen_max_tick_lateness_ms"] or 0.0) > 2000.0:
                         notes.append(f"the load generator fell {row['loadgen_max_tick_lateness_ms']:.0f} ms "
                                      f"behind at {n_ent} x {n_view} ({system}): it, not {system}, is the limit "
-                                     "there; the ladder stops")
+                                     "there; the ladder stops climbing")
                         climbing = []
                         break
                 if not climbing:
                     break
+            if not quick:  # downward, for the systems that qualified nowhere above
+                for n_ent, n_view in DOWN_STEPS:
+                    for system in [s for s in ladder if not any(qualifies(r) for r in ladder[s])]:
+                        step(system, n_ent, n_view, False)
     finally:
         if plan["pinned"]:
             os.sched_setaffinity(0, own_affinity)
