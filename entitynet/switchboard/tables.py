@@ -65,5 +65,6 @@ class EntityState:
         self.enc_ident: bytes | None = None  # cached encoding with the owner's identity
         # `viewers` is the full union of subscribers and followers as of this subscription tick (-1: not)
         self.viewers_tick = -1
-        # the viewers' outboxes as an `Outboxes.targets` handle, made with `viewers` when it was last computed
-        self.targets: tuple = ()
+        # the viewers' outboxes as an `Outboxes.targets` handle for `viewers` as last computed (None until the
+        # set is reused by a PUBLISH; dropped whenever the set is recomputed)
+        self.targets: tuple | None = None

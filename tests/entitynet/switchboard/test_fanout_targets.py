@@ -2,7 +2,7 @@
 
 Why: the PUBLISH hot path used to look every viewer's outbox up by client id on every delivery; the core now
 keeps an `Outboxes.targets` handle with each entity's viewer set and reuses both while nobody (un)subscribed
-to its cells or (un)followed it. These tests pin the saving (no lookup by client id when the set is reused)
+to its cells or (un)followed it. These tests pin the saving (the lookups by client id happen once per viewer set, not per delivery)
 and the exactness (after a subscription change, a follow, a disconnect, every client gets exactly what it
 should, and nothing goes to a gone client).
 """
@@ -23,7 +23,7 @@ class _CountingStates(dict):
         return super().__getitem__(key)
 
 
-def test_a_publish_reusing_the_viewer_set_looks_up_no_outbox():
+def test_publishes_reusing_the_viewer_set_look_its_outboxes_up_once():
     sb = make()
     viewers = [join(sb) for _ in range(20)]
     for v in viewers:
@@ -37,7 +37,8 @@ def test_a_publish_reusing_the_viewer_set_looks_up_no_outbox():
     _CountingStates.lookups = 0
     for seq in range(2, 12):
         sb.receive(owner, [pub(1, seq, (3,))], 0.0)
-    assert _CountingStates.lookups == 0  # on main: one lookup per delivery (200 here)
+    assert _CountingStates.lookups <= len(viewers)  # resolved once, at the set's first reuse; on main: one
+    # lookup per delivery (200 here)
     for v in viewers:
         ups = of(recv(sb, v), P.Update)
         assert [u.seq for u in ups] == [11]  # coalesced: the latest state once
