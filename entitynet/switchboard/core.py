@@ -34,7 +34,6 @@ from entitynet.switchboard.timers import ExpiryHeap
 
 _encode_update = P.encode_update  # the one UPDATE layout (entitynet.protocol.codec), bound for the hot path
 _encode_leave = P.encode_leave
-_fan_out_to = Outboxes.fan_out_to
 
 
 class Switchboard(SubscriptionsMixin, OutboundMixin):
@@ -284,7 +283,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
                 c = clients[v]
                 c.outbox.put_state(eid, self._encoded_for(e, c))
         elif targets is not None:
-            _fan_out_to(targets, eid, e.enc_plain)
+            self.outboxes.fan_out_to(targets, eid, e.enc_plain)
         else:
             self.outboxes.fan_out(viewers, eid, e.enc_plain)
         self._dirty |= viewers

@@ -47,8 +47,8 @@ class ReplayResult:
     frames: int
     control: int
     expired: int
-    # seconds spent inside the core's calls (receive, expire, take_dirty, draining the outboxes): timed, so left
-    # out of comparisons; `core_us_per_delivery` is the pure forwarding cost the socket bench cannot separate
+    # CPU seconds spent inside the core's calls (receive, expire, take_dirty, draining the outboxes): timed, so
+    # left out of comparisons; `core_us_per_delivery` is the pure forwarding cost the socket bench cannot separate
     core_s: float = field(default=0.0, compare=False)
 
     @property
@@ -72,7 +72,7 @@ def replay(topo, *, entities: int = 2000, viewers: int = 300, seconds: float = 1
     driver = OursDriver(0, topo.digest)
     h_fwd, h_ctl = hashlib.sha256(), hashlib.sha256()
     counts = {"deliveries": 0, "leaves": 0, "frames": 0, "control": 0}
-    clock = time.perf_counter
+    clock = time.process_time  # CPU time of this process: preemption by other processes is not counted
     core = [0.0]
 
     def feed(cid: int, data: bytes, now: float) -> None:

@@ -19,7 +19,7 @@ PINNED = {
 }
 
 
-def test_replay_digest_is_pinned(helsinki):
+def test_replay_digest_is_pinned(helsinki, fanout_path):
     res = replay(helsinki, **SMALL)
     got = {k: getattr(res, k) for k in PINNED}
     assert got == PINNED
