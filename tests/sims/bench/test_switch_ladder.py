@@ -65,3 +65,11 @@ def test_pinning_needs_cores_to_spare():
     many = pin_plan(list(range(16)))
     assert many["pinned"] is True and many["server_core"] == 15 and many["loadgen_cores"] == list(range(15))
     assert pin_plan(list(range(MIN_CORES_TO_PIN)))["pinned"] is True
+
+
+def test_the_report_keeps_the_ladder():
+    from sims.bench.report import write_report
+
+    rows = {"entitynet": [_row(5000, 250_000, 252_000, 40.0)]}
+    report = write_report("switch", {"results": {"x": 1.0}, "ladder": rows}, None)
+    assert report["ladder"] == rows
