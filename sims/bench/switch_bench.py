@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from entitynet.switchboard.outbox import compiled_in_use
 from sims.bench.switch_drivers import PAD, PAYLOAD, TICK, NatsDriver, OursDriver, RedisDriver
 from sims.bench.switch_ladder import (
     DOWN_STEPS,
@@ -327,6 +328,8 @@ def run(args, progress) -> dict[str, Any]:
         "usable_cores": len(cores),
         "pinned": plan["pinned"],
         "pin_note": plan["note"],
+        # the server subprocess runs this interpreter and environment: the same fan-out loops
+        "compiled_fanout": compiled_in_use(),
     }
     progress(plan["note"])
     notes: list[str] = [plan["note"]]
