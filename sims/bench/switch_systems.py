@@ -72,9 +72,10 @@ def wait_port(port: int, proc, timeout: float = 30.0) -> None:
 
 
 def scraper(port: int):
-    """A function reading our server's Prometheus endpoint into {metric: value}."""
+    """A function reading our server's Prometheus endpoint into {metric: value}. A 1 s timeout: the scrape runs
+    in the publisher's loop, so a busy server that answers late must not stall the load it is measured with."""
     def scrape() -> dict[str, float]:
-        text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
+        text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=1).read().decode()
         out = {}
         for line in text.splitlines():
             if line and not line.startswith("#"):
