@@ -73,3 +73,12 @@ def test_the_report_keeps_the_ladder():
     rows = {"entitynet": [_row(5000, 250_000, 252_000, 40.0)]}
     report = write_report("switch", {"results": {"x": 1.0}, "ladder": rows}, None)
     assert report["ladder"] == rows
+
+
+def test_the_fanout_micro_benchmark_runs_every_path():
+    from entitynet.switchboard import outbox
+    from sims.bench.switch_fanout_micro import measure
+
+    rows = measure(rounds=1, reps=1)
+    want = {"by_id_pure", "handle_pure"} | ({"by_id_compiled", "handle_compiled"} if outbox.COMPILED else set())
+    assert set(rows[0]) == want and all(v > 0 for v in rows[0].values())
