@@ -24,3 +24,17 @@ def helsinki_path(tmp_path_factory):
 @pytest.fixture(scope="session")
 def helsinki(helsinki_path):
     return load(helsinki_path)
+
+
+@pytest.fixture(params=["pure", "compiled"])
+def fanout_path(request):
+    """Run a test once with the switchboard's pure-Python fan-out loops and once with the compiled ones
+    (`entitynet/switchboard/_fanout.pyx`, built by pip; skipped, saying so, where they were not built)."""
+    from entitynet.switchboard import outbox
+
+    was = outbox.compiled_in_use()
+    if request.param == "compiled" and outbox.COMPILED is None:
+        pytest.skip("the compiled fan-out was not built (no Cython or C compiler at install time)")
+    assert outbox.use_compiled(request.param == "compiled") == (request.param == "compiled")
+    yield request.param
+    outbox.use_compiled(was)

@@ -249,7 +249,10 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
                 if cell_tick.get(cell, 0) > t:
                     break
             else:  # nobody (un)subscribed to these cells or (un)followed it: the viewers are the same
-                self._deliver(e, e.viewers)
+                viewers = e.viewers
+                if e.targets is None and viewers:  # the set's second use: resolve its outboxes once
+                    e.targets = self.outboxes.targets(viewers)
+                self._deliver(e, viewers, e.targets)
                 return
         viewers: set[int] = set()
         subs = self.subscribers
@@ -260,24 +263,29 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if e.followers:
             viewers |= e.followers
         viewers.discard(c.cid)
-        self._deliver(e, viewers)
+        self._deliver(e, viewers, None)
         gone = e.viewers - viewers
         if gone:
             self._leave(eid, gone)
         e.viewers = viewers
+        e.targets = None  # resolved when the set is reused (many entities change cells at every publish)
         e.viewers_tick = self._tick
 
-    def _deliver(self, e: EntityState, viewers: set[int]) -> None:
+    def _deliver(self, e: EntityState, viewers: set[int], targets: tuple | None) -> None:
+        """Queue the entity's new state for `viewers`: through `targets` (an `Outboxes.targets` handle made with
+        this set) when there is one, else by client id."""
         if not viewers:
             return
         eid = e.eid
-        if e.owner.identity is None:
-            self.outboxes.fan_out(viewers, eid, e.enc_plain)
-        else:
+        if e.owner.identity is not None:
             clients = self.clients
             for v in viewers:
                 c = clients[v]
                 c.outbox.put_state(eid, self._encoded_for(e, c))
+        elif targets is not None:
+            self.outboxes.fan_out_to(targets, eid, e.enc_plain)
+        else:
+            self.outboxes.fan_out(viewers, eid, e.enc_plain)
         self._dirty |= viewers
         self.stats["deliveries"] += len(viewers)
 
@@ -329,6 +337,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if e.viewers:
             self._leave(eid, e.viewers)
         e.viewers = set()
+        e.targets = None
 
     def expire(self, now: float) -> int:
         """Do what is due at `now`: remove entities whose validity (plus grace) ran out without an update

@@ -13,7 +13,10 @@ side, so either can change its data structures without the other noticing.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
+from types import ModuleType, SimpleNamespace
+from typing import Any
 
 
 class Outbox:
@@ -168,16 +171,72 @@ class Outboxes:
         self._boxes.pop(cid, None)
         self._states.pop(cid, None)
 
+    def targets(self, cids: Iterable[int]) -> tuple[dict[int, bytes], ...]:
+        """An opaque handle on the outboxes of `cids` (all open) for `fan_out_to`. The core keeps one per entity
+        with its viewer set and hands it back on every PUBLISH that reuses the set: the client-id lookup is paid
+        once per viewer-set change instead of once per delivery (the per-delivery work is then one dict store,
+        about half the cost). A handle is valid while its clients are open: the core recomputes viewer sets
+        (and handles) after any subscription change, follow change, disconnect or shutdown."""
+        return tuple(map(self._states.__getitem__, cids))  # the lookups in C, once
+
+    @staticmethod
+    def fan_out_to(targets: tuple[dict[int, bytes], ...], entity: int, encoded: bytes) -> None:
+        """`put_state(entity, encoded)` on every outbox of a `targets` handle (replaced by `use_compiled`)."""
+        fan_out_to_py(targets, entity, encoded)
+
     def fan_out(self, cids: Iterable[int], entity: int, encoded: bytes) -> None:
         """`put_state(entity, encoded)` on the outbox of every client in `cids` (all open)."""
-        states = self._states
-        for v in cids:
-            states[v][entity] = encoded
+        _impl.fan_out(self._states, cids, entity, encoded)
 
     def fan_out_open(self, cids: Iterable[int], entity: int, encoded: bytes) -> None:
         """As `fan_out`, skipping clients that are gone (LEAVEs to sets that may name closed clients)."""
-        states = self._states
-        for v in cids:
-            st = states.get(v)
-            if st is not None:
-                st[entity] = encoded
+        _impl.fan_out_open(self._states, cids, entity, encoded)
+
+
+# ---------------------------------------------------------------------------------------------- fan-out loops
+# The per-delivery loops, in Python (the reference) and, where pip built it, compiled (`_fanout.pyx`, the same
+# three functions in C). `use_compiled` picks one for the process; ENTITYNET_PURE_PYTHON=1 forces the reference.
+def fan_out_py(states: dict[int, dict[int, bytes]], cids: Iterable[int], entity: int, encoded: bytes) -> None:
+    """`states[v][entity] = encoded` for every v in `cids` (all present)."""
+    for v in cids:
+        states[v][entity] = encoded
+
+
+def fan_out_open_py(states: dict[int, dict[int, bytes]], cids: Iterable[int], entity: int, encoded: bytes) -> None:
+    """As `fan_out_py`, skipping client ids not in `states`."""
+    for v in cids:
+        st = states.get(v)
+        if st is not None:
+            st[entity] = encoded
+
+
+def fan_out_to_py(targets: tuple[dict[int, bytes], ...], entity: int, encoded: bytes) -> None:
+    """`st[entity] = encoded` for every dict of `targets`."""
+    for st in targets:
+        st[entity] = encoded
+
+
+PURE: Any = SimpleNamespace(fan_out=fan_out_py, fan_out_open=fan_out_open_py, fan_out_to=fan_out_to_py)
+COMPILED: ModuleType | None
+try:
+    from entitynet.switchboard import _fanout as COMPILED  # type: ignore[attr-defined, no-redef]
+except ImportError:  # not built (no compiler at install time): the reference path
+    COMPILED = None
+_impl: Any = PURE
+
+
+def use_compiled(flag: bool = True) -> bool:
+    """Select the fan-out loops for this process: the compiled ones when `flag` and they were built, else the
+    pure-Python reference. Returns whether the compiled ones are now in use."""
+    global _impl
+    _impl = COMPILED if flag and COMPILED is not None else PURE
+    Outboxes.fan_out_to = staticmethod(_impl.fan_out_to)  # type: ignore[method-assign]
+    return _impl is COMPILED
+
+
+def compiled_in_use() -> bool:
+    """Whether the compiled fan-out loops are in use (the server logs it, the bench reports it)."""
+    return COMPILED is not None and _impl is COMPILED
+
+
+use_compiled(not os.environ.get("ENTITYNET_PURE_PYTHON"))

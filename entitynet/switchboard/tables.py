@@ -48,7 +48,7 @@ class EntityState:
 
     __slots__ = (
         "eid", "owner", "local", "seq", "cells", "validity_ms", "payload", "viewers", "followers",
-        "enc_plain", "enc_ident", "viewers_tick",
+        "enc_plain", "enc_ident", "viewers_tick", "targets",
     )
 
     def __init__(self, eid: int, owner: ClientState, local: int):
@@ -65,3 +65,6 @@ class EntityState:
         self.enc_ident: bytes | None = None  # cached encoding with the owner's identity
         # `viewers` is the full union of subscribers and followers as of this subscription tick (-1: not)
         self.viewers_tick = -1
+        # the viewers' outboxes as an `Outboxes.targets` handle for `viewers` as last computed (None until the
+        # set is reused by a PUBLISH; dropped whenever the set is recomputed)
+        self.targets: tuple | None = None

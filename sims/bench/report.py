@@ -32,7 +32,7 @@ def write_report(suite: str, body: dict[str, Any], out: str | os.PathLike | None
         "params": body.get("params", {}),
         "results": body["results"],
     }
-    for key in ("peer", "ratio", "notes"):
+    for key in ("peer", "ratio", "notes", "ladder"):
         if key in body:
             report[key] = body[key]
     text = json.dumps(report, indent=2, sort_keys=False, default=float)

@@ -1,4 +1,5 @@
-"""`entitynet bench switch`: the shard server (a real subprocess) against Redis pub/sub, same load generator.
+"""`entitynet bench switch`: the shard server (a real subprocess) against Redis pub/sub and NATS, the same load
+generator, at the standard load and on a saturation ladder.
 
 Workload on the bundled map (or --topology): N publishing entities (`sims.mobility.Walkers`: 70 % pedestrians
 at 1.4 m/s, 30 % cars at 8 m/s) walk the street network; like the client core, each sends an update when its
@@ -9,12 +10,16 @@ V viewers subscribe to the PVS of a view cell over a random street node (half at
 roofs); an artifact without a PVS falls back to the cells within 500 m, and the report's notes say so.
 
 Redis run: the same entities and ticks, PUBLISH to one channel per occupied cell (pipelined); each viewer is a
-connection SUBSCRIBEd to its cells' channels. A delivery is counted once per (viewer, entity, seq): a Redis
-viewer subscribed to both cells of a two-cell entity gets the message twice but it counts once. Latency is
-receive time minus the publisher's send time written in the payload (same host clock).
+connection SUBSCRIBEd to its cells' channels. NATS run: the same with one subject per cell (PUB / SUB,
+`sims.bench.switch_drivers`). A delivery is counted once per (viewer, entity, seq): a Redis or NATS viewer
+subscribed to both cells of a two-cell entity gets the message twice but it counts once. Latency is receive
+time minus the publisher's send time written in the payload (same host clock).
 
-Server-side figures come from the server's Prometheus endpoint and psutil on the server process (CPU over the
-measurement window; RSS growth from "viewers subscribed, no entities" to "all entities published").
+The standard load is the first step of the ladder (`sims.bench.switch_ladder`); the existing result keys are
+its figures. Server-side figures come from the server's Prometheus endpoint and psutil on the server process
+(CPU over the measurement window; RSS growth from "viewers subscribed, no entities" to "all entities
+published"). Servers are pinned to a core of their own when the machine has cores to spare
+(`sims.bench.switch_systems.pin_plan`); the report says whether they were.
 """
 
 from __future__ import annotations
@@ -23,29 +28,34 @@ import json
 import math
 import os
 import random
-import shutil
 import socket
-import struct
-import subprocess
 import sys
 import tempfile
 import threading
 import time
-import urllib.request
 from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 
-from entitynet import protocol as P
-from sims.bench.switch_readers import LAT_BINS, ReaderLoop, Ready, Tally, reader_process
+from entitynet.switchboard.outbox import compiled_in_use
+from sims.bench.switch_drivers import PAD, PAYLOAD, TICK, NatsDriver, OursDriver, RedisDriver
+from sims.bench.switch_ladder import (
+    DOWN_STEPS,
+    FULL_STEPS,
+    QUICK_STEPS,
+    OfferedCounter,
+    capacity,
+    past_saturation,
+    qualifies,
+    ratio,
+    step_row,
+)
+from sims.bench.switch_readers import LAT_BINS, ReaderLoop, Tally, reader_process
+from sims.bench.switch_systems import SYSTEMS, find_exe, pin_plan, started, usable_cores
 from sims.mobility import Walkers
 
-PAYLOAD = struct.Struct("<dII")  # send time, loadgen entity id, seq  (+ padding: a dead-reckoning model)
-PAD = b"\x00" * 32
-TICK = 0.005
-
+__all__ = ["PAD", "PAYLOAD", "TICK", "NatsDriver", "OursDriver", "RedisDriver", "run"]  # drivers re-exported
 
 # ---------------------------------------------------------------------------------------------- workload
 def pvs_viewer_cells(topo, n: int, rng: random.Random) -> list[tuple[int, ...]] | None:
@@ -81,71 +91,10 @@ def viewer_cells(topo, n: int, radius: float, rng: random.Random) -> list[tuple[
     return out
 
 
-# ---------------------------------------------------------------------------------------------- drivers
-class OursDriver:
-    """The load generator speaking entitynet's protocol: HELLO, SUBSCRIBE and PUBLISH frames, UPDATE heads."""
-
-    name = "entitynet"
-    # an UPDATE's payload: bin8 of 48 bytes (c4 30), our 16-byte head, 32 zero bytes, identity nil (c0)
-    pattern = rb"\xc4\x30(.{16})\x00{32}\xc0"
-
-    def __init__(self, port: int, digest: str):
-        self.port, self.digest = port, digest
-
-    def publisher_hello(self) -> bytes:
-        """What a publisher connection sends first."""
-        return P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "bench", self.digest)])
-
-    def viewer_hello(self, cells) -> tuple[bytes, Ready]:
-        """A viewer's opening bytes and the marker that says its subscription is in place."""
-        data = P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "bench", self.digest), P.Subscribe(tuple(cells), ()),
-                               P.Ping(1)])
-        return data, Ready(P.encode_message(P.Pong(1, 0))[:3], 1)  # the PONG after the subscription
-
-    def publish_bytes(self, batch, now: float) -> bytes:
-        """One frame of PUBLISHes for (entity, seq, cells, validity_ms) items, stamped with `now`."""
-        msgs = [msgpack.packb([P.PUBLISH, i, seq, cells, val, PAYLOAD.pack(now, i, seq) + PAD])
-                for i, seq, cells, val in batch]
-        return P.frame(P.payload_from_encoded(msgs))
-
-
-def _resp(*args: bytes) -> bytes:
-    out = [b"*%d\r\n" % len(args)]
-    for a in args:
-        out.append(b"$%d\r\n%s\r\n" % (len(a), a))
-    return b"".join(out)
-
-
-class RedisDriver:
-    """The same load against Redis pub/sub: one channel per cell, PUBLISH to every occupied cell."""
-
-    name = "redis"
-    # a pub/sub message: ... $48 CRLF, our 16-byte head, 32 zero bytes, CRLF
-    pattern = rb"\$48\r\n(.{16})\x00{32}\r\n"
-
-    def __init__(self, port: int):
-        self.port = port
-
-    def publisher_hello(self) -> bytes:
-        """Redis needs no handshake."""
-        return b""
-
-    def viewer_hello(self, cells) -> tuple[bytes, Ready]:
-        """SUBSCRIBE to the cells' channels; ready when every channel is acknowledged."""
-        return _resp(b"SUBSCRIBE", *[b"c%d" % c for c in cells]), Ready(b"$9\r\nsubscribe\r\n", len(cells))
-
-    def publish_bytes(self, batch, now: float) -> bytes:
-        """A pipeline of PUBLISH commands, one per occupied cell of each item."""
-        out = []
-        for i, seq, cells, _val in batch:
-            payload = PAYLOAD.pack(now, i, seq) + PAD
-            for c in cells:
-                out.append(_resp(b"PUBLISH", b"c%d" % c, payload))
-        return b"".join(out)
-
-
 # ---------------------------------------------------------------------------------------------- one run
-def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=None) -> dict[str, Any]:
+def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=None, offered=None) -> dict[str, Any]:
+    """One system at one offered load: viewers subscribe, publishers send for warm-up and window, the readers
+    tally; `offered(cells)` counts the viewers an update reaches (the ideal deliveries)."""
     import multiprocessing as mp
 
     import psutil
@@ -183,13 +132,16 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
             pubs.append(s)
         rthread.start()
         walkers = walkers_factory()
-        sent = msgs_out = 0
+        sent = msgs_out = ideal = 0
+        counting = False
 
         def send(items, now):
-            nonlocal sent, msgs_out
+            nonlocal sent, msgs_out, ideal
             groups: list[list] = [[] for _ in pubs]
             for i, cells, val in items:
                 groups[i % len(pubs)].append((i, walkers.seq[i], cells, val))
+                if counting:
+                    ideal += offered(cells)
             for s, g in zip(pubs, groups, strict=True):
                 if g:
                     s.sendall(driver.publish_bytes(g, now))
@@ -211,13 +163,17 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
                 measured = True
                 rss_loaded = ps.memory_info().rss
                 cpu0 = sum(ps.cpu_times()[:2])
+                busy0 = _machine_busy(psutil)
                 sent0, msgs0, wall0 = sent, msgs_out, now
-                srv0 = scrape() if scrape else None
+                counting = offered is not None
+                srv0 = _scrape_or_none(scrape, progress)
                 progress(f"{driver.name}: measuring for {p['window_s']} s")
             if now >= end:
+                counting = False
                 wall = now - wall0
                 cpu = sum(ps.cpu_times()[:2]) - cpu0
-                srv1 = scrape() if scrape else None
+                busy = _machine_busy(psutil) - busy0
+                srv1 = _scrape_or_none(scrape, progress)
                 break
             send(walkers.due(now), now)
             next_tick += TICK
@@ -246,10 +202,13 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
         "updates_in_per_s": (sent - sent0) / wall,
         "publish_messages_per_s": (msgs_out - msgs0) / wall,
         "deliveries_per_s": count / wall,
+        "offered_deliveries_per_s": ideal / wall if offered is not None else None,
         "duplicates_per_s": dups / wall,
         "latency_p50_ms": tally.quantile(0.5),
         "latency_p99_ms": tally.quantile(0.99),
         "server_cpu_s": cpu,
+        "server_cpu_cores": cpu / wall,
+        "machine_busy_cores": busy / wall,  # every process on the machine: others' load shows here
         "cpu_s_per_million_deliveries": cpu / max(count / 1e6, 1e-9),
         "rss_bytes_per_entity": (rss_loaded - rss_viewers) / len(walkers.seq),
         "rss_empty_bytes": rss_empty,
@@ -266,55 +225,6 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
     return res
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _wait_port(port: int, proc, timeout: float = 30.0) -> None:
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"server exited with status {proc.returncode}")
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-            return
-        except OSError:
-            time.sleep(0.05)
-    raise RuntimeError(f"nothing listening on port {port} after {timeout} s")
-
-
-def _scraper(port: int):
-    def scrape() -> dict[str, float]:
-        text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
-        out = {}
-        for line in text.splitlines():
-            if line and not line.startswith("#"):
-                k, _, v = line.rpartition(" ")
-                out[k] = float(v)
-        return out
-
-    return scrape
-
-
-def _find_redis(progress) -> tuple[str | None, str]:
-    exe = shutil.which("redis-server") or ("/usr/bin/redis-server" if os.path.exists("/usr/bin/redis-server")
-                                           else None)
-    if exe:
-        return exe, f"found {exe}"
-    progress("redis-server not found; trying apt-get install -y redis-server")
-    try:
-        r = subprocess.run(["apt-get", "install", "-y", "redis-server"], capture_output=True, text=True,
-                           timeout=300)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        return None, f"redis-server not found and apt-get failed: {exc}"
-    exe = shutil.which("redis-server")
-    if exe:
-        return exe, "installed redis-server with apt-get"
-    return None, f"redis-server not found; apt-get exited {r.returncode}: {r.stderr.strip()[-300:]}"
-
-
 def _topology_path(args, progress, quick: bool) -> str:
     """--topology, else the cached bundled artifact (with PVS for the full run; the quick run takes the PVS
     one only if it is already cached, since building the PVS alone takes about a minute)."""
@@ -327,102 +237,183 @@ def _topology_path(args, progress, quick: bool) -> str:
     return str(path)
 
 
+def _machine_busy(psutil) -> float:
+    """CPU seconds the whole machine has been busy (all processes, all cores) since boot."""
+    t = psutil.cpu_times()
+    return t.user + t.system + getattr(t, "nice", 0.0) + getattr(t, "irq", 0.0) + getattr(t, "softirq", 0.0)
+
+
+def _scrape_or_none(scrape, progress) -> dict[str, float] | None:
+    """The server's metrics, or None (and a word why) when a busy server does not answer in time: its own
+    counters are extra figures, the load generator's tally is the measurement."""
+    if scrape is None:
+        return None
+    try:
+        return scrape()
+    except OSError as exc:
+        progress(f"metrics scrape failed ({exc}); the server-side counters are left out")
+        return None
+
+
+def _view_cells(topo, n: int, p: dict, notes: list[str], progress) -> list[tuple[int, ...]]:
+    """The viewers' subscriptions: the PVS of street-node view cells, else the cells within `radius_m`. Both
+    draw viewer by viewer from one seeded stream, so the first n of a larger set are the set for n."""
+    view_cells = pvs_viewer_cells(topo, n, random.Random(p["seed"]))
+    if view_cells is not None:
+        p["subscription"] = "pvs"
+        progress(f"viewer subscriptions: PVS of {n} street-node view cells (half above the roofs)")
+        return view_cells
+    p["subscription"] = f"radius {p['radius_m']:.0f} m"
+    progress(f"viewer subscriptions: cells within {p['radius_m']:.0f} m of {n} street nodes")
+    notes.append("the artifact has no PVS: viewers subscribe to the cells within 500 m of a random street "
+                 "node, which is denser than PVS subscriptions")
+    return viewer_cells(topo, n, p["radius_m"], random.Random(p["seed"]))
+
+
+def _results(standard: dict[str, dict], ladder: dict[str, list], p: dict) -> dict[str, Any]:
+    """The report's `results`: the standard load's figures of ours (the existing keys), the peers' deliveries,
+    and per system the ladder's capacity and maximum with the capacity ratios."""
+    ours = standard.get("entitynet")
+    if ours is None:  # the notes say why; the peers' figures are still worth reporting
+        ours = {k: None for k in ("updates_in_per_s", "deliveries_per_s", "latency_p50_ms", "latency_p99_ms",
+                                  "cpu_s_per_million_deliveries", "rss_bytes_per_entity")}
+    results = {k: ours[k] for k in ("updates_in_per_s", "deliveries_per_s", "latency_p50_ms", "latency_p99_ms",
+                                    "cpu_s_per_million_deliveries", "rss_bytes_per_entity")}
+    results.update({k: v for k, v in ours.items() if k not in results})
+    for peer in ("redis", "nats"):
+        res = standard.get(peer)
+        results[f"{peer}_deliveries_per_s"] = res["deliveries_per_s"] if res else None
+        results[f"{peer}_latency_p99_ms"] = res["latency_p99_ms"] if res else None
+        results[f"ratio_vs_{peer}"] = ratio(ours["deliveries_per_s"], res["deliveries_per_s"] if res else None)
+    caps = {system: capacity(rows) for system, rows in ladder.items()}
+    for system, cap in caps.items():
+        prefix = "" if system == "entitynet" else f"{system}_"
+        results[f"{prefix}capacity_deliveries_per_s"] = cap["capacity_deliveries_per_s"]
+        results[f"{prefix}max_deliveries_per_s"] = cap["max_deliveries_per_s"]
+    mine = caps.get("entitynet", {}).get("capacity_deliveries_per_s")
+    for peer in ("redis", "nats"):
+        results[f"capacity_ratio_vs_{peer}"] = ratio(mine, caps.get(peer, {}).get("capacity_deliveries_per_s"))
+        results[f"max_ratio_vs_{peer}"] = ratio(caps.get("entitynet", {}).get("max_deliveries_per_s"),
+                                                caps.get(peer, {}).get("max_deliveries_per_s"))
+    results["pinned"] = p["pinned"]
+    return results
+
+
 def run(args, progress) -> dict[str, Any]:
-    """The suite: our server, then Redis, with the same viewers and walkers; the report body."""
+    """The suite: our server, Redis and NATS with the same viewers and walkers, step by step up the ladder
+    (each step runs the three systems one after the other, so that drift in the machine's load hits all
+    three); a system leaves the ladder once it is past saturation. The report body."""
     from topology.artifact import load
 
     quick = bool(getattr(args, "quick", False))
+    steps = QUICK_STEPS if quick else FULL_STEPS
+    cores = usable_cores()
+    plan = pin_plan(cores)
     p = {
-        "entities": 2000 if quick else 5000,
-        "viewers": 300 if quick else 1000,
+        "entities": steps[0][0],
+        "viewers": steps[0][1],
+        "ladder_steps": [list(s) for s in steps],
         "publisher_connections": 4,
-        "reader_processes": 2,
+        "reader_processes": 2 if len(cores) <= 4 else min(8, len(plan["loadgen_cores"]) - 1),
         "radius_m": 500.0,
-        "warmup_s": 3.0 if quick else 5.0,
-        "window_s": 8.0 if quick else 20.0,
+        "warmup_s": 2.0 if quick else 5.0,
+        "window_s": 5.0 if quick else 20.0,
+        "ladder_warmup_s": 5.0,
+        "ladder_window_s": 10.0,
         "flush_ms": 10.0,
         "update_interval_s": [5.0, 15.0],
         "payload_bytes": PAYLOAD.size + len(PAD),
         "tick_ms": TICK * 1000,
         "seed": 7,
+        "usable_cores": len(cores),
+        "pinned": plan["pinned"],
+        "pin_note": plan["note"],
+        # the server subprocess runs this interpreter and environment: the same fan-out loops
+        "compiled_fanout": compiled_in_use(),
     }
-    notes = []
-    with tempfile.TemporaryDirectory(prefix="switch-bench-") as tmpd:
-        tmp = Path(tmpd)
-        topo_path = _topology_path(args, progress, quick)
-        topo = load(topo_path)
-        p["topology_digest"] = topo.digest[:16]
-        p["n_cells"] = int(topo.n_cells)
-        view_cells = pvs_viewer_cells(topo, p["viewers"], random.Random(p["seed"]))
-        if view_cells is not None:
-            p["subscription"] = "pvs"
-            progress(f"viewer subscriptions: PVS of {p['viewers']} street-node view cells (half above the roofs)")
-        else:
-            p["subscription"] = f"radius {p['radius_m']:.0f} m"
-            progress(f"viewer subscriptions: cells within {p['radius_m']:.0f} m of {p['viewers']} street nodes")
-            view_cells = viewer_cells(topo, p["viewers"], p["radius_m"], random.Random(p["seed"]))
-            notes.append("the artifact has no PVS: viewers subscribe to the cells within 500 m of a random street "
-                         "node, which is denser than PVS subscriptions")
-        p["mean_cells_per_viewer"] = float(np.mean([len(c) for c in view_cells]))
+    progress(plan["note"])
+    notes: list[str] = [plan["note"]]
+    exes: dict[str, str | None] = {"entitynet": sys.executable}
+    for system, binary in (("redis", "redis-server"), ("nats", "nats-server")):
+        exes[system], how = find_exe(binary, binary, progress)
+        notes.append(f"{system}: {how}")
+    own_affinity = set(cores)
+    if plan["pinned"]:
+        os.sched_setaffinity(0, plan["loadgen_cores"])  # the readers (forked) inherit it
+    standard: dict[str, dict] = {}
+    ladder: dict[str, list] = {s: [] for s in SYSTEMS if exes[s]}
+    try:
+        with tempfile.TemporaryDirectory(prefix="switch-bench-") as tmpd:
+            topo_path = _topology_path(args, progress, quick)
+            topo = load(topo_path)
+            p["topology_digest"] = topo.digest[:16]
+            p["n_cells"] = int(topo.n_cells)
+            all_cells = _view_cells(topo, max(v for _, v in steps), p, notes, progress)
+            p["mean_cells_per_viewer"] = float(np.mean([len(c) for c in all_cells[: p["viewers"]]]))
+            climbing = list(ladder)
 
-        def walkers_factory():
-            return Walkers(topo, p["entities"], random.Random(p["seed"] + 1))
+            def step(system: str, n_ent: int, n_view: int, standard_step: bool) -> dict[str, Any] | None:
+                """One system at one step (fresh server); its row, or None (and a note) when it failed."""
+                view_cells = all_cells[:n_view]
+                pk = dict(p, entities=n_ent, viewers=n_view)
+                if not standard_step:
+                    pk.update(warmup_s=p["ladder_warmup_s"], window_s=p["ladder_window_s"])
 
-        # ---- ours
-        port, mport = _free_port(), _free_port()
-        prof = os.environ.get("ENTITYNET_BENCH_PROFILE")  # developer aid: profile the server process
-        cmd = [sys.executable, *(["-m", "cProfile", "-o", prof] if prof else []), "-m", "entitynet.cli",
-               "serve", "--topology", topo_path, "--port", str(port), "--metrics-port", str(mport), "--open",
-               "--flush-ms", str(p["flush_ms"])]
-        progress("starting the entitynet server: " + " ".join(cmd[1:]))
-        log = open(tmp / "server.log", "w")
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=str(Path(__file__).parents[2]))
-        try:
-            _wait_port(port, proc)
-            ours = _run_load(OursDriver(port, topo.digest), proc, walkers_factory, view_cells, p, progress,
-                             _scraper(mport))
-        finally:
-            proc.send_signal(2)  # SIGINT: graceful shutdown (and a written profile)
-            try:
-                proc.wait(60 if prof else 10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-            log.close()
-        # ---- redis
-        peer = None
-        exe, how = _find_redis(progress)
-        notes.append(f"redis: {how}")
-        if exe:
-            rport = _free_port()
-            rproc = subprocess.Popen([exe, "--port", str(rport), "--save", "", "--appendonly", "no",
-                                      "--client-output-buffer-limit", "pubsub 0 0 0", "--maxclients", "20000"],
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            try:
-                _wait_port(rport, rproc)
-                out = subprocess.run([exe, "--version"], capture_output=True, text=True).stdout.strip()
-                p["redis_version"] = out
-                peer = _run_load(RedisDriver(rport), rproc, walkers_factory, view_cells, p, progress)
-            except (RuntimeError, OSError) as exc:
-                notes.append(f"redis run failed: {exc}")
-            finally:
-                rproc.kill()  # no graceful stop needed (no persistence); it may be busy flushing backlogs
-                rproc.wait(10)
-    results = {k: ours[k] for k in ("updates_in_per_s", "deliveries_per_s", "latency_p50_ms", "latency_p99_ms",
-                                    "cpu_s_per_million_deliveries", "rss_bytes_per_entity")}
-    results.update({k: v for k, v in ours.items() if k not in results})
-    body: dict[str, Any] = {"params": p, "results": results, "notes": notes}
-    if peer:
-        results["redis_deliveries_per_s"] = peer["deliveries_per_s"]
-        results["ratio_vs_redis"] = ours["deliveries_per_s"] / max(peer["deliveries_per_s"], 1e-9)
-        body["peer"] = {"redis": peer}
+                def walkers_factory():
+                    return Walkers(topo, n_ent, random.Random(p["seed"] + 1))
+
+                progress(f"step {n_ent} entities x {n_view} viewers: {system}")
+                try:
+                    with started(system, exes[system], topo_path, topo.digest, p, plan, Path(tmpd),
+                                 progress) as (driver, proc, scrape):
+                        res = _run_load(driver, proc, walkers_factory, view_cells, pk, progress, scrape,
+                                        OfferedCounter(view_cells, p["n_cells"]))
+                except (RuntimeError, OSError) as exc:
+                    progress(f"{system} at {n_ent} x {n_view} failed: {exc!r}")
+                    notes.append(f"{system} at {n_ent} x {n_view} failed: {exc!r}")
+                    return None
+                if standard_step:
+                    standard[system] = res
+                row = step_row(n_ent, n_view, res)
+                ladder[system].append(row)
+                shown = ("offered_deliveries_per_s", "deliveries_per_s", "latency_p99_ms", "machine_busy_cores")
+                progress(f"{system}: {json.dumps({x: row[x] for x in shown}, default=float)}")
+                return row
+
+            for k, (n_ent, n_view) in enumerate(steps):  # upward from the standard load
+                for system in list(climbing):
+                    row = step(system, n_ent, n_view, k == 0)
+                    if row is None or past_saturation(row):
+                        climbing.remove(system)
+                    elif (row["loadgen_max_tick_lateness_ms"] or 0.0) > 2000.0:
+                        notes.append(f"the load generator fell {row['loadgen_max_tick_lateness_ms']:.0f} ms "
+                                     f"behind at {n_ent} x {n_view} ({system}): it, not {system}, is the limit "
+                                     "there; the ladder stops climbing")
+                        climbing = []
+                        break
+                if not climbing:
+                    break
+            if not quick:  # downward, for the systems that qualified nowhere above
+                for n_ent, n_view in DOWN_STEPS:
+                    for system in [s for s in ladder if not any(qualifies(r) for r in ladder[s])]:
+                        step(system, n_ent, n_view, False)
+    finally:
+        if plan["pinned"]:
+            os.sched_setaffinity(0, own_affinity)
+    results = _results(standard, ladder, p)
+    body: dict[str, Any] = {"params": p, "results": results, "notes": notes, "ladder": ladder}
+    peers = {s: standard[s] for s in ("redis", "nats") if s in standard}
+    if peers:
+        body["peer"] = peers
         body["ratio"] = {
             "deliveries_per_s": results["ratio_vs_redis"],
-            "cpu_s_per_million_deliveries": ours["cpu_s_per_million_deliveries"]
-            / max(peer["cpu_s_per_million_deliveries"], 1e-9),
+            "capacity_vs_redis": results["capacity_ratio_vs_redis"],
+            "capacity_vs_nats": results["capacity_ratio_vs_nats"],
+            "cpu_s_per_million_deliveries": ratio(results["cpu_s_per_million_deliveries"],
+                                                  peers["redis"]["cpu_s_per_million_deliveries"])
+            if "redis" in peers else None,
         }
-    else:
-        results["redis_deliveries_per_s"] = None
-        results["ratio_vs_redis"] = None
-    progress(json.dumps({k: results[k] for k in ("deliveries_per_s", "latency_p99_ms", "ratio_vs_redis")},
-                        default=float))
+    progress(json.dumps({k: results[k] for k in ("deliveries_per_s", "latency_p99_ms", "ratio_vs_redis",
+                                                 "capacity_deliveries_per_s", "capacity_ratio_vs_redis",
+                                                 "capacity_ratio_vs_nats")}, default=float))
     return body

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from entitynet import protocol as P
-from sims.bench.switch_bench import PAD, PAYLOAD, OursDriver, RedisDriver, _resp
+from sims.bench.switch_drivers import PAD, PAYLOAD, NatsDriver, OursDriver, RedisDriver, _resp
 from sims.bench.switch_readers import Scanner, Tally
 
 
@@ -17,9 +17,14 @@ def _redis_stream(recs) -> bytes:
     return b"".join(_resp(b"message", b"c7", PAYLOAD.pack(t, e, s) + PAD) for t, e, s in recs)
 
 
+def _nats_stream(recs) -> bytes:
+    return b"".join(b"MSG c%d %d 48\r\n%s\r\n" % (7 + e, 100 + s, PAYLOAD.pack(t, e, s) + PAD) for t, e, s in recs)
+
+
 def test_scanner_finds_every_record_across_any_split():
     recs = [(100.0 + i, i % 7, i) for i in range(50)]
-    for pattern, data in ((OursDriver.pattern, _ours_stream(recs)), (RedisDriver.pattern, _redis_stream(recs))):
+    for pattern, data in ((OursDriver.pattern, _ours_stream(recs)), (RedisDriver.pattern, _redis_stream(recs)),
+                          (NatsDriver.pattern, _nats_stream(recs))):
         for cut in (1, 7, 33, 64, 1000):
             sc = Scanner(pattern)
             heads = []

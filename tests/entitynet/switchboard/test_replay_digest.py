@@ -130,7 +130,7 @@ def test_replay_is_deterministic():
     assert _replay() == _replay()
 
 
-def test_replay_matches_the_pinned_digest():
+def test_replay_matches_the_pinned_digest(fanout_path):
     got = _replay()
     assert got["updates"] > 1000 and got["leaves"] > 100  # the workload exercises what it should
     assert got == PINNED

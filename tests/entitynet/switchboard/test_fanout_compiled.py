@@ -1,0 +1,73 @@
+"""The compiled fan-out loops (`_fanout.pyx`, built by pip) do exactly what the pure-Python reference does, and
+the switchboard forwards the same bytes with either.
+
+Why: the compiled path is an optimisation of three loops, never a second behaviour; the reference stays the
+fallback where no compiler was at hand. `fanout_path` runs a test once per path (the compiled one is skipped,
+saying so, where it was not built; tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from entitynet import protocol as P
+from entitynet.switchboard import outbox
+from tests.entitynet.switchboard_helpers import join, make, pub, recv
+
+
+def _random_case(seed: int):
+    rng = random.Random(seed)
+    states = {v: {rng.randrange(50): b"old"} for v in range(40)}
+    cids = set(rng.sample(range(40), 25))
+    return states, cids, rng.randrange(50)
+
+
+@pytest.mark.skipif(outbox.COMPILED is None, reason="the compiled fan-out was not built")
+def test_compiled_loops_match_the_reference():
+    c = outbox.COMPILED
+    for seed in range(20):
+        for fn in ("fan_out", "fan_out_open", "fan_out_to"):
+            a, cids, e = _random_case(seed)
+            b, _, _ = _random_case(seed)
+            if fn == "fan_out":
+                outbox.fan_out_py(a, cids, e, b"new")
+                c.fan_out(b, cids, e, b"new")
+            elif fn == "fan_out_open":
+                gone = cids | {97, 98}  # ids of clients that are gone: skipped
+                outbox.fan_out_open_py(a, gone, e, b"new")
+                c.fan_out_open(b, gone, e, b"new")
+            else:
+                outbox.fan_out_to_py(tuple(a[v] for v in cids), e, b"new")
+                c.fan_out_to(tuple(b[v] for v in cids), e, b"new")
+            assert a == b and [list(x) for x in a.values()] == [list(x) for x in b.values()]  # order too
+    with pytest.raises(KeyError):
+        c.fan_out({}, {1}, 5, b"x")  # a missing client is an error, as in the reference
+    with pytest.raises(TypeError):
+        c.fan_out_to([{}], 5, b"x")  # the handle is a tuple
+
+
+def _scenario() -> list[list[tuple]]:
+    """Viewers on overlapping cells, entities that stay and move: what each viewer receives, in order."""
+    sb = make()
+    viewers = [join(sb) for _ in range(6)]
+    for k, v in enumerate(viewers):
+        sb.receive(v, [P.Subscribe((k % 3, 3), ())], 0.0)
+        recv(sb, v)
+    owner = join(sb)
+    out = []
+    for seq in range(1, 8):
+        sb.receive(owner, [pub(1, seq, (3,)), pub(2, seq, (seq % 3,)), pub(3, seq, (1, 2))], seq * 0.1)
+        if seq % 2:
+            out.append([[(type(m).__name__, getattr(m, "seq", None)) for m in recv(sb, v)] for v in viewers])
+    return out
+
+
+def test_forwarding_is_the_same_on_both_paths(fanout_path):
+    got = _scenario()
+    outbox.use_compiled(False)
+    want = _scenario()  # the reference
+    assert got == want
+    assert any(("Leave", None) in frame for step in want for frame in step)  # the scenario has LEAVEs ...
+    assert sum(len(frame) for step in want for frame in step) > 30  # ... and plenty of UPDATEs
