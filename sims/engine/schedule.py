@@ -261,3 +261,46 @@ def _snap(route: Route, p: tuple[float, float]) -> float | None:
     d = np.hypot(pts[:, 0] - p[0], pts[:, 1] - p[1])
     i = int(np.argmin(d))
     return float(ss[i]) if d[i] <= STOP_SNAP else None
+
+
+#: the schedule bundled with the package (see sims/data/HSL-GTFS-LICENSE.md)
+BUNDLED_FEED = Path(__file__).resolve().parents[1] / "data" / "hsl-helsinki-centre.zip"
+
+
+def load_schedule(path: str | Path, topo, *, date: str | None = None, cache: Path | None = None,
+                  seed: int = 1) -> Schedule:
+    """`read_schedule`, cached as JSON under `cache` (keyed by the feed's bytes, the map's digest, the date,
+    the seed and this module's source), since matching shapes onto the map takes seconds."""
+    import hashlib
+    import json
+
+    if cache is None:
+        return read_schedule(path, topo, date=date, seed=seed)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise GtfsError(f"{path}: cannot read the feed ({exc.strerror})") from None
+    h = hashlib.sha256(data)
+    h.update(f"{topo.digest}|{date}|{seed}".encode())
+    h.update(Path(__file__).read_bytes())
+    file = cache / f"schedule-{h.hexdigest()[:16]}.json"
+    if file.exists():
+        try:
+            raw = json.loads(file.read_text())
+            deps = [Departure(d[0], d[1], d[2], d[3], tuple((e, s) for e, s in d[4]),
+                              tuple(Stop(*st) for st in d[5])) for d in raw["departures"]]
+            return Schedule(deps, Counter(raw["report"]), raw["service_date"])
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # unreadable cache: rebuild it
+    sched = read_schedule(path, topo, date=date, seed=seed)
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+        tmp = file.with_suffix(".tmp")
+        tmp.write_text(json.dumps({
+            "departures": [[d.time, d.trip_id, d.mode, d.ref, [list(e) for e in d.edges],
+                            [[st.s, st.dwell, st.name] for st in d.stops]] for d in sched.departures],
+            "report": dict(sched.report), "service_date": sched.service_date}))
+        tmp.replace(file)
+    except OSError:
+        pass  # a read-only cache only costs the next run the matching again
+    return sched
