@@ -37,6 +37,7 @@ class ShellConfig:
     token: str = ""
     artifact: Path | None = None
     keys: bool = True  # read `p` from a terminal
+    warmup_ticks: int = 0  # ticks left out of the lateness figures (the start's burst of first publishes)
 
 
 class Shell:
@@ -113,9 +114,10 @@ class Shell:
                 due = t + period
                 continue
             late = t - due
-            self.lateness.append(late)
-            if late > period:
-                self.behind += 1
+            if sim.ticks >= cfg.warmup_ticks:
+                self.lateness.append(late)
+                if late > period:
+                    self.behind += 1
             down = sum(1 for c in pubs + views if not c.session.connected)
             if down:
                 self.gap_s += sim.dt

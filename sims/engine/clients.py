@@ -24,7 +24,7 @@ class Fleet:
     """Every live entity's `Player`; `step(now)` returns the messages to send, one list per connection."""
 
     def __init__(self, world: World, connections: int = 4, *, fix_interval: float = 1.0,
-                 gps_sigma: float = GPS_SIGMA, seed: int = 1):
+                 gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None):
         if connections < 1:
             raise ValueError(f"at least one connection, got {connections}")
         if not fix_interval > 0.0:
@@ -33,6 +33,7 @@ class Fleet:
         self.connections = connections
         self.fix_interval = fix_interval
         self.gps_sigma = gps_sigma
+        self.threshold = threshold  # the client core's drift threshold (None: its default, the GPS accuracy)
         self.rng = np.random.default_rng(seed)
         self.players: dict[int, Player] = {}
         self.next_fix: dict[int, float] = {}
@@ -42,7 +43,12 @@ class Fleet:
         return entity % self.connections
 
     def add(self, a: Agent) -> None:
-        self.players[a.id] = Player(self.world.topo, a.id, a.name, accuracy=self.gps_sigma)
+        route, stops = (), ()
+        if a.stops or a.label:  # a scheduled vehicle knows its route and stops a priori
+            route = a.route.edges
+            stops = [a.route.edge_offset(st.s) for st in a.stops]
+        self.players[a.id] = Player(self.world.topo, a.id, a.name, accuracy=self.gps_sigma, route=route,
+                                    stops=stops, threshold=self.threshold)
         phase = (a.id * 0.618033988749895) % 1.0
         self.next_fix[a.id] = self.world.now + phase * self.fix_interval
 

@@ -37,6 +37,7 @@ class SimConfig:
     subscribe: str = "pvs"  # or "radius"
     radius: float = 500.0
     sample_every: float = 1.0
+    threshold: float | None = None  # the client core's drift threshold (None: its default)
 
     def __post_init__(self) -> None:
         problems = []
@@ -68,7 +69,7 @@ class Sim:
         self.population = Population(self.world, PopulationConfig(config.entities, config.car_share,
                                                                   transit=config.transit), schedule)
         self.fleet = Fleet(self.world, config.connections, fix_interval=config.fix_interval,
-                           gps_sigma=config.gps_sigma, seed=config.seed)
+                           gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold)
         if cells_at is None:
             cells_at = pvs_cells_at(topo) if config.subscribe == "pvs" else None
             if cells_at is None:
