@@ -1,31 +1,23 @@
-"""`entitynet demo`: a live city on loopback.
+"""`entitynet demo`: a live city on loopback, as a preset of `entitynet sim`.
 
-One shard server (in this process, real TCP), a few hundred honest clients (pedestrians and cars, each through
-the client core) multiplexed over a few connections the way a proxy carries a fleet, and viewers whose cameras
-move at street level and above the roofs, subscribing to the PVS of their view cell. A summary line is printed
-every few seconds; the run stops after `duration` seconds or on Ctrl-C.
+The preset: the bundled Helsinki map with its PVS, the bundled HSL schedule's trams and buses from 08:00 (those
+under way at the start placed along their routes), a few hundred pedestrians and cars on random OD trips,
+every entity deciding through its honest-client core what to publish, multiplexed over a few connections the
+way a proxy carries a fleet, and viewers at street level and above the roofs subscribing to the PVS of their
+view cell. One shard server runs in this process on a free loopback port; the summary line comes every few
+seconds; the run stops after `duration` seconds or on Ctrl-C (SIGUSR1 pauses and resumes).
 """
 
 from __future__ import annotations
 
-import random
-import signal
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import trio
-
-from entitynet import protocol as P
-from entitynet.client import FixRejected, GhostStore, Subscriptions, netview
-from entitynet.connection import Connection
-from entitynet.server.app import Server, serve
-from entitynet.server.config import ServerConfig
-from sims.mobility import Mover, Trajectory, random_start
-from topology.raw import PEDESTRIAN
+from sims.engine.schedule import BUNDLED_FEED, load_schedule
+from sims.engine.sim import Sim, SimConfig
+from sims.shell import Shell, ShellConfig
 
 Say = Callable[[str], None]
 
@@ -43,6 +35,7 @@ class DemoConfig:
     seed: int = 1
     host: str = "127.0.0.1"
     port: int = 0
+    transit: bool = True  # trams and buses of the bundled schedule
 
 
 @dataclass
@@ -53,167 +46,28 @@ class Stats:
     subscribe_msgs: int = 0
 
 
-def distance_cells_at(topo, view_distance: float = 500.0) -> Callable[[float, float, float], np.ndarray]:
-    """Fallback when the artifact has no PVS: every cell whose footprint centre is within the view distance."""
-    b = topo.cell_footprints.bounds()
-    centres = np.column_stack([(b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2])
-
-    def cells_at(x: float, y: float, z: float) -> np.ndarray:
-        return np.flatnonzero(np.hypot(centres[:, 0] - x, centres[:, 1] - y) <= view_distance)
-
-    return cells_at
-
-
-def pvs_lookup(topo, say: Say) -> Callable[[float, float, float], np.ndarray]:
-    if "pvs" in topo.meta:
-        from topology.pvs import PvsIndex
-
-        return PvsIndex.from_topology(topo).cells_at
-    say("the artifact has no PVS: viewers subscribe to every cell within 500 m instead")
-    return distance_cells_at(topo)
-
-
-class Viewer:
-    """A camera that moves and subscribes to the PVS of its view cell; it keeps ghosts of what it receives."""
-
-    def __init__(self, topo, net, index: int, high: bool, cells_at, rng: random.Random):
-        self.index = index
-        self.high = high
-        self.z = rng.uniform(40.0, 90.0) if high else 1.7
-        self.traj = Trajectory.starting_at(net, PEDESTRIAN, rng, random_start(net, PEDESTRIAN, rng))
-        self.speed = 6.0 if high else 1.4
-        self.subs = Subscriptions(cells_at)
-        self.ghosts = GhostStore(net)
-        self.conn: Connection | None = None
-        self.deliveries = 0
-
-    def on_message(self, msg: P.Message) -> None:
-        if isinstance(msg, P.Update | P.Leave):
-            if isinstance(msg, P.Update):
-                self.deliveries += 1
-            self.ghosts.receive(msg, time.time())
-        elif isinstance(msg, P.Welcome):
-            self.ghosts.ghosts.clear()  # entity ids are per server session
-
-    def move(self, dt: float) -> list[P.Subscribe]:
-        self.traj.advance(self.speed * dt)
-        x, y = self.traj.position()
-        msgs = self.subs.move_camera(x, y, self.z)
-        self.ghosts.set_visible(self.subs.cells)
-        return msgs
+def sim_config(config: DemoConfig) -> SimConfig:
+    """The `entitynet sim` settings of the demo preset."""
+    return SimConfig(entities=config.entities, viewers=config.viewers, connections=config.connections,
+                     car_share=config.car_share, roof_share=config.roof_share, fix_interval=config.fix_interval,
+                     seed=config.seed, start=8 * 3600.0, transit=config.transit, subscribe="pvs")
 
 
 async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print) -> Stats:
-    rng = random.Random(config.seed)
-    net = netview(topo)
-    cells_at = pvs_lookup(topo, say)
-    stats = Stats()
-    async with trio.open_nursery() as nursery:
-        server: Server = await nursery.start(
-            serve, ServerConfig(host=config.host, port=config.port, topology=str(artifact), open_mode=True)
-        )
-        address = (config.host, server.port)
-        say(f"shard server listening on {config.host}:{server.port} (open mode: no tokens, local use only)")
+    from entitynet.topology_cache import cache_dir
 
-        async with trio.open_nursery() as clients:
-            movers = [
-                Mover(topo, net, i + 1, "car" if rng.random() < config.car_share else "pedestrian", rng)
-                for i in range(config.entities)
-            ]
-            kinds = Counter(m.etype.name for m in movers)
-            conns = [Connection(address, topo.digest, on_message=lambda m: None) for _ in range(config.connections)]
-            for c in conns:
-                await clients.start(c.run)
-            n_high = round(config.viewers * config.roof_share)
-            viewers = [Viewer(topo, net, i, i < n_high, cells_at, rng) for i in range(config.viewers)]
-            for v in viewers:
-                v.conn = Connection(address, topo.digest, on_message=v.on_message)
-                await clients.start(v.conn.run)
-            say(
-                f"{len(movers)} entities ({', '.join(f'{n} {k}s' for k, n in sorted(kinds.items()))}) over "
-                f"{len(conns)} connections; {len(viewers)} viewers ({n_high} above the roofs)"
-            )
-
-            stop = trio.Event()
-            clients.start_soon(_stop_on_signal, stop)
-            if config.duration is not None:
-                clients.start_soon(_stop_after, stop, config.duration)
-            start = time.time()
-            last_summary = start
-            window = Stats()
-            next_tick = trio.current_time()
-            while not stop.is_set():
-                now = time.time()
-                batches: list[list[P.Publish]] = [[] for _ in conns]
-                for k, m in enumerate(movers):
-                    m.step(config.fix_interval)
-                    try:
-                        msgs = m.fix(now) + m.tick(now)
-                    except FixRejected:
-                        stats.rejected_fixes += 1
-                        continue
-                    for msg in msgs:
-                        if isinstance(msg, P.Publish):
-                            batches[k % len(conns)].append(msg)
-                        else:
-                            await conns[k % len(conns)].unpublish(msg.entity)
-                for c, batch in zip(conns, batches, strict=True):
-                    if batch:
-                        await c.publish(*batch)
-                        window.published += len(batch)
-                for v in viewers:
-                    for sub in v.move(config.fix_interval):
-                        await v.conn.subscribe(sub.added, sub.removed)
-                        window.subscribe_msgs += 1
-                if now - last_summary >= config.summary_every:
-                    _summarise(say, now - start, now - last_summary, window, viewers, movers, server)
-                    stats.published += window.published
-                    stats.subscribe_msgs += window.subscribe_msgs
-                    window = Stats()
-                    for v in viewers:
-                        stats.deliveries += v.deliveries
-                        v.deliveries = 0
-                    last_summary = now
-                next_tick += config.fix_interval
-                with trio.move_on_at(next_tick):
-                    await stop.wait()
-            stats.published += window.published
-            stats.deliveries += sum(v.deliveries for v in viewers)
-            say(
-                f"stopping after {time.time() - start:.0f} s: {stats.published} updates published, "
-                f"{stats.deliveries} deliveries to viewers"
-            )
-            clients.cancel_scope.cancel()  # clients first, so that none of them sees the server go away
-        await server.stop()
-        nursery.cancel_scope.cancel()
+    schedule = load_schedule(BUNDLED_FEED, topo, cache=cache_dir()) if config.transit else None
+    sim = Sim(topo, sim_config(config), schedule)
+    shell = Shell(sim, ShellConfig(duration=config.duration, summary_every=config.summary_every,
+                                   artifact=artifact, host=config.host, port=config.port, keys=False), say)
+    kinds = sim.world.by_type()
+    say(f"{sum(kinds.values()) or config.entities} entities, {len(sim.viewers)} viewers "
+        f"({sum(v.high for v in sim.viewers)} above the roofs) subscribing by {sim.subscribe_by}, over "
+        f"{config.connections} connections")
+    start = time.perf_counter()
+    rep = await shell.run()
+    stats = Stats(published=rep["clients"]["published"], deliveries=rep["viewers"]["deliveries"],
+                  rejected_fixes=rep["clients"]["rejected_fixes"], subscribe_msgs=shell.subscribe_msgs)
+    say(f"stopping after {time.perf_counter() - start:.0f} s: {stats.published} updates published, "
+        f"{stats.deliveries} deliveries to viewers")
     return stats
-
-
-def _summarise(say: Say, elapsed: float, dt: float, window: Stats, viewers: list[Viewer], movers, server) -> None:
-    now = time.time()
-    street = [len(v.ghosts.positions(now)) for v in viewers if not v.high]
-    roof = [len(v.ghosts.positions(now)) for v in viewers if v.high]
-    deliveries = sum(v.deliveries for v in viewers)
-    subs = [len(v.subs.cells) for v in viewers]
-    say(
-        f"[{elapsed:5.0f}s] entities {len(movers)} | updates {window.published / dt:6.1f}/s | "
-        f"deliveries {deliveries / dt:7.1f}/s | viewers see: street level {_mean(street):5.1f}, "
-        f"above roofs {_mean(roof):5.1f} entities (subscribed to {_mean(subs):.0f} of "
-        f"{server.sb.config.n_cells} cells)"
-    )
-
-
-def _mean(xs: list[float]) -> float:
-    return float(np.mean(xs)) if xs else 0.0
-
-
-async def _stop_after(stop: trio.Event, seconds: float) -> None:
-    await trio.sleep(seconds)
-    stop.set()
-
-
-async def _stop_on_signal(stop: trio.Event) -> None:
-    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
-        async for _ in signals:
-            stop.set()
-            return

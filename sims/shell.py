@@ -36,6 +36,8 @@ class ShellConfig:
     server: tuple[str, int] | None = None  # None = start one in this process
     token: str = ""
     artifact: Path | None = None
+    host: str = "127.0.0.1"  # of the in-process server
+    port: int = 0  # of the in-process server (0: any free port)
     keys: bool = True  # read `p` from a terminal
     warmup_ticks: int = 0  # ticks left out of the lateness figures (the start's burst of first publishes)
 
@@ -53,6 +55,7 @@ class Shell:
         self.gap_s = 0.0
         self.outages = 0
         self.server = None
+        self.subscribe_msgs = 0
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
 
     # ---- the run ---------------------------------------------------------------------------------------------
@@ -65,9 +68,9 @@ class Shell:
                 from entitynet.server.config import ServerConfig
 
                 self.server = await nursery.start(serve, ServerConfig(
-                    host="127.0.0.1", port=0, topology=str(cfg.artifact), open_mode=True))
-                address = ("127.0.0.1", self.server.port)
-                self.say(f"shard server listening on 127.0.0.1:{self.server.port} (in this process, open mode)")
+                    host=cfg.host, port=cfg.port, topology=str(cfg.artifact), open_mode=True))
+                address = (cfg.host, self.server.port)
+                self.say(f"shard server listening on {cfg.host}:{self.server.port} (in this process, open mode)")
             digest = self.sim.topo.digest
             async with trio.open_nursery() as clients:
                 pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
@@ -147,6 +150,7 @@ class Shell:
         for c, msgs in zip(views, out_subs, strict=True):
             for m in msgs:
                 await c.subscribe(m.added, m.removed)
+                self.subscribe_msgs += 1
 
     def _eid_map(self) -> dict[int, int] | None:
         if self.server is None:

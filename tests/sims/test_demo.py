@@ -13,4 +13,6 @@ async def test_demo_runs_and_viewers_receive(helsinki, helsinki_path):
     assert stats.deliveries > 0
     assert stats.rejected_fixes == 0
     assert any("deliveries" in line for line in lines)
+    # the demo is the sim's preset: scheduled trams and buses run among the pedestrians and cars
+    assert any(" tram" in line and " bus" in line and " pedestrian" in line for line in lines)
     assert lines[-1].startswith("stopping after")
