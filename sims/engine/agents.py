@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from sims.engine.params import TypeParams
 from sims.engine.routes import Route
 
@@ -19,6 +21,25 @@ class Stop:
     s: float
     dwell: float
     name: str = ""
+
+
+@dataclass(frozen=True)
+class AreaWalk:
+    """A walk inside an area (square, park) once the route has brought the entity to the area's node: times
+    from arrival and local (x, y) (`sims.mobility.area_walk`), and the area's cell."""
+
+    t: np.ndarray
+    xy: np.ndarray
+    cell: int
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+    def at(self, dt: float) -> tuple[float, float]:
+        i = min(int(np.searchsorted(self.t, dt, side="right")) - 1, len(self.t) - 1)
+        x, y = self.xy[max(i, 0)]
+        return float(x), float(y)
 
 
 @dataclass
@@ -50,7 +71,10 @@ class Agent:
     stalled_until: float = -1.0  # a breakdown: stands still until then
     label: str = ""
     distance: float = 0.0  # metres travelled since spawn
+    area: AreaWalk | None = None  # a walk inside an area at the end of the route (pedestrians)
+    in_area_since: float | None = None
     _episode: tuple[str, int | None] = ("", None)
+    _clock: float = 0.0  # the world's time at the last step (for the area walk)
 
     @property
     def name(self) -> str:
@@ -61,7 +85,10 @@ class Agent:
         return self.params.length
 
     def xy(self, behind: float = 0.0) -> tuple[float, float]:
-        """Local (x, y) of the point `behind` metres behind the front, in the agent's lane."""
+        """Local (x, y) of the point `behind` metres behind the front, in the agent's lane (inside its area
+        when it walks there)."""
+        if self.area is not None and self.in_area_since is not None:
+            return self.area.at(self._clock - self.in_area_since)
         return self.route.xy(max(self.s - behind, 0.0), self.lateral)
 
     def part_points(self) -> list[tuple[float, float]]:
@@ -75,6 +102,8 @@ class Agent:
 
     def cells(self) -> tuple[int, ...]:
         """The visibility cells the body occupies now (front first)."""
+        if self.area is not None and self.in_area_since is not None:
+            return (self.area.cell,)
         route = self.route
         out = [route.cell(min(self.s, route.length))]
         if self.length > 0.0:

@@ -26,6 +26,8 @@ class PopulationConfig:
     car_share: float = 0.3
     rates: dict[str, float] = field(default_factory=dict)  # extra arrivals per second, by type
     transit: bool = True
+    area_share: float = 0.2  # pedestrians whose trip ends with a walk inside a square or park
+    area_walk: tuple[float, float] = (60.0, 300.0)  # seconds of that walk
 
     def __post_init__(self) -> None:
         if self.entities < 0:
@@ -47,6 +49,8 @@ class Population:
         self.rng = random.Random(world.rng.randrange(2**32))
         self.routers = {"pedestrian": Router(world.net, PEDESTRIAN, self.rng),
                         "car": Router(world.net, VEHICLE, self.rng)}
+        net = world.net
+        self.area_nodes = [n for n in net.area_node if any(net.edge_net[e] & PEDESTRIAN for e in net.node_edges[n])]
         self.trips: set[int] = set()  # ids of the OD-trip entities (the target population)
         self.transit: dict[int, str] = {}
         self._last = world.now
@@ -93,11 +97,22 @@ class Population:
         return "car" if self.rng.random() < self.config.car_share else "pedestrian"
 
     def _trip(self, name: str, mid: bool = False) -> Agent:
-        edges = self.routers[name].trip(self.rng)
+        rng = self.rng
+        router = self.routers[name]
+        edges, walk = None, 0.0
+        if name == "pedestrian" and self.area_nodes and rng.random() < self.config.area_share:
+            for _ in range(5):  # to a square or park, then a walk inside it
+                start = (router.edges[rng.randrange(len(router.edges))], rng.choice((1, -1)))
+                edges = router.path(start, self.area_nodes[rng.randrange(len(self.area_nodes))])
+                if edges:
+                    walk = rng.uniform(*self.config.area_walk)
+                    break
+        if not edges:
+            edges = router.trip(rng)
         s = 0.0
         if mid:
-            s = self.rng.uniform(0.0, 0.8) * Route(self.world.net, edges).length
-        a = self.world.add(name, edges, s=s)
+            s = rng.uniform(0.0, 0.8) * Route(self.world.net, edges).length
+        a = self.world.add(name, edges, s=s, area_walk=walk)
         self.trips.add(a.id)
         return a
 

@@ -14,9 +14,11 @@ import random
 from collections import Counter
 from collections.abc import Iterable
 
+import numpy as np
+
 from entitynet.client import netview
 from entitynet.client.network import DirEdge
-from sims.engine.agents import Agent, Stop
+from sims.engine.agents import Agent, AreaWalk, Stop
 from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead
 from sims.engine.crossings import Crossings, Movement
 from sims.engine.params import TypeParams, params
@@ -49,8 +51,10 @@ class World:
     # ---- spawning ---------------------------------------------------------------------------------------------
     def add(self, kind: str | TypeParams, edges: list[DirEdge], *, s: float = 0.0, v: float | None = None,
             v0: float | None = None, lateral: float | None = None, stops: Iterable[Stop] = (),
-            label: str = "") -> Agent:
-        """Spawn an entity on a connected route of directed edges, its front `s` metres along it."""
+            label: str = "", area_walk: float = 0.0) -> Agent:
+        """Spawn an entity on a connected route of directed edges, its front `s` metres along it. With
+        `area_walk` > 0 and a route ending at an area node, the entity then walks inside the area for about that
+        many seconds (random waypoints) before it leaves the simulation."""
         p = kind if isinstance(kind, TypeParams) else params(kind)
         route = Route(self.net, edges)
         if not 0.0 <= s <= route.length:
@@ -66,6 +70,14 @@ class World:
             a.next_stop += 1
         if p.avoids:
             a.crossings = [(sn, n, k) for sn, n, k in route.nodes() if self._junction[n] and sn > s - a.length]
+        end = self.net.end_node(route.edges[-1])
+        area = self.net.node_area[end]
+        if area_walk > 0.0 and area >= 0:
+            from sims.mobility.areas import area_walk as walk
+
+            t, xy = walk(np.asarray(self.topo.area_polygons.exterior(area)), rng, area_walk, speed=a.v0, dt=0.5)
+            a.area = AreaWalk(t, xy, self.net.area_cell[area])
+        a._clock = self.now
         self._next_id += 1
         self.agents[a.id] = a
         self.counters["spawned"] += 1
@@ -102,10 +114,13 @@ class World:
         for a, new_s, new_v, limit in moves:
             a.distance += max(new_s - a.s, 0.0)
             a.s, a.v = new_s, new_v
+            a._clock = now
             self._after_move(a, limit, now)
         self.now = now
 
     def _decide(self, a: Agent, index, now: float, dt: float) -> tuple[Agent, float, float, Obstacle | None]:
+        if a.in_area_since is not None:  # walking inside its area: the walk's samples are the truth
+            return a, a.s, 0.0, None
         if a.stalled_until > now:
             a.cause = "stall"
             return a, a.s, 0.0, None
@@ -146,7 +161,15 @@ class World:
         return a, new_s, new_v, limit
 
     def _after_move(self, a: Agent, limit: Obstacle | None, now: float) -> None:
+        if a.in_area_since is not None:
+            if now - a.in_area_since >= a.area.duration:
+                self.remove(a.id, "arrived")
+            return
         if a.s >= a.route.length - 1e-6:
+            if a.area is not None:
+                a.in_area_since = now
+                self.counters["area_walks"] += 1
+                return
             self.remove(a.id, "arrived")
             return
         for sn, n, _k in list(a.crossings):  # leave junctions the whole body has passed

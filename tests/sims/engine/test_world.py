@@ -179,3 +179,27 @@ def test_crossing_reservations_first_come_on_boxes():
     assert c.request(9, 2, sn, 4.0)
     assert not c.request(9, 4, late, 4.0)
     assert c.holders(9) == [2]
+
+
+def test_pedestrian_walks_inside_the_area_at_the_end_of_its_trip():
+    from sims.mobility.areas import point_in_ring
+    from tests.entitynet.client_fixtures import area_square
+
+    topo = area_square(side=60.0)  # edge 0: W -> Q (the square's node)
+    w = World(topo, seed=2)
+    ped = w.add("pedestrian", [(0, 1)], s=120.0, area_walk=60.0)
+    ring = topo.area_polygons.exterior(0)
+    run(w, 20.0)
+    assert ped.in_area_since is not None and w.counters["area_walks"] == 1
+    seen = set()
+    for _ in range(40):
+        run(w, 1.0)
+        if ped.id not in w.agents:
+            break
+        x, y = ped.xy()
+        assert point_in_ring(ring, x, y)
+        assert ped.cells() == (int(topo.area_cell[0]),)
+        seen.add((round(x), round(y)))
+    assert len(seen) > 3  # it moves about inside
+    run(w, 120.0)
+    assert ped.id not in w.agents and w.counters["arrived"] == 1
