@@ -95,7 +95,7 @@ def run(args, progress) -> dict[str, Any]:
         topo, artifact = bundled_topology(progress, with_pvs=True)
     schedule = load_schedule(BUNDLED_FEED, topo, cache=cache_dir())
     seconds = getattr(args, "sim_seconds", None) or (15.0 if quick else 60.0)
-    entities, viewers = (150, 16) if quick else (600, 60)
+    entities, viewers = (150, 16) if quick else (400, 40)
 
     progress(f"PVS and radius runs: {entities} entities, {viewers} viewers, {seconds:g} simulated s")
     base = dict(entities=entities, viewers=viewers, seed=7)
@@ -116,11 +116,11 @@ def run(args, progress) -> dict[str, Any]:
                       "missed_visibility": tv["missed_visibility"]})
 
     progress("fleet core: fixes per second on one core")
-    fleet_rate = _fleet_rate(topo, 300 if quick else 2000, 3 if quick else 15)
+    fleet_rate = _fleet_rate(topo, 300 if quick else 1000, 3 if quick else 10)
 
     progress("real time with the server in this process")
     trials = []
-    n = 100 if quick else 200
+    n = 100
     rt_seconds = 6.0 if quick else 20.0  # simulated = wall seconds at speed 1, after the warm-up
     best = 0
     lateness = None

@@ -4,6 +4,10 @@ Why a route object rather than the mobility model's growing `Trajectory`: the en
 ahead along the way they will really take (to follow a leader, stop at a bus stop, reserve a crossing), so the
 whole path is known when the entity spawns: an OD trip's shortest path, or a transit line's a-priori route.
 
+Trips never pass *through* an area node: an edge that serves an area is clipped at the area's boundary while
+the node sits at its centre, so a path through it would jump across the area (areas are walked, not crossed
+along edges). An area node may be a trip's destination (the walk inside it follows).
+
 Shortest paths: no scipy, so Dijkstra in pure Python from a bounded pool of destination nodes (one tree each,
 built lazily and cached); a trip goes from a random origin edge to one of the pool's destinations along that
 tree. This keeps the start-up cost bounded (pool size x one Dijkstra) whatever the number of entities.
@@ -107,6 +111,8 @@ class Router:
             if n in done:
                 continue
             done.add(n)
+            if n != dest and net.node_area[n] >= 0:
+                continue  # no way *through* an area: its edges stop at its boundary, the node is its centre
             for e in net.node_edges[n]:
                 if not net.edge_net[e] & self.networks:
                     continue
@@ -124,7 +130,7 @@ class Router:
         begins by going straight back along `start`, the trip starts on the reversed edge instead."""
         tree = self.tree(dest)
         n = self.net.end_node(start)
-        if n not in tree:
+        if n not in tree or (n != dest and self.net.node_area[n] >= 0):
             return None
         rest: list[DirEdge] = []
         for _ in range(self.net.n_edges + 1):

@@ -76,6 +76,13 @@ class World:
             from sims.mobility.areas import area_walk as walk
 
             t, xy = walk(np.asarray(self.topo.area_polygons.exterior(area)), rng, area_walk, speed=a.v0, dt=0.5)
+            # from where the route meets the area (its boundary) straight to the walk's first waypoint
+            ex, ey = route.xy(route.length)
+            steps = max(int(np.hypot(xy[0, 0] - ex, xy[0, 1] - ey) / max(a.v0 * 0.5, 0.1)), 1)
+            k = np.arange(steps)[:, None] / steps
+            lead = np.array([ex, ey]) + k * (xy[0] - np.array([ex, ey]))
+            t = np.concatenate([np.arange(steps) * 0.5, t + steps * 0.5])
+            xy = np.concatenate([lead, xy])
             a.area = AreaWalk(t, xy, self.net.area_cell[area])
         a._clock = self.now
         self._next_id += 1

@@ -51,3 +51,17 @@ def test_od_trips_are_connected_shortest_paths_on_their_network():
     # the pedestrian-only street is never used by a car
     ped_only = {e for e in range(net.n_edges) if not net.edge_net[e] & VEHICLE}
     assert ped_only and all(not (set(e for e, _ in router.trip(rng)) & ped_only) for _ in range(20))
+
+
+def test_trips_never_pass_through_an_area():
+    from tests.entitynet.client_fixtures import area_square
+
+    topo = area_square()  # W -> Q (area) -> E: the only way from W to E crosses the square
+    net = netview(topo)
+    router = Router(net, PEDESTRIAN, random.Random(1), pool=3)
+    east = net.edge_to[1]
+    assert router.path((0, 1), east) is None  # would cross the square through its centre
+    west = net.edge_from[0]
+    assert router.path((0, -1), west) == [(0, -1)]
+    area = net.edge_to[0]
+    assert router.path((0, 1), area) == [(0, 1)]  # to the square itself: fine (the walk inside follows)
