@@ -4,7 +4,8 @@ Why through `Player` and not the truth: the simulation measures what a viewer se
 every entity takes noisy fixes (default 5 m at 1 Hz) and lets the client core decide what to publish, exactly as
 a phone or a proxy would. Entities are multiplexed over a few connections as a proxy carries a fleet (entity id
 modulo the connection count); the wire id of an entity is its simulation id (local ids on a connection).
-Fixes are staggered over the fix interval by entity id so that a tick does not carry every fix at once.
+Fixes are staggered over the fix interval by entity id so that a tick does not carry every fix at once; the
+client cores' timers (validity expiry, heartbeat) run every tick.
 """
 
 from __future__ import annotations
@@ -64,6 +65,13 @@ class Fleet:
         agents = self.world.agents
         for aid, due in self.next_fix.items():
             if due > now:
+                # between fixes the client core's timers run every tick: a validity period that runs out is
+                # renewed at once, not at the next fix (or viewers drop the ghost for up to a fix interval)
+                msgs = self.players[aid].tick(now)
+                if msgs:
+                    out[self.conn_of(aid)].extend(msgs)
+                    self.counters["published"] += sum(isinstance(m, P.Publish) for m in msgs)
+                    self.counters["unpublished"] += sum(not isinstance(m, P.Publish) for m in msgs)
                 continue
             a = agents.get(aid)
             if a is None:
