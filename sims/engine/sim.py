@@ -37,6 +37,7 @@ class SimConfig:
     subscribe: str = "pvs"  # or "radius"
     radius: float = 500.0
     sample_every: float = 1.0
+    measure_after: float = 2.0  # s: the start, when every entity appears at once before its first fix, is not sampled
     threshold: float | None = None  # the client core's drift threshold (None: its default)
 
     def __post_init__(self) -> None:
@@ -80,7 +81,7 @@ class Sim:
         self.viewers = [SimViewer(self.world.net, i, i < n_high, cells_at, rng) for i in range(config.viewers)]
         self.measure = Measure()
         self.dt = 1.0 / config.tick_hz
-        self._next_sample = config.start
+        self._next_sample = config.start + config.measure_after
         self.ticks = 0
 
     @property
