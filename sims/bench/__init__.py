@@ -22,6 +22,7 @@ SUITES = {
     "dr": "sims.bench.dr_bench",
     "switch": "sims.bench.switch_bench",
     "pvs": "sims.bench.pvs_bench",
+    "sim": "sims.bench.sim_bench",
 }
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 import sims
+import sims.engine.sim
 import sims.mobility
 
 MAX_LINES = 500
@@ -29,8 +30,12 @@ def test_the_old_mover_models_are_gone(gone):
 def test_demo_and_benchmarks_use_the_one_model():
     from sims import demo
     from sims.bench import dr_bench, dr_data, switch_bench, switch_replay
+    from sims.engine import clients, params, viewers
 
     assert demo.Mover is sims.mobility.Mover and demo.Trajectory is sims.mobility.Trajectory
+    # the simulation engine moves and measures with the one model
+    assert viewers.Trajectory is sims.mobility.Trajectory and clients.gps is sims.mobility.gps
+    assert params.kind is sims.mobility.kind
     assert switch_bench.Walkers is sims.mobility.Walkers and switch_replay.Walkers is sims.mobility.Walkers
     assert dr_bench.gps is sims.mobility.gps
     assert dr_data.profile_for is sims.mobility.profile_for and dr_data.random_walk is sims.mobility.random_walk

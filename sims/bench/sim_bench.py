@@ -1,0 +1,191 @@
+"""`entitynet bench sim`: the city simulation's speed against what viewers see (issue 11).
+
+Figures (keys of `results`):
+- `entities_realtime_max`: the largest population (pedestrians and cars, plus the scheduled transit) that keeps
+  real time with the shard server in the same process on this machine, over real loopback sockets: tick
+  lateness p99 under one tick and no tick more than one tick behind (no backlog). Populations double until one
+  fails; `realtime_trials` lists every trial.
+- `fleet_fixes_per_s`: honest-client fixes per second on one core (GPS fix, client-core decision, message).
+- `deliveries_per_viewer_s`: UPDATEs per street-level viewer-second, subscribing by PVS and by a 500 m radius,
+  from the same seeded run against the in-process switchboard core; `radius_vs_pvs_deliveries_ratio` their
+  ratio; `messages_per_viewer_s` and `bytes_per_viewer_s` likewise (PVS).
+- `viewer_error_p95_m`, `missed_visibility`, `stale_ghost_fraction`: truth against viewers (PVS, all viewers;
+  per group and for the radius run in `truth_vs_viewer`).
+- `collisions`: avoided, accepted, deleted in the PVS run; `tick_lateness_p99_ms` of the largest real-time run.
+- `error_vs_updates`: ghost error p95 against updates per entity-minute for a range of client drift thresholds
+  (plotted to `sim-error-vs-updates.png` next to the report when matplotlib is there).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from sims.engine.local import run_local
+from sims.engine.sim import Sim, SimConfig
+
+#: ticks of each real-time trial left out of its lateness (the start: every entity's first publish, the
+#: viewers' first subscriptions and the server's first snapshots arrive together)
+WARMUP_TICKS = 6
+
+
+def add_arguments(parser) -> None:  # pragma: no cover - wired by the bench command when registered
+    parser.add_argument("--sim-seconds", type=float, help="simulated seconds of the measured runs")
+
+
+def _per_viewer_s(sim: Sim, seconds: float, high: bool) -> dict[str, float]:
+    vs = [v for v in sim.viewers if v.high == high]
+    if not vs:
+        return {"deliveries": 0.0, "messages": 0.0, "bytes": 0.0}
+    n = len(vs) * seconds
+    return {"deliveries": sum(v.deliveries for v in vs) / n, "messages": sum(v.deliveries + v.leaves for v in vs) / n,
+            "bytes": sum(v.bytes for v in vs) / n}
+
+
+def _local(topo, schedule, cfg: SimConfig, seconds: float) -> tuple[Sim, dict]:
+    sim = Sim(topo, cfg, schedule)
+    rep = run_local(sim, seconds)
+    return sim, rep
+
+
+def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: float) -> dict[str, Any]:
+    import trio
+
+    from sims.shell import Shell, ShellConfig
+
+    sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11), schedule)
+    shell = Shell(sim, ShellConfig(duration=seconds + WARMUP_TICKS * sim.dt, speed=1.0, summary_every=1e9,
+                                   artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS), lambda m: None)
+    rep = trio.run(shell.run)
+    rt = rep["realtime"]
+    tick_ms = 1000.0 * sim.dt
+    ok = rt["tick_lateness_p99_ms"] < tick_ms and rt["ticks_behind"] == 0
+    return {"entities": n, "on_map": sum(rep["entities"].values()), "viewers": viewers,
+            "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"], "ticks_behind": rt["ticks_behind"], "ok": ok}
+
+
+def _fleet_rate(topo, n: int, seconds: float) -> float:
+    """Fixes per second of the honest-client fleet alone (the world's stepping is timed apart and excluded)."""
+    sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5))
+    sim.start()
+    fixes, spent = 0, 0.0
+    for _ in range(int(seconds)):
+        sim.world.step(1.0)
+        for a in sim.population.step():
+            sim.fleet.add(a)
+        before = sim.fleet.counters["fixes"]
+        t = time.process_time()
+        sim.fleet.step(sim.now)
+        spent += time.process_time() - t
+        fixes += sim.fleet.counters["fixes"] - before
+    return fixes / spent if spent > 0 else 0.0
+
+
+def run(args, progress) -> dict[str, Any]:
+    from entitynet.topology_cache import bundled_topology, cache_dir
+    from sims.engine.schedule import BUNDLED_FEED, load_schedule
+
+    quick = bool(getattr(args, "quick", False))
+    if getattr(args, "topology", None):
+        from topology.artifact import load
+
+        topo, artifact = load(args.topology), Path(args.topology)
+    else:
+        topo, artifact = bundled_topology(progress, with_pvs=True)
+    schedule = load_schedule(BUNDLED_FEED, topo, cache=cache_dir())
+    seconds = getattr(args, "sim_seconds", None) or (15.0 if quick else 60.0)
+    entities, viewers = (150, 16) if quick else (400, 40)
+
+    progress(f"PVS and radius runs: {entities} entities, {viewers} viewers, {seconds:g} simulated s")
+    base = dict(entities=entities, viewers=viewers, seed=7)
+    pvs_sim, pvs = _local(topo, schedule, SimConfig(**base, subscribe="pvs"), seconds)
+    rad_sim, rad = _local(topo, schedule, SimConfig(**base, subscribe="radius"), seconds)
+    street_pvs = _per_viewer_s(pvs_sim, seconds, high=False)
+    street_rad = _per_viewer_s(rad_sim, seconds, high=False)
+
+    progress("error against updates per entity-minute (client drift thresholds)")
+    sweep = []
+    for thr in ((5.0, 20.0) if quick else (3.0, 5.0, 10.0, 20.0)):
+        s, r = _local(topo, schedule, SimConfig(entities=entities // 2, viewers=viewers // 2, seed=9,
+                                                threshold=thr), seconds)
+        ent_min = sum(r["entities"].values()) * seconds / 60.0
+        tv = r["truth_vs_viewer"]["all"]
+        sweep.append({"threshold_m": thr, "updates_per_entity_min": r["clients"]["published"] / max(ent_min, 1e-9),
+                      "error_p95_m": tv["error_p95_m"], "error_mean_m": tv["error_mean_m"],
+                      "missed_visibility": tv["missed_visibility"]})
+
+    progress("fleet core: fixes per second on one core")
+    fleet_rate = _fleet_rate(topo, 300 if quick else 1000, 3 if quick else 10)
+
+    progress("real time with the server in this process")
+    trials = []
+    n = 100
+    rt_seconds = 6.0 if quick else 20.0  # simulated = wall seconds at speed 1, after the warm-up
+    best = 0
+    lateness = None
+    while n <= (200 if quick else 20000):
+        trial = _realtime_trial(topo, artifact, schedule, n, max(10, n // 10), rt_seconds)
+        trials.append(trial)
+        progress(f"  {n} entities: lateness p99 {trial['tick_lateness_p99_ms']:.0f} ms, behind "
+                 f"{trial['ticks_behind']} -> {'ok' if trial['ok'] else 'not real time'}")
+        if not trial["ok"]:
+            break
+        best, lateness = n, trial["tick_lateness_p99_ms"]
+        n *= 2
+
+    all_pvs = pvs["truth_vs_viewer"]["all"]
+    results = {
+        "entities_realtime_max": best,
+        "fleet_fixes_per_s": fleet_rate,
+        "deliveries_per_viewer_s": {"pvs": street_pvs["deliveries"], "radius": street_rad["deliveries"]},
+        "radius_vs_pvs_deliveries_ratio": street_rad["deliveries"] / street_pvs["deliveries"]
+        if street_pvs["deliveries"] else None,
+        "messages_per_viewer_s": {"pvs": street_pvs["messages"], "radius": street_rad["messages"]},
+        "bytes_per_viewer_s": {"pvs": street_pvs["bytes"], "radius": street_rad["bytes"]},
+        "viewer_error_p95_m": all_pvs["error_p95_m"],
+        "missed_visibility": all_pvs["missed_visibility"],
+        "stale_ghost_fraction": all_pvs["stale_ghost_fraction"],
+        "collisions": pvs["collisions"],
+        "tick_lateness_p99_ms": lateness,
+        "error_vs_updates": sweep,
+        "truth_vs_viewer": {"pvs": pvs["truth_vs_viewer"], "radius": rad["truth_vs_viewer"]},
+        "realtime_trials": trials,
+    }
+    out = getattr(args, "out", None)
+    if out:
+        _plot(sweep, Path(out).with_name("sim-error-vs-updates.png"), progress)
+    return {
+        "params": {"quick": quick, "sim_seconds": seconds, "entities": entities, "viewers": viewers,
+                   "realtime_seconds": rt_seconds, "tick_hz": 2.0, "gps_sigma_m": 5.0, "fix_hz": 1.0,
+                   "schedule": BUNDLED_FEED.name, "start": "08:00", "fleet_core": "per-entity Player (no vectorised "
+                   "fleet core yet)"},
+        "results": results,
+        "peer": {"radius_500m": {"deliveries_per_viewer_s": street_rad["deliveries"],
+                                 "missed_visibility": rad["truth_vs_viewer"]["all"]["missed_visibility"]}},
+        "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"]},
+    }
+
+
+def _plot(sweep: list[dict], path: Path, progress) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        progress("matplotlib not installed: no plot")
+        return
+    fig, ax = plt.subplots(figsize=(6, 4))
+    xs = [s["updates_per_entity_min"] for s in sweep]
+    ax.plot(xs, [s["error_p95_m"] for s in sweep], "o-", label="p95")
+    ax.plot(xs, [s["error_mean_m"] for s in sweep], "s--", label="mean")
+    for s in sweep:
+        ax.annotate(f"{s['threshold_m']:g} m", (s["updates_per_entity_min"], s["error_p95_m"]), fontsize=8)
+    ax.set_xlabel("updates per entity-minute")
+    ax.set_ylabel("ghost position error (m)")
+    ax.set_title("entitynet sim: viewer error against update rate")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    progress(f"plot written to {path}")

@@ -1,0 +1,92 @@
+"""Honest clients for the simulated entities: GPS fixes of the truth through each entity's own client core.
+
+Why through `Player` and not the truth: the simulation measures what a viewer sees of *honest clients*, so
+every entity takes noisy fixes (default 5 m at 1 Hz) and lets the client core decide what to publish, exactly as
+a phone or a proxy would. Entities are multiplexed over a few connections as a proxy carries a fleet (entity id
+modulo the connection count); the wire id of an entity is its simulation id (local ids on a connection).
+Fixes are staggered over the fix interval by entity id so that a tick does not carry every fix at once; the
+client cores' timers (validity expiry, heartbeat) run every tick.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from entitynet import protocol as P
+from entitynet.client import FixRejected, Player
+from sims.engine.agents import Agent
+from sims.engine.world import World
+from sims.mobility.gps import GPS_SIGMA, gps
+
+
+class Fleet:
+    """Every live entity's `Player`; `step(now)` returns the messages to send, one list per connection."""
+
+    def __init__(self, world: World, connections: int = 4, *, fix_interval: float = 1.0,
+                 gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None):
+        if connections < 1:
+            raise ValueError(f"at least one connection, got {connections}")
+        if not fix_interval > 0.0:
+            raise ValueError(f"the fix interval must be > 0, got {fix_interval}")
+        self.world = world
+        self.connections = connections
+        self.fix_interval = fix_interval
+        self.gps_sigma = gps_sigma
+        self.threshold = threshold  # the client core's drift threshold (None: its default, the GPS accuracy)
+        self.rng = np.random.default_rng(seed)
+        self.players: dict[int, Player] = {}
+        self.next_fix: dict[int, float] = {}
+        self.counters = {"fixes": 0, "rejected_fixes": 0, "published": 0, "unpublished": 0}
+
+    def conn_of(self, entity: int) -> int:
+        return entity % self.connections
+
+    def add(self, a: Agent) -> None:
+        route, stops = (), ()
+        if a.stops or a.label:  # a scheduled vehicle knows its route and stops a priori
+            route = a.route.edges
+            stops = [a.route.edge_offset(st.s) for st in a.stops]
+        self.players[a.id] = Player(self.world.topo, a.id, a.name, accuracy=self.gps_sigma, route=route,
+                                    stops=stops, threshold=self.threshold)
+        phase = (a.id * 0.618033988749895) % 1.0
+        self.next_fix[a.id] = self.world.now + phase * self.fix_interval
+
+    def step(self, now: float) -> list[list[P.Publish | P.Unpublish]]:
+        out: list[list[P.Publish | P.Unpublish]] = [[] for _ in range(self.connections)]
+        for aid, _why in self.world.take_removed():
+            p = self.players.pop(aid, None)
+            self.next_fix.pop(aid, None)
+            if p is not None:
+                msgs = p.leave()
+                self.counters["unpublished"] += len(msgs)
+                out[self.conn_of(aid)].extend(msgs)
+        agents = self.world.agents
+        for aid, due in self.next_fix.items():
+            if due > now:
+                # between fixes the client core's timers run every tick: a validity period that runs out is
+                # renewed at once, not at the next fix (or viewers drop the ghost for up to a fix interval)
+                msgs = self.players[aid].tick(now)
+                if msgs:
+                    out[self.conn_of(aid)].extend(msgs)
+                    self.counters["published"] += sum(isinstance(m, P.Publish) for m in msgs)
+                    self.counters["unpublished"] += sum(not isinstance(m, P.Publish) for m in msgs)
+                continue
+            a = agents.get(aid)
+            if a is None:
+                continue
+            p = self.players[aid]
+            self.next_fix[aid] = due + self.fix_interval * max(1, math.floor((now - due) / self.fix_interval) + 1)
+            fx, fy = gps(np.array(a.xy()), self.rng, self.gps_sigma)
+            self.counters["fixes"] += 1
+            try:
+                msgs = p.feed(float(fx), float(fy), now, self.gps_sigma) + p.tick(now)
+            except FixRejected:
+                self.counters["rejected_fixes"] += 1
+                continue
+            box = out[self.conn_of(aid)]
+            for m in msgs:
+                box.append(m)
+                self.counters["published" if isinstance(m, P.Publish) else "unpublished"] += 1
+        return out

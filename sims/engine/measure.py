@@ -1,0 +1,104 @@
+"""Truth against what viewers see (issue 11, "speed against error").
+
+At each sample, for every viewer and every entity whose true body occupies a cell the viewer subscribes to:
+- the ghost position error (metres between the ghost the viewer draws and the true position), when shown;
+- missed visibility: the entity is not shown at all (join latency included: a fresh subscription's entities
+  count as missed until their first UPDATE arrives);
+and for every ghost the viewer shows:
+- stale: its entity is truly in none of the viewer's cells and in none of the cells the ghost's UPDATE
+  claimed (it moved past what that update's validity covered, or left the map) while the ghost is still
+  drawn. A ghost drawn because the cells ahead on its claimed way are visible is not stale: that is the
+  validity period working as designed.
+Samples are taken at a fixed interval, so counts are proportional to entity-time. Viewers at street level and
+above the roofs are kept apart (the PVS matters at street level). Ghost ids are the switchboard's opaque ids;
+`eid_to_agent` maps them back to the truth (known when the switchboard runs in this process).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sims.engine.viewers import SimViewer
+from sims.engine.world import World
+
+
+@dataclass
+class Tally:
+    errors: list[float] = field(default_factory=list)
+    visible: int = 0  # entity-samples in a visible cell
+    missed: int = 0
+    shown: int = 0  # ghost-samples drawn
+    stale: int = 0
+    viewer_samples: int = 0
+
+    def summary(self) -> dict:
+        e = np.array(self.errors) if self.errors else np.zeros(0)
+        return {
+            "error_mean_m": float(e.mean()) if e.size else None,
+            "error_p95_m": float(np.percentile(e, 95)) if e.size else None,
+            "error_max_m": float(e.max()) if e.size else None,
+            "missed_visibility": self.missed / self.visible if self.visible else 0.0,
+            "stale_ghost_fraction": self.stale / self.shown if self.shown else 0.0,
+            "visible_entity_samples": self.visible,
+            "shown_ghost_samples": self.shown,
+            "mean_visible_entities": self.visible / self.viewer_samples if self.viewer_samples else 0.0,
+        }
+
+
+class Measure:
+    """Accumulates samples; `summary()` gives the figures per viewer group ("street", "roof") and "all"."""
+
+    def __init__(self) -> None:
+        self.tallies: dict[str, Tally] = defaultdict(Tally)
+
+    def sample(self, now: float, world: World, viewers: list[SimViewer], eid_to_agent: dict[int, int]) -> None:
+        where: dict[int, list[int]] = defaultdict(list)
+        truth: dict[int, tuple[float, float]] = {}
+        cells_of: dict[int, tuple[int, ...]] = {}
+        for a in world.agents.values():
+            truth[a.id] = a.xy()
+            cells_of[a.id] = cs = a.cells()
+            for c in cs:
+                where[c].append(a.id)
+        for v in viewers:
+            t = self.tallies["roof" if v.high else "street"]
+            t.viewer_samples += 1
+            inside: set[int] = set()
+            for c in v.subs.cells:
+                inside.update(where.get(c, ()))
+            shown = {}
+            claimed: dict[int, tuple[int, ...]] = {}
+            for eid, xy in v.ghosts.positions(now).items():
+                aid = eid_to_agent.get(eid, -1)
+                shown[aid] = xy
+                claimed[aid] = v.ghosts.ghosts[eid].cells
+            t.visible += len(inside)
+            t.shown += len(shown)
+            for aid in inside:
+                g = shown.get(aid)
+                if g is None:
+                    t.missed += 1
+                else:
+                    tx, ty = truth[aid]
+                    d = math.hypot(g[0] - tx, g[1] - ty)
+                    t.errors.append(d)
+            for aid in shown:
+                if aid not in inside and not set(cells_of.get(aid, ())) & set(claimed[aid]):
+                    t.stale += 1
+
+    def summary(self) -> dict:
+        out = {k: t.summary() for k, t in sorted(self.tallies.items())}
+        total = Tally()
+        for t in self.tallies.values():
+            total.errors += t.errors
+            total.visible += t.visible
+            total.missed += t.missed
+            total.shown += t.shown
+            total.stale += t.stale
+            total.viewer_samples += t.viewer_samples
+        out["all"] = total.summary()
+        return out

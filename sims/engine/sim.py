@@ -1,0 +1,137 @@
+"""The whole simulation as one sans-IO core: world, population, honest clients, viewers and measurement.
+
+Why one core for every driver: the CLI over real sockets (`sims.shell`), the in-process switchboard used by
+tests and the benchmark (`sims.engine.local`) and any other shell drive the same object: `start()` then
+`step()` once per tick, each returning the messages to send (per publisher connection, per viewer); the
+driver hands what arrives to `deliver(viewer, msg, size)`. Time is the world's clock (seconds since the
+service day's midnight, so the schedule and the clients agree); the driver decides how fast it runs.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import asdict, dataclass
+
+from entitynet import protocol as P
+from sims.engine.clients import Fleet
+from sims.engine.measure import Measure
+from sims.engine.population import Population, PopulationConfig
+from sims.engine.schedule import Schedule
+from sims.engine.viewers import CellsAt, SimViewer, pvs_cells_at, radius_cells_at
+from sims.engine.world import World
+
+
+@dataclass
+class SimConfig:
+    entities: int = 300
+    viewers: int = 24
+    connections: int = 4
+    car_share: float = 0.3
+    roof_share: float = 0.25
+    tick_hz: float = 2.0
+    fix_interval: float = 1.0
+    gps_sigma: float = 5.0
+    seed: int = 1
+    start: float = 8 * 3600.0  # service-day seconds
+    transit: bool = True
+    subscribe: str = "pvs"  # or "radius"
+    radius: float = 500.0
+    sample_every: float = 1.0
+    measure_after: float = 2.0  # s: the start, when every entity appears at once before its first fix, is not sampled
+    threshold: float | None = None  # the client core's drift threshold (None: its default)
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.viewers < 0:
+            problems.append(f"viewers must be >= 0, got {self.viewers}")
+        if self.connections < 1:
+            problems.append(f"connections must be >= 1, got {self.connections}")
+        if not 0.1 <= self.tick_hz <= 100.0:
+            problems.append(f"tick rate must be within 0.1..100 Hz, got {self.tick_hz}")
+        if not self.fix_interval > 0:
+            problems.append(f"fix interval must be > 0, got {self.fix_interval}")
+        if not self.gps_sigma > 0:  # the client core refuses fixes that claim no error at all
+            problems.append(f"GPS noise must be > 0 m, got {self.gps_sigma}")
+        if not 0.0 <= self.roof_share <= 1.0:
+            problems.append(f"roof share must be within 0..1, got {self.roof_share}")
+        if self.subscribe not in ("pvs", "radius"):
+            problems.append(f"subscribe by 'pvs' or 'radius', got {self.subscribe!r}")
+        if not self.radius > 0:
+            problems.append(f"radius must be > 0, got {self.radius}")
+        if problems:
+            raise ValueError("; ".join(problems))
+
+
+class Sim:
+    def __init__(self, topo, config: SimConfig, schedule: Schedule | None = None, cells_at: CellsAt | None = None):
+        self.topo = topo
+        self.config = config
+        self.world = World(topo, config.seed, start=config.start)
+        self.population = Population(self.world, PopulationConfig(config.entities, config.car_share,
+                                                                  transit=config.transit), schedule)
+        self.fleet = Fleet(self.world, config.connections, fix_interval=config.fix_interval,
+                           gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold)
+        if cells_at is None:
+            cells_at = pvs_cells_at(topo) if config.subscribe == "pvs" else None
+            if cells_at is None:
+                cells_at = radius_cells_at(topo, config.radius)
+        self.subscribe_by = config.subscribe if cells_at is not None else "radius"
+        rng = random.Random(config.seed + 7)
+        n_high = round(config.viewers * config.roof_share)
+        self.viewers = [SimViewer(self.world.net, i, i < n_high, cells_at, rng) for i in range(config.viewers)]
+        self.measure = Measure()
+        self.dt = 1.0 / config.tick_hz
+        self._next_sample = config.start + config.measure_after
+        self.ticks = 0
+
+    @property
+    def now(self) -> float:
+        return self.world.now
+
+    def start(self) -> tuple[list[list[P.Message]], list[list[P.Subscribe]]]:
+        for a in self.population.start():
+            self.fleet.add(a)
+        return self.fleet.step(self.now), [v.move(0.0) for v in self.viewers]
+
+    def step(self) -> tuple[list[list[P.Message]], list[list[P.Subscribe]]]:
+        """One tick: the truth moves, spawns happen, fixes are taken, cameras move."""
+        self.world.step(self.dt)
+        self.ticks += 1
+        for a in self.population.step():
+            self.fleet.add(a)
+        return self.fleet.step(self.now), [v.move(self.dt) for v in self.viewers]
+
+    def deliver(self, viewer: int, msg: P.Message, size: int = 0) -> None:
+        self.viewers[viewer].receive(msg, self.now, size)
+
+    def maybe_sample(self, eid_to_agent: dict[int, int] | None) -> bool:
+        """Sample truth against viewers when due (and when ghost ids can be mapped back to the truth)."""
+        if self.now + 1e-9 < self._next_sample:
+            return False
+        self._next_sample += self.config.sample_every
+        if eid_to_agent is not None:
+            self.measure.sample(self.now, self.world, self.viewers, eid_to_agent)
+        return True
+
+    def counts(self) -> dict:
+        w = self.world
+        c = w.counters
+        return {
+            "entities": dict(sorted(w.by_type().items())),
+            "collisions": {"avoided": c["avoided"], "accepted": c["accepted"], "deleted": c["deleted"]},
+            "spawned": c["spawned"], "arrived": c["arrived"], "stops_served": c["stops_served"],
+            "clients": dict(self.fleet.counters),
+        }
+
+    def report(self) -> dict:
+        v = self.viewers
+        return {
+            "config": asdict(self.config),
+            "subscribe_by": self.subscribe_by,
+            "sim_time_s": self.ticks * self.dt,
+            **self.counts(),
+            "viewers": {"street": sum(not x.high for x in v), "roof": sum(x.high for x in v),
+                        "deliveries": sum(x.deliveries for x in v), "leaves": sum(x.leaves for x in v),
+                        "bytes": sum(x.bytes for x in v)},
+            "truth_vs_viewer": self.measure.summary(),
+        }

@@ -1,0 +1,274 @@
+"""The world: every entity's truth, stepped by an explicit clock (sans-IO: no wall time, no sockets).
+
+`World.step(dt)` advances the clock by `dt` seconds: each entity looks ahead along its route (leaders in its
+lane, bus stops, junctions it has not been granted), takes the IDM acceleration of the strongest constraint,
+moves, and the deadlock timeouts run: blocked by another entity for `accept_after` seconds, it accepts the
+collision for `accept_for` seconds (drives through); blocked for `delete_after` seconds in all, it is deleted.
+Everything is counted in `counters` (avoided, accepted, deleted, spawned, arrived). Entities are visited in id
+order and all randomness comes from the world's seeded generator, so a seed reproduces a run exactly.
+"""
+
+from __future__ import annotations
+
+import random
+from collections import Counter
+from collections.abc import Iterable
+
+import numpy as np
+
+from entitynet.client import netview
+from entitynet.client.network import DirEdge
+from sims.engine.agents import Agent, AreaWalk, Stop
+from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead
+from sims.engine.crossings import Crossings, Movement
+from sims.engine.params import TypeParams, params
+from sims.engine.routes import Route
+from topology.raw import TRAM, VEHICLE
+
+#: below this speed (m/s) an entity that wants to move counts as blocked
+BLOCKED_V = 0.1
+#: the junction zone: a movement is reserved from this many metres before the node to as many after it
+JUNCTION_RADIUS = 8.0
+
+
+class World:
+    """The simulation's truth. `add` spawns, `step` moves, `agents` is every live entity by id."""
+
+    def __init__(self, topo, seed: int = 1, *, start: float = 0.0):
+        self.topo = topo
+        self.net = netview(topo)
+        self.rng = random.Random(seed)
+        self.now = start
+        self.agents: dict[int, Agent] = {}
+        self.crossings = Crossings()
+        self.counters: Counter = Counter()
+        self.removed: list[tuple[int, str]] = []  # (id, why) since the last `take_removed`
+        self._next_id = 1
+        net = self.net
+        self._junction = [sum(1 for e in net.node_edges[n] if net.edge_net[e] & (VEHICLE | TRAM)) >= 3
+                          for n in range(len(net.node_edges))]
+
+    # ---- spawning ---------------------------------------------------------------------------------------------
+    def add(self, kind: str | TypeParams, edges: list[DirEdge], *, s: float = 0.0, v: float | None = None,
+            v0: float | None = None, lateral: float | None = None, stops: Iterable[Stop] = (),
+            label: str = "", area_walk: float = 0.0) -> Agent:
+        """Spawn an entity on a connected route of directed edges, its front `s` metres along it. With
+        `area_walk` > 0 and a route ending at an area node, the entity then walks inside the area for about that
+        many seconds (random waypoints) before it leaves the simulation."""
+        p = kind if isinstance(kind, TypeParams) else params(kind)
+        route = Route(self.net, edges)
+        if not 0.0 <= s <= route.length:
+            raise ValueError(f"start {s} m is not on the route (0 to {route.length:.1f} m)")
+        rng = self.rng
+        if v0 is None:
+            v0 = p.vmax * rng.uniform(0.75, 1.0)
+        if lateral is None:
+            lateral = p.lateral + (rng.uniform(-p.lateral_spread, p.lateral_spread) if p.lateral_spread else 0.0)
+        a = Agent(self._next_id, p, route, s, v0 if v is None else v, v0, lateral, self.now,
+                  stops=sorted(stops, key=lambda st: st.s), label=label)
+        while a.next_stop < len(a.stops) and a.stops[a.next_stop].s < s - 1.0:
+            a.next_stop += 1
+        if p.avoids:
+            a.crossings = [(sn, n, k) for sn, n, k in route.nodes() if self._junction[n] and sn > s - a.length]
+        end = self.net.end_node(route.edges[-1])
+        area = self.net.node_area[end]
+        if area_walk > 0.0 and area >= 0:
+            from sims.mobility.areas import area_walk as walk
+
+            t, xy = walk(np.asarray(self.topo.area_polygons.exterior(area)), rng, area_walk, speed=a.v0, dt=0.5)
+            # from where the route meets the area (its boundary) straight to the walk's first waypoint
+            ex, ey = route.xy(route.length)
+            steps = max(int(np.hypot(xy[0, 0] - ex, xy[0, 1] - ey) / max(a.v0 * 0.5, 0.1)), 1)
+            k = np.arange(steps)[:, None] / steps
+            lead = np.array([ex, ey]) + k * (xy[0] - np.array([ex, ey]))
+            t = np.concatenate([np.arange(steps) * 0.5, t + steps * 0.5])
+            xy = np.concatenate([lead, xy])
+            a.area = AreaWalk(t, xy, self.net.area_cell[area])
+        a._clock = self.now
+        self._next_id += 1
+        self.agents[a.id] = a
+        self.counters["spawned"] += 1
+        self.counters[f"spawned:{p.name}"] += 1
+        return a
+
+    def stall(self, agent: int, seconds: float) -> None:
+        """A breakdown: the entity stands still for `seconds` (what it blocks, it blocks)."""
+        self.agents[agent].stalled_until = self.now + seconds
+
+    def remove(self, agent: int, why: str) -> None:
+        a = self.agents.pop(agent, None)
+        if a is None:
+            return
+        self.crossings.forget(agent, [n for _s, n, _k in a.crossings] + list(a.held))
+        self.removed.append((agent, why))
+        self.counters[why] += 1
+
+    def take_removed(self) -> list[tuple[int, str]]:
+        out, self.removed = self.removed, []
+        return out
+
+    # ---- stepping ---------------------------------------------------------------------------------------------
+    def step(self, dt: float) -> None:
+        """Advance the truth by `dt` seconds (dt > 0)."""
+        if not dt > 0.0:
+            raise ValueError(f"a step must move time forward, got dt={dt!r}")
+        now = self.now + dt
+        index = self._body_index()
+        moves: list[tuple[Agent, float, float, Obstacle | None]] = []
+        for aid in sorted(self.agents):
+            a = self.agents[aid]
+            moves.append(self._decide(a, index, now, dt))
+        for a, new_s, new_v, limit in moves:
+            a.distance += max(new_s - a.s, 0.0)
+            a.s, a.v = new_s, new_v
+            a._clock = now
+            self._after_move(a, limit, now)
+        self.now = now
+
+    def _decide(self, a: Agent, index, now: float, dt: float) -> tuple[Agent, float, float, Obstacle | None]:
+        if a.in_area_since is not None:  # walking inside its area: the walk's samples are the truth
+            return a, a.s, 0.0, None
+        if a.stalled_until > now:
+            a.cause = "stall"
+            return a, a.s, 0.0, None
+        if a.dwell_until is not None:
+            if now < a.dwell_until:
+                return a, a.s, 0.0, None
+            a.dwell_until = None
+            a.next_stop += 1
+        obstacles: list[Obstacle] = []
+        if a.next_stop < len(a.stops):
+            st = a.stops[a.next_stop]
+            obstacles.append(Obstacle(st.s + 1.0, 0.0, "stop", a.next_stop, s0=1.0))
+        if a.params.avoids:
+            ahead = a.s + lookahead(a)
+            leader = self._leader(a, index, ahead) if a.accept_until <= now else None
+            if leader is not None:
+                obstacles.append(leader)
+            # only the first of a lane asks for a junction: one queued behind a leader would hold it for nothing
+            ob = self._crossing(a, ahead if leader is None else min(ahead, leader.at), now)
+            if ob is not None:
+                obstacles.append(ob)
+        acc, limit = accel_for(a, obstacles)
+        new_v = max(0.0, a.v + acc * dt)
+        if acc < 0 and a.v > 0 and new_v == 0.0:
+            ds = a.v * a.v / (-2.0 * acc)
+        else:
+            ds = 0.5 * (a.v + new_v) * dt
+        new_s = a.s + max(ds, 0.0)
+        if limit is not None and limit.kind != "stop":  # never into the obstacle
+            hard = max(limit.at - 0.3, a.s)
+            if new_s > hard:
+                new_s, new_v = hard, 0.0
+        if limit is not None and limit.kind == "stop" and a.stops[a.next_stop].s - new_s < 1.5 and new_v < 2.0:
+            st = a.stops[a.next_stop]
+            new_s, new_v = max(a.s, st.s), 0.0
+            a.dwell_until = now + st.dwell
+            self.counters["stops_served"] += 1
+        return a, new_s, new_v, limit
+
+    def _after_move(self, a: Agent, limit: Obstacle | None, now: float) -> None:
+        if a.in_area_since is not None:
+            if now - a.in_area_since >= a.area.duration:
+                self.remove(a.id, "arrived")
+            return
+        if a.s >= a.route.length - 1e-6:
+            if a.area is not None:
+                a.in_area_since = now
+                self.counters["area_walks"] += 1
+                return
+            self.remove(a.id, "arrived")
+            return
+        for sn, n, _k in list(a.crossings):  # leave junctions the whole body has passed
+            if a.s - a.length > sn + JUNCTION_RADIUS:
+                self.crossings.release(n, a.id)
+                a.held.discard(n)
+                a.crossings.remove((sn, n, _k))
+            else:
+                break
+        yielding = limit is not None and limit.kind in ("leader", "crossing")
+        episode = (limit.kind, limit.who) if yielding else ("", None)
+        if yielding and episode != a._episode:
+            self.counters["avoided"] += 1
+        a._episode = episode
+        a.cause = limit.kind if limit is not None else ""
+        a.blocker = limit.who if yielding else None
+        if not (yielding and a.v < BLOCKED_V):
+            a.blocked_since = None
+            return
+        if a.blocked_since is None:
+            a.blocked_since = now
+        waited = now - a.blocked_since
+        p = a.params
+        if waited >= p.delete_after:
+            self.remove(a.id, "deleted")
+            return
+        if limit.kind == "leader" and waited >= p.accept_after and a.accept_until <= now:
+            other = self.agents.get(limit.who) if limit.who is not None else None
+            if other is None or other.accept_until <= now:  # one side of a deadlock accepting is enough
+                a.accept_until = now + p.accept_for
+                self.counters["accepted"] += 1
+
+    # ---- what is ahead ----------------------------------------------------------------------------------------
+    def _body_index(self) -> dict[int, list[tuple[float, float, Agent, int]]]:
+        """edge -> (lo offset, hi offset, agent, direction) of every body with a length on it."""
+        index: dict[int, list[tuple[float, float, Agent, int]]] = {}
+        for a in self.agents.values():
+            if not a.params.avoids:
+                continue
+            r = a.route
+            back = max(a.s - a.length, 0.0)
+            k0, k1 = r.index(back), r.index(a.s)
+            for k in range(k0, k1 + 1):
+                e, d = r.edges[k]
+                lo, hi = max(back - r.cum[k], 0.0), min(a.s - r.cum[k], self.net.edge_len[e])
+                if d < 0:
+                    lo, hi = self.net.edge_len[e] - hi, self.net.edge_len[e] - lo
+                index.setdefault(e, []).append((lo, hi, a, d))
+        return index
+
+    def _leader(self, a: Agent, index, ahead: float) -> Obstacle | None:
+        """The nearest body ahead of the front in the agent's lane (same way: follow it; oncoming: stop)."""
+        r = a.route
+        best: Obstacle | None = None
+        k = r.index(a.s)
+        while k < len(r.edges) and r.cum[k] < ahead:
+            e, d = r.edges[k]
+            L = self.net.edge_len[e]
+            for lo, hi, b, db in index.get(e, ()):
+                if b is a or not lanes_overlap(a, d, b, db):
+                    continue
+                near = r.cum[k] + (lo if d > 0 else L - hi)
+                if near < a.s - 0.01 or near > ahead:  # behind the front, or overlapping it already
+                    continue
+                if best is None or near < best.at:
+                    best = Obstacle(near, b.v if db == d else -b.v, "leader", b.id)
+            if best is not None:
+                return best
+            k += 1
+        return best
+
+    def _crossing(self, a: Agent, ahead: float, now: float) -> Obstacle | None:
+        """The first junction ahead that the agent has not been granted, as a stop line (None if all clear)."""
+        for sn, n, k in a.crossings:
+            if n in a.held:
+                continue
+            line = sn - JUNCTION_RADIUS
+            if line > ahead:  # beyond sight, or behind this lane's leader
+                return None
+            if self.crossings.request(n, a.id, self._movement(a, sn, k), now):
+                a.held.add(n)
+                continue
+            return Obstacle(max(line, a.s), 0.0, "crossing", n, s0=0.5)
+        return None
+
+    def _movement(self, a: Agent, sn: float, k: int) -> Movement:
+        r = a.route
+        pts = [r.xy(min(max(sn + t, 0.0), r.length), a.lateral) for t in range(-8, 9, 2)]
+        w = 0.5 * a.params.width
+        xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+        return Movement(r.edges[k - 1], r.edges[k], (min(xs) - w, min(ys) - w, max(xs) + w, max(ys) + w))
+
+    # ---- summaries --------------------------------------------------------------------------------------------
+    def by_type(self) -> Counter:
+        return Counter(a.name for a in self.agents.values())

@@ -1,0 +1,218 @@
+"""The trio shell of `entitynet sim`: real sockets, real time (or faster), pause and resume, a live summary.
+
+It only moves bytes and keeps time: the simulation is the sans-IO `sims.engine.sim.Sim`. Each tick of
+`1 / tick_hz` simulated seconds is due `1 / (tick_hz * speed)` wall seconds after the previous one; the shell
+records how late each tick starts (tick lateness) and how many ticks it ran behind. Publishers and viewers
+are `entitynet.connection.Connection`s: when the server goes away they reconnect through the client session
+while the simulation keeps stepping, and the shell reports the gap (seconds with a connection down).
+Pause: SIGUSR1, or `p` + Enter on a terminal; the simulated clock stops while paused.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trio
+
+from entitynet import protocol as P
+from entitynet.connection import Connection
+from sims.engine.sim import Sim
+
+Say = Callable[[str], None]
+
+
+@dataclass
+class ShellConfig:
+    duration: float | None = None  # simulated seconds; None = until Ctrl-C
+    speed: float = 1.0
+    summary_every: float = 5.0  # wall seconds
+    server: tuple[str, int] | None = None  # None = start one in this process
+    token: str = ""
+    artifact: Path | None = None
+    host: str = "127.0.0.1"  # of the in-process server
+    port: int = 0  # of the in-process server (0: any free port)
+    keys: bool = True  # read `p` from a terminal
+    warmup_ticks: int = 0  # ticks left out of the lateness figures (the start's burst of first publishes)
+
+
+class Shell:
+    def __init__(self, sim: Sim, config: ShellConfig, say: Say = print):
+        if not config.speed > 0 or not math.isfinite(config.speed):
+            raise ValueError(f"speed must be a positive number, got {config.speed}")
+        self.sim = sim
+        self.config = config
+        self.say = say
+        self.paused = False
+        self.lateness: list[float] = []
+        self.behind = 0
+        self.gap_s = 0.0
+        self.outages = 0
+        self.server = None
+        self.subscribe_msgs = 0
+        self._window = {"published": 0, "deliveries": 0, "t": 0.0}
+
+    # ---- the run ---------------------------------------------------------------------------------------------
+    async def run(self) -> dict:
+        cfg = self.config
+        async with trio.open_nursery() as nursery:
+            address = cfg.server
+            if address is None:
+                from entitynet.server.app import serve
+                from entitynet.server.config import ServerConfig
+
+                self.server = await nursery.start(serve, ServerConfig(
+                    host=cfg.host, port=cfg.port, topology=str(cfg.artifact), open_mode=True))
+                address = (cfg.host, self.server.port)
+                self.say(f"shard server listening on {cfg.host}:{self.server.port} (in this process, open mode)")
+            digest = self.sim.topo.digest
+            async with trio.open_nursery() as clients:
+                pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
+                        for _ in range(self.sim.config.connections)]
+                views = [Connection(address, digest, cfg.token, on_message=self._on_view(i))
+                         for i in range(len(self.sim.viewers))]
+                for c in pubs + views:
+                    await clients.start(c.run)
+                stop = trio.Event()
+                clients.start_soon(self._signals, stop)
+                if cfg.keys and sys.stdin is not None and sys.stdin.isatty():
+                    clients.start_soon(self._keys)
+                await self._loop(pubs, views, stop)
+                clients.cancel_scope.cancel()
+            if self.server is not None:
+                await self.server.stop()
+            nursery.cancel_scope.cancel()
+        return self.report()
+
+    def _on_view(self, i: int):
+        sim = self.sim
+
+        def on_message(m: P.Message) -> None:
+            size = len(P.encode_message(m)) if isinstance(m, P.Update | P.Leave) else 0
+            sim.deliver(i, m, size)
+
+        return on_message
+
+    async def _loop(self, pubs: list[Connection], views: list[Connection], stop: trio.Event) -> None:
+        sim, cfg = self.sim, self.config
+        period = sim.dt / cfg.speed
+        await self._send(pubs, views, *sim.start())
+        wall0 = last_summary = trio.current_time()
+        due = wall0 + period
+        while not stop.is_set():
+            if cfg.duration is not None and sim.ticks * sim.dt >= cfg.duration - 1e-9:
+                break
+            with trio.move_on_at(due):
+                await stop.wait()
+            if stop.is_set():
+                break
+            t = trio.current_time()
+            if self.paused:
+                due = t + period
+                continue
+            late = t - due
+            if sim.ticks >= cfg.warmup_ticks:
+                self.lateness.append(late)
+                if late > period:
+                    self.behind += 1
+            down = sum(1 for c in pubs + views if not c.session.connected)
+            if down:
+                self.gap_s += sim.dt
+                if not getattr(self, "_was_down", False):
+                    self.outages += 1
+                    self.say(f"[{sim.ticks * sim.dt:6.0f}s] server unreachable: {down} connection(s) down, "
+                             "stepping on and reconnecting")
+            self._was_down = bool(down)
+            await self._send(pubs, views, *sim.step())
+            sim.maybe_sample(self._eid_map())
+            due += period
+            if t - due > 10 * period:  # hopelessly behind: do not try to catch up in a burst
+                due = t + period
+            if t - last_summary >= cfg.summary_every:
+                self.say(self.summary_line(t - last_summary))
+                last_summary = t
+
+    async def _send(self, pubs, views, out_pubs, out_subs) -> None:
+        for c, msgs in zip(pubs, out_pubs, strict=True):
+            ps = [m for m in msgs if isinstance(m, P.Publish)]
+            if ps:
+                await c.publish(*ps)
+                self._window["published"] += len(ps)
+            for m in msgs:
+                if isinstance(m, P.Unpublish):
+                    await c.unpublish(m.entity)
+        for c, msgs in zip(views, out_subs, strict=True):
+            for m in msgs:
+                await c.subscribe(m.added, m.removed)
+                self.subscribe_msgs += 1
+
+    def _eid_map(self) -> dict[int, int] | None:
+        if self.server is None:
+            return None  # an external server's ids cannot be mapped back to the truth
+        return {eid: e.local for eid, e in self.server.sb.entities.items()}
+
+    async def _signals(self, stop: trio.Event) -> None:
+        with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGUSR1) as signals:
+            async for sig in signals:
+                if sig == signal.SIGUSR1:
+                    self._toggle()
+                else:
+                    stop.set()
+                    return
+
+    async def _keys(self) -> None:
+        while True:
+            line = await trio.to_thread.run_sync(sys.stdin.readline, abandon_on_cancel=True)
+            if not line:
+                return
+            if line.strip().lower() == "p":
+                self._toggle()
+
+    def _toggle(self) -> None:
+        self.paused = not self.paused
+        self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
+
+    # ---- output ----------------------------------------------------------------------------------------------
+    def summary_line(self, wall_dt: float) -> str:
+        sim = self.sim
+        c = sim.counts()
+        deliveries = sum(v.deliveries for v in sim.viewers)
+        d_del = deliveries - self._window["deliveries"]
+        d_pub = self._window["published"]
+        self._window = {"published": 0, "deliveries": deliveries, "t": 0.0}
+        ents = ", ".join(f"{n} {k}" for k, n in c["entities"].items())
+        tv = sim.measure.summary()["all"]
+        err = f"{tv['error_p95_m']:.1f} m p95" if tv["error_p95_m"] is not None else "n/a"
+        col = c["collisions"]
+        line = (f"[{sim.ticks * sim.dt:6.0f}s] entities {sum(c['entities'].values())} ({ents}) | "
+                f"updates {d_pub / wall_dt:6.1f}/s | deliveries {d_del / wall_dt:7.1f}/s | collisions avoided "
+                f"{col['avoided']} accepted {col['accepted']} deleted {col['deleted']} | viewer error {err}, "
+                f"missed {100 * tv['missed_visibility']:.1f}%")
+        if self.config.duration and self.config.speed > 1.0:
+            frac = min(1.0, sim.ticks * sim.dt / self.config.duration)
+            line += f" [{'#' * int(20 * frac):<20}] {100 * frac:3.0f}%"
+        return line
+
+    def report(self) -> dict:
+        rep = self.sim.report()
+        lat = np.array(self.lateness) if self.lateness else np.zeros(1)
+        rep["realtime"] = {
+            "speed": self.config.speed, "ticks": self.sim.ticks,
+            "tick_lateness_p50_ms": float(np.percentile(lat, 50) * 1000),
+            "tick_lateness_p99_ms": float(np.percentile(lat, 99) * 1000),
+            "ticks_behind": self.behind,
+        }
+        rep["server"] = {"in_process": self.server is not None, "gap_s": self.gap_s, "outages": self.outages}
+        if self.server is None:
+            rep["truth_vs_viewer"] = "not measured: the server's entity ids are not known outside its process"
+        return rep
+
+
+def wall_clock() -> float:
+    return time.time()

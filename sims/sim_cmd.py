@@ -1,0 +1,123 @@
+"""`entitynet sim`: a city simulation through honest clients, with a live summary and a JSON report.
+
+Registered by `entitynet.cli` (for now by name in COMMAND_MODULES; at merge through the "entitynet.commands"
+entry-point group). Everything heavy is imported inside `run`, so `entitynet --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def _hostport(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    return host, int(port)
+
+
+def _clock(text: str) -> float:
+    parts = text.split(":")
+    try:
+        if len(parts) not in (2, 3):
+            raise ValueError
+        h, m = int(parts[0]), int(parts[1])
+        s = int(parts[2]) if len(parts) == 3 else 0
+        if not (0 <= h < 48 and 0 <= m < 60 and 0 <= s < 60):
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a service-day time HH:MM[:SS] (hours up to 47), got {text!r}") \
+            from None
+    return float(h * 3600 + m * 60 + s)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
+                                   "clients and PVS viewers, with a live summary and a JSON report")
+    p.add_argument("--entities", type=int, default=300, help="pedestrians and cars on the map (default 300)")
+    p.add_argument("--car-share", type=float, default=0.3, help="share of cars among them (default 0.3)")
+    p.add_argument("--viewers", type=int, default=24, help="viewers (default 24, a quarter above the roofs)")
+    p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
+                                                  "extract); 'none' for no transit")
+    p.add_argument("--date", metavar="YYYYMMDD", help="service day of the feed (default: its busiest)")
+    p.add_argument("--start", type=_clock, default=8 * 3600.0, metavar="HH:MM",
+                   help="service-day time the run starts at (default 08:00)")
+    p.add_argument("--duration", type=float, help="simulated seconds to run (default: until Ctrl-C)")
+    p.add_argument("--speed", type=float, default=1.0, help="times real time (default 1; e.g. 10)")
+    p.add_argument("--tick-hz", type=float, default=2.0, help="simulation ticks per second (default 2)")
+    p.add_argument("--server", type=_hostport, metavar="HOST:PORT",
+                   help="an existing shard server (default: start one in this process)")
+    p.add_argument("--token", default="", help="auth token for --server")
+    p.add_argument("--connections", type=int, default=4, help="connections carrying the entities (default 4)")
+    p.add_argument("--radius", action="store_true", help="viewers subscribe to a 500 m radius instead of the PVS")
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument("--summary-every", type=float, default=5.0, metavar="S", help="summary interval (default 5 s)")
+    p.add_argument("--report", metavar="FILE.json", help="write the final JSON report here (default: stdout)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from entitynet.cli import CommandError
+
+    problems = []
+    if args.duration is not None and not args.duration > 0:
+        problems.append("--duration must be a positive number of seconds")
+    if not args.speed > 0:
+        problems.append("--speed must be positive")
+    if not args.summary_every > 0:
+        problems.append("--summary-every must be positive")
+    if args.gtfs not in (None, "none") and not Path(args.gtfs).is_file():
+        problems.append(f"{args.gtfs}: cannot read the feed (no such file)")
+    if problems:
+        raise CommandError("; ".join(problems))
+    import trio
+
+    from entitynet.topology_cache import bundled_topology, cache_dir
+    from sims.engine.schedule import BUNDLED_FEED, GtfsError, load_schedule
+    from sims.engine.sim import Sim, SimConfig
+    from sims.shell import Shell, ShellConfig
+
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    try:
+        config = SimConfig(entities=args.entities, viewers=args.viewers, connections=args.connections,
+                           car_share=args.car_share, tick_hz=args.tick_hz, seed=args.seed, start=args.start,
+                           transit=args.gtfs != "none", subscribe="radius" if args.radius else "pvs")
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    if not 0 <= args.car_share <= 1:
+        raise CommandError("--car-share must be within 0..1")
+    if args.entities < 0:
+        raise CommandError("--entities must be at least 0")
+    topo, path = bundled_topology(lambda m: say(f"[{time.perf_counter() - t0:6.1f}s] {m}"), with_pvs=True)
+    schedule = None
+    if config.transit:
+        feed = Path(args.gtfs) if args.gtfs else BUNDLED_FEED
+        try:
+            schedule = load_schedule(feed, topo, date=args.date, cache=cache_dir(), seed=args.seed)
+        except (GtfsError, ValueError) as exc:
+            raise CommandError(str(exc)) from None
+        n_run = len(schedule.running_at(config.start))
+        say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
+            f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
+    sim = Sim(topo, config, schedule)
+    say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
+        f"{len(sim.viewers)} viewers subscribing by {sim.subscribe_by}, ticks at {config.tick_hz:g} Hz, "
+        f"speed x{args.speed:g}")
+    shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
+                                   server=args.server, token=args.token, artifact=path), say)
+    report = trio.run(shell.run)
+    text = json.dumps(report, indent=2, default=float)
+    if args.report:
+        Path(args.report).write_text(text + "\n")
+        say(f"report written to {args.report}")
+    else:
+        print(text)
+    return 0

@@ -1,0 +1,19 @@
+"""The sim bench suite's figures on a tiny run (their presence and consistency, not their values)."""
+
+from __future__ import annotations
+
+from sims.bench.sim_bench import _per_viewer_s
+from sims.engine.local import run_local
+from sims.engine.sim import Sim, SimConfig
+from tests.sims.engine.test_routes import grid
+
+
+def test_per_viewer_rates_split_street_and_roof():
+    sim = Sim(grid(), SimConfig(entities=10, viewers=4, roof_share=0.5, transit=False, start=0.0,
+                                subscribe="radius", radius=400.0))
+    run_local(sim, 10.0)
+    street = _per_viewer_s(sim, 10.0, high=False)
+    roof = _per_viewer_s(sim, 10.0, high=True)
+    total = sum(v.deliveries for v in sim.viewers)
+    assert street["deliveries"] * 2 * 10.0 + roof["deliveries"] * 2 * 10.0 == total
+    assert street["bytes"] > 0 and street["messages"] >= street["deliveries"]

@@ -1,0 +1,78 @@
+"""`entitynet sim` over real loopback sockets: the trio shell, an in-process or external server, the server
+going away mid-run, and the command line's errors."""
+
+from __future__ import annotations
+
+import trio
+
+from entitynet.cli import main
+from sims.engine.sim import Sim, SimConfig
+from sims.shell import Shell, ShellConfig
+from tests.entitynet.server_helpers import config as server_config
+from tests.sims.engine.test_routes import grid
+
+
+async def test_sim_on_helsinki_with_an_in_process_server(helsinki, helsinki_path):
+    lines: list[str] = []
+    sim = Sim(helsinki, SimConfig(entities=30, viewers=3, connections=2, tick_hz=4.0, transit=False, seed=2))
+    shell = Shell(sim, ShellConfig(duration=4.0, speed=4.0, summary_every=0.2, artifact=helsinki_path,
+                                   keys=False), lines.append)
+    with trio.fail_after(60):
+        rep = await shell.run()
+    assert rep["sim_time_s"] == 4.0
+    assert rep["clients"]["published"] >= 30 and rep["viewers"]["deliveries"] > 0
+    assert rep["truth_vs_viewer"]["all"]["visible_entity_samples"] > 0
+    assert rep["server"] == {"in_process": True, "gap_s": 0.0, "outages": 0}
+    assert "tick_lateness_p99_ms" in rep["realtime"]
+    assert any("deliveries" in line and "collisions avoided" in line for line in lines)
+
+
+async def test_server_going_away_mid_run_is_survived_and_reported():
+    from entitynet.server import serve
+
+    topo = grid()
+    sim = Sim(topo, SimConfig(entities=10, viewers=2, connections=2, tick_hz=10.0, transit=False, start=0.0,
+                              subscribe="radius"))
+    port = 0
+    shell_result: dict = {}
+    first_scope = trio.CancelScope()
+
+    async def first_server(task_status=trio.TASK_STATUS_IGNORED):
+        with first_scope:
+            await serve(server_config(digest=topo.digest, n_cells=int(topo.n_cells)), task_status=task_status)
+
+    async with trio.open_nursery() as outer:
+        first = await outer.start(first_server)
+        port = first.port
+        shell = Shell(sim, ShellConfig(duration=12.0, speed=4.0, summary_every=100.0, server=("127.0.0.1", port),
+                                       keys=False), lambda m: None)
+
+        async def outage():
+            await trio.sleep(0.6)
+            first_scope.cancel()  # the server goes away ...
+            await trio.sleep(0.6)
+            shell_result["second"] = await outer.start(  # ... and comes back on the same port
+                serve, server_config(digest=topo.digest, n_cells=int(topo.n_cells), port=port))
+
+        outer.start_soon(outage)
+        with trio.fail_after(30):
+            shell_result["rep"] = await shell.run()
+        outer.cancel_scope.cancel()
+    result = shell_result
+    rep = result["rep"]
+    assert rep["sim_time_s"] == 12.0  # the simulation kept stepping through the outage
+    assert rep["server"]["outages"] >= 1 and rep["server"]["gap_s"] > 0.0
+    assert result["second"].sb.stats["updates_in"] > 0  # the honest clients re-published to the new server
+    assert isinstance(rep["truth_vs_viewer"], str)  # ids of an external server cannot be mapped to the truth
+
+
+def test_cli_refuses_bad_options(capsys):
+    assert main(["sim", "--speed", "0", "--duration", "1"]) == 2
+    assert "--speed must be positive" in capsys.readouterr().err
+    assert main(["sim", "--tick-hz", "0", "--duration", "1"]) == 2
+    assert "tick rate" in capsys.readouterr().err
+
+
+def test_cli_refuses_a_missing_feed(capsys, tmp_path):
+    assert main(["sim", "--gtfs", str(tmp_path / "nope.zip"), "--duration", "1"]) == 2
+    assert "cannot read the feed" in capsys.readouterr().err
