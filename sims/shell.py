@@ -30,6 +30,9 @@ Say = Callable[[str], None]
 
 @dataclass
 class ShellConfig:
+    """How the shell runs a simulation: duration and speed, where the server is (or one in this process),
+    summary interval and the warm-up ticks left out of the lateness figures."""
+
     duration: float | None = None  # simulated seconds; None = until Ctrl-C
     speed: float = 1.0
     summary_every: float = 5.0  # wall seconds
@@ -43,6 +46,9 @@ class ShellConfig:
 
 
 class Shell:
+    """The trio shell around a `Sim`: keeps the tick schedule, moves its messages over real connections, and
+    measures tick lateness and server outages (see the module docstring)."""
+
     def __init__(self, sim: Sim, config: ShellConfig, say: Say = print):
         if not config.speed > 0 or not math.isfinite(config.speed):
             raise ValueError(f"speed must be a positive number, got {config.speed}")
@@ -60,6 +66,8 @@ class Shell:
 
     # ---- the run ---------------------------------------------------------------------------------------------
     async def run(self) -> dict:
+        """Start the in-process server when none is given, connect the publishers and viewers, run the tick loop
+        until the duration or a signal, and return the report."""
         cfg = self.config
         async with trio.open_nursery() as nursery:
             address = cfg.server
@@ -180,6 +188,8 @@ class Shell:
 
     # ---- output ----------------------------------------------------------------------------------------------
     def summary_line(self, wall_dt: float) -> str:
+        """The live one-line summary: rates over the last `wall_dt` wall seconds (the window restarts here),
+        collisions, viewer error and a progress bar when running faster than real time."""
         sim = self.sim
         c = sim.counts()
         deliveries = sum(v.deliveries for v in sim.viewers)
@@ -200,6 +210,8 @@ class Shell:
         return line
 
     def report(self) -> dict:
+        """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps.
+        Against an external server truth-vs-viewer is not measured (its entity ids cannot be mapped back)."""
         rep = self.sim.report()
         lat = np.array(self.lateness) if self.lateness else np.zeros(1)
         rep["realtime"] = {
@@ -215,4 +227,6 @@ class Shell:
 
 
 def wall_clock() -> float:
+    """Wall time (Unix seconds). Nothing in the project calls it now: the tick schedule keeps time with
+    trio's monotonic clock instead, which a system clock change cannot skew."""
     return time.time()

@@ -36,6 +36,7 @@ def _clock(text: str) -> float:
 
 
 def register(sub) -> None:
+    """Add the `sim` subcommand and its options to the CLI's subparsers (called by `entitynet.cli`)."""
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
                                    "clients and PVS viewers, with a live summary and a JSON report")
     p.add_argument("--entities", type=int, default=300, help="pedestrians and cars on the map (default 300)")
@@ -61,6 +62,8 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Check the options (clear usage errors before anything loads), load the topology and schedule, run the
+    shell and write the JSON report; 0 on success."""
     from entitynet.cli import CommandError
 
     problems = []

@@ -31,6 +31,8 @@ WARMUP_TICKS = 6
 
 
 def add_arguments(parser) -> None:  # pragma: no cover - wired by the bench command when registered
+    """The suite's own option `--sim-seconds`. Not called by the bench command yet, which is why `run`
+    reads it with `getattr` and falls back to 15 s (quick) or 60 s."""
     parser.add_argument("--sim-seconds", type=float, help="simulated seconds of the measured runs")
 
 
@@ -83,6 +85,8 @@ def _fleet_rate(topo, n: int, seconds: float) -> float:
 
 
 def run(args, progress) -> dict[str, Any]:
+    """The suite: PVS and radius runs against the in-process core, the drift-threshold sweep, the fleet core's
+    rate and the real-time ladder over loopback sockets; the report's params, results, peer and ratio."""
     from entitynet.topology_cache import bundled_topology, cache_dir
     from sims.engine.schedule import BUNDLED_FEED, load_schedule
 

@@ -38,6 +38,9 @@ def _write(out: zipfile.ZipFile, name: str, fields: list[str], rows: list[dict])
 
 
 def make(src: Path, dst: Path) -> dict[str, int]:
+    """Write the trimmed feed from `src` to `dst` (what is kept: the module docstring); its row counts and
+    size in bytes. Trips are chosen by `read_schedule` itself, so the extract holds exactly the trips the
+    simulation matches onto the bundled map."""
     from entitynet.topology_cache import bundled_topology
     from sims.engine.schedule import read_schedule
     from topology.projection import LocalProjection

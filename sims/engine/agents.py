@@ -34,9 +34,12 @@ class AreaWalk:
 
     @property
     def duration(self) -> float:
+        """Seconds from arrival to the walk's last waypoint (when the entity leaves the simulation)."""
         return float(self.t[-1])
 
     def at(self, dt: float) -> tuple[float, float]:
+        """Local (x, y) `dt` seconds after arrival: the last waypoint reached (no interpolation; held at the
+        end once the walk is over)."""
         i = min(int(np.searchsorted(self.t, dt, side="right")) - 1, len(self.t) - 1)
         x, y = self.xy[max(i, 0)]
         return float(x), float(y)
@@ -78,10 +81,12 @@ class Agent:
 
     @property
     def name(self) -> str:
+        """The entity type's name (the params' name), used as the client core's type and in counts by type."""
         return self.params.name
 
     @property
     def length(self) -> float:
+        """Body length in metres behind the front (0: point-like, takes no part in collision avoidance)."""
         return self.params.length
 
     def xy(self, behind: float = 0.0) -> tuple[float, float]:

@@ -41,9 +41,12 @@ class Fleet:
         self.counters = {"fixes": 0, "rejected_fixes": 0, "published": 0, "unpublished": 0}
 
     def conn_of(self, entity: int) -> int:
+        """The publisher connection carrying `entity` (id modulo the connection count, as a proxy splits a fleet)."""
         return entity % self.connections
 
     def add(self, a: Agent) -> None:
+        """Give a new entity its client core. Scheduled vehicles get their route and stops a priori; the first fix
+        is phased by id (golden ratio) so fixes spread over the interval instead of all landing on one tick."""
         route, stops = (), ()
         if a.stops or a.label:  # a scheduled vehicle knows its route and stops a priori
             route = a.route.edges
@@ -54,6 +57,8 @@ class Fleet:
         self.next_fix[a.id] = self.world.now + phase * self.fix_interval
 
     def step(self, now: float) -> list[list[P.Publish | P.Unpublish]]:
+        """One tick: UNPUBLISH the removed entities, take the due GPS fixes through each client core and run the
+        others' timers (so validity renewals are not held back to the next fix); messages per connection."""
         out: list[list[P.Publish | P.Unpublish]] = [[] for _ in range(self.connections)]
         for aid, _why in self.world.take_removed():
             p = self.players.pop(aid, None)

@@ -32,6 +32,8 @@ class Movement:
     box: Box
 
     def conflicts(self, other: Movement) -> bool:
+        """Whether the two movements cannot share the junction: overlapping boxes from different entry edges
+        (vehicles from the same edge follow each other, which car following handles)."""
         return self.into != other.into and boxes_overlap(self.box, other.box)
 
 
@@ -70,4 +72,5 @@ class Crossings:
             self.release(n, agent)
 
     def holders(self, node: int) -> list[int]:
+        """The agents holding `node` now, by id (sorted, so inspection is deterministic)."""
         return sorted(self.held.get(node, {}))

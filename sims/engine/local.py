@@ -14,6 +14,9 @@ from sims.engine.sim import Sim
 
 
 class LocalSwitch:
+    """The switchboard core in this process, fed as the server feeds it: a `Hello` per connection, frames
+    encoded and decoded both ways, one flush per tick, so tests and the benchmark see the real forwarding."""
+
     def __init__(self, sim: Sim):
         self.sim = sim
         topo = sim.topo
@@ -41,6 +44,8 @@ class LocalSwitch:
             self.sb.receive(cid, got, now)
 
     def exchange(self, pubs: list[list[P.Message]], subs: list[list[P.Subscribe]]) -> None:
+        """One tick's traffic: viewers' SUBSCRIBEs first (so this tick's publishes reach them), then the
+        publishers' messages, expiry when the core's deadline has passed, and the flush to the viewers."""
         now = self.sim.now
         for cid, msgs in zip(self.views, subs, strict=True):
             self._feed(cid, msgs, now)
@@ -53,6 +58,8 @@ class LocalSwitch:
         self.flush(now)
 
     def flush(self, now: float) -> None:
+        """Drain every dirty outbox and hand each viewer's messages (with their encoded size, for the byte
+        counts) to `Sim.deliver`; publishers' outboxes are drained and dropped."""
         for cid in sorted(self.sb.take_dirty()):
             ob = self.sb.outbox(cid)
             if ob is None:
@@ -66,6 +73,8 @@ class LocalSwitch:
                 self.sim.deliver(i, m, len(enc))
 
     def eid_to_agent(self) -> dict[int, int]:
+        """The switchboard's opaque entity id -> the simulation's agent id, so truth can be compared with
+        ghosts (only possible because the core runs in this process)."""
         return {eid: e.local for eid, e in self.sb.entities.items()}
 
 

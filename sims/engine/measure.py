@@ -28,6 +28,9 @@ from sims.engine.world import World
 
 @dataclass
 class Tally:
+    """Raw counts of one viewer group, kept apart so groups can be summed into "all" before the fractions
+    are taken (fractions of fractions would weight the groups wrongly)."""
+
     errors: list[float] = field(default_factory=list)
     visible: int = 0  # entity-samples in a visible cell
     missed: int = 0
@@ -36,6 +39,8 @@ class Tally:
     viewer_samples: int = 0
 
     def summary(self) -> dict:
+        """The group's figures: error mean, p95 and max (None without a shown ghost), missed-visibility and stale
+        fractions, and the sample counts they rest on."""
         e = np.array(self.errors) if self.errors else np.zeros(0)
         return {
             "error_mean_m": float(e.mean()) if e.size else None,
@@ -56,6 +61,8 @@ class Measure:
         self.tallies: dict[str, Tally] = defaultdict(Tally)
 
     def sample(self, now: float, world: World, viewers: list[SimViewer], eid_to_agent: dict[int, int]) -> None:
+        """One sample of every viewer against the truth at `now`: errors of shown entities in subscribed cells,
+        misses, and stale ghosts (see the module docstring for the rules)."""
         where: dict[int, list[int]] = defaultdict(list)
         truth: dict[int, tuple[float, float]] = {}
         cells_of: dict[int, tuple[int, ...]] = {}
@@ -91,6 +98,7 @@ class Measure:
                     t.stale += 1
 
     def summary(self) -> dict:
+        """The figures per group ("roof", "street") and "all", the latter from the groups' summed raw counts."""
         out = {k: t.summary() for k, t in sorted(self.tallies.items())}
         total = Tally()
         for t in self.tallies.values():

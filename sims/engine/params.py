@@ -44,6 +44,7 @@ class TypeParams:
 
     @property
     def length(self) -> float:
+        """Body length: the sum of the parts (a two-part tram is both parts end to end)."""
         return float(sum(self.parts))
 
     @property

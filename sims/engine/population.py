@@ -22,6 +22,9 @@ from topology.raw import PEDESTRIAN, VEHICLE
 
 @dataclass
 class PopulationConfig:
+    """What `Population` keeps on the map; checked on creation so a bad share or rate is a clear
+    ValueError, not a silently empty or overfull city."""
+
     entities: int = 300  # pedestrians and cars kept on the map
     car_share: float = 0.3
     rates: dict[str, float] = field(default_factory=dict)  # extra arrivals per second, by type

@@ -65,6 +65,9 @@ class Departure:
 
 @dataclass
 class Schedule:
+    """The service day's departures over the map, sorted by time (then trip id, so runs are deterministic)
+    for `due`'s bisection; `report` counts what was skipped and why."""
+
     departures: list[Departure]
     report: Counter = field(default_factory=Counter)
     service_date: str = ""

@@ -23,6 +23,9 @@ from sims.engine.world import World
 
 @dataclass
 class SimConfig:
+    """A run's settings; checked on creation so a bad value is one clear ValueError listing every problem
+    (the CLI turns it into a usage error) before anything is built."""
+
     entities: int = 300
     viewers: int = 24
     connections: int = 4
@@ -63,6 +66,9 @@ class SimConfig:
 
 
 class Sim:
+    """The whole simulation as one sans-IO core (see the module docstring): every driver calls `start()`, then
+    `step()` per tick, hands arrivals to `deliver` and calls `maybe_sample`."""
+
     def __init__(self, topo, config: SimConfig, schedule: Schedule | None = None, cells_at: CellsAt | None = None):
         self.topo = topo
         self.config = config
@@ -86,9 +92,11 @@ class Sim:
 
     @property
     def now(self) -> float:
+        """The world's clock (service-day seconds): the one time base of the schedule, clients and viewers."""
         return self.world.now
 
     def start(self) -> tuple[list[list[P.Message]], list[list[P.Subscribe]]]:
+        """The first population and the viewers' first subscriptions: the messages to send before the first tick."""
         for a in self.population.start():
             self.fleet.add(a)
         return self.fleet.step(self.now), [v.move(0.0) for v in self.viewers]
@@ -102,6 +110,7 @@ class Sim:
         return self.fleet.step(self.now), [v.move(self.dt) for v in self.viewers]
 
     def deliver(self, viewer: int, msg: P.Message, size: int = 0) -> None:
+        """A message that arrived for viewer `viewer` (`size`: its encoded bytes, for the per-viewer byte counts)."""
         self.viewers[viewer].receive(msg, self.now, size)
 
     def maybe_sample(self, eid_to_agent: dict[int, int] | None) -> bool:
@@ -114,6 +123,8 @@ class Sim:
         return True
 
     def counts(self) -> dict:
+        """The cheap counters (entities by type, collisions, spawns, client messages), for the live summary line
+        without the cost of the full report."""
         w = self.world
         c = w.counters
         return {
@@ -124,6 +135,7 @@ class Sim:
         }
 
     def report(self) -> dict:
+        """The run's JSON-ready report: config, counts, viewer traffic and truth against viewers."""
         v = self.viewers
         return {
             "config": asdict(self.config),

@@ -58,6 +58,8 @@ class SimViewer:
         self.bytes = 0
 
     def move(self, dt: float) -> list[P.Subscribe]:
+        """Move the camera by `dt` seconds of its walk or flight; the SUBSCRIBE differences to send (and the
+        ghost store told which cells are visible now, which decides the ghosts it shows)."""
         self.traj.advance(self.speed * dt)
         x, y = self.traj.position()
         msgs = self.subs.move_camera(x, y, self.z)
@@ -65,6 +67,8 @@ class SimViewer:
         return msgs
 
     def receive(self, msg: P.Message, now: float, size: int = 0) -> None:
+        """Count and apply a message that arrived. A WELCOME clears the ghosts: entity ids are per server
+        session, so after a reconnect the old ones mean nothing."""
         self.bytes += size
         if isinstance(msg, P.Update):
             self.deliveries += 1

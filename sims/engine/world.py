@@ -96,6 +96,8 @@ class World:
         self.agents[agent].stalled_until = self.now + seconds
 
     def remove(self, agent: int, why: str) -> None:
+        """Take an entity out (arrived, deleted), freeing its junction reservations so waiting vehicles are not
+        blocked by a ghost holder; counted under `why` and queued for `take_removed`."""
         a = self.agents.pop(agent, None)
         if a is None:
             return
@@ -104,6 +106,7 @@ class World:
         self.counters[why] += 1
 
     def take_removed(self) -> list[tuple[int, str]]:
+        """The (id, why) removed since the last call, once: the fleet sends their UNPUBLISH from this."""
         out, self.removed = self.removed, []
         return out
 
@@ -271,4 +274,5 @@ class World:
 
     # ---- summaries --------------------------------------------------------------------------------------------
     def by_type(self) -> Counter:
+        """Live entities counted by type name (for summaries and reports)."""
         return Counter(a.name for a in self.agents.values())
