@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 import signal
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -224,9 +223,3 @@ class Shell:
         if self.server is None:
             rep["truth_vs_viewer"] = "not measured: the server's entity ids are not known outside its process"
         return rep
-
-
-def wall_clock() -> float:
-    """Wall time (Unix seconds). Nothing in the project calls it now: the tick schedule keeps time with
-    trio's monotonic clock instead, which a system clock change cannot skew."""
-    return time.time()

@@ -30,12 +30,6 @@ from sims.engine.sim import Sim, SimConfig
 WARMUP_TICKS = 6
 
 
-def add_arguments(parser) -> None:  # pragma: no cover - wired by the bench command when registered
-    """The suite's own option `--sim-seconds`. Not called by the bench command yet, which is why `run`
-    reads it with `getattr` and falls back to 15 s (quick) or 60 s."""
-    parser.add_argument("--sim-seconds", type=float, help="simulated seconds of the measured runs")
-
-
 def _per_viewer_s(sim: Sim, seconds: float, high: bool) -> dict[str, float]:
     vs = [v for v in sim.viewers if v.high == high]
     if not vs:
