@@ -129,6 +129,7 @@ class Server(WritingMixin):
         max_update = 64 + codec.max_payload + 5 * codec.max_publish_cells + 4 * codec.max_str
         self._sure_fit = max(1, self._max_body // max_update)
         self._stall_clock = StallClock(max_credit=0.25)
+        self.cluster = None  # the ClusterLink when config.cluster is set
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -150,6 +151,11 @@ class Server(WritingMixin):
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
+                if cfg.cluster is not None:  # sharded: the link to the other switchboards (entitynet.cluster)
+                    from entitynet.cluster.link import ClusterLink
+
+                    self.cluster = ClusterLink(self, cfg.cluster)
+                    await nursery.start(self.cluster.run)
                 logs.event("listening", host=cfg.host, port=self.port, ws_port=self.ws_port,
                            metrics_port=self.metrics_port, n_cells=self.sb.config.n_cells,
                            digest=self.sb.config.digest[:16], tls=bool(self.ssl), fd_limit=self.admission.limit)
