@@ -21,15 +21,20 @@ def two_regions(k: int = 2) -> RegionMap:
     return RegionMap(DIGEST, k, region, None, None, borders, {})
 
 
-@contextlib.asynccontextmanager
-async def shards(nats_urls: str, regions: RegionMap, n: int | None = None, redirect_viewers: bool = False, **kw):
+def shards(nats_urls: str, regions: RegionMap, n: int | None = None, redirect_viewers: bool = False, **kw):
     """Start `n` shard servers (shard i owns region i); yields the list of servers. Viewers stay where they
     connect unless `redirect_viewers` (most tests watch one region from the other's shard)."""
     n = regions.shards if n is None else n
+    return shards_on([nats_urls] * n, regions, redirect_viewers, **kw)
+
+
+@contextlib.asynccontextmanager
+async def shards_on(urls: list[str], regions: RegionMap, redirect_viewers: bool = False, **kw):
+    """Shard i connects to NATS at urls[i]."""
     kw.setdefault("switch", {"grace_s": 0.2})
     async with trio.open_nursery() as nursery:
         servers = []
-        for i in range(n):
+        for i, nats_urls in enumerate(urls):
             cc = ClusterConfig(nats_urls, i, regions, heartbeat_s=0.1, dead_after_s=0.6,
                                redirect_viewers=redirect_viewers)
             servers.append(await nursery.start(_serve_scoped, config(n_cells=N_CELLS, cluster=cc, **kw)))

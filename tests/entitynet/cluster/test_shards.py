@@ -184,3 +184,33 @@ async def test_a_killed_switchboard_is_dropped_and_its_regions_pass_to_the_survi
             assert [(r.shard, r.address) for r in redirects] == [(0, f"127.0.0.1:{a.port}")]
             assert again.entity in a.sb.entities and a.sb.entities[again.entity].owner.mirror is None
             n.cancel_scope.cancel()
+
+
+async def test_a_killed_nats_node_is_replaced_without_losing_the_switchboards(nats_cluster3):
+    from .shard_helpers import shards_on
+
+    nodes = nats_cluster3.nodes
+    # shard a knows node 0 only (it learns the others from INFO), shard b node 1
+    async with shards_on([nodes[0].url, nodes[1].url], two_regions()) as (a, b):
+        pub = await Raw.connect(a)
+        remote = await _view(b, 30)
+        await _settled(a, b)
+        await trio.sleep(0.3)  # interest crosses the routes
+        await pub.send(P.Publish(1, 1, (30,), 10_000, b"before"))
+        eid = (await remote.expect(P.Update)).entity
+        nodes[0].kill()
+        await until(lambda: a.cluster.nc.connected and a.cluster.nc.server[1] != nodes[0].port, timeout=10)
+        assert a.cluster.nc.reconnects == 1
+        # b never lost a: no peer was declared dead, the mirror was not dropped
+        await trio.sleep(0.3)
+        assert b.cluster.core.stats["peers_lost"] == 0 and eid in b.sb.entities
+        seq = 2
+        with trio.fail_after(5):  # until the new route carries a's publications again
+            while True:
+                await pub.send(P.Publish(1, seq, (30,), 10_000, b"after"))
+                try:
+                    u = await remote.expect(P.Update, pred=lambda m, s=seq: m.seq == s, timeout=0.3)
+                    break
+                except trio.TooSlowError:
+                    seq += 1
+        assert u.entity == eid and u.payload == b"after"
