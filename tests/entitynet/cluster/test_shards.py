@@ -154,35 +154,38 @@ async def test_a_publisher_roaming_into_another_region_is_redirected(nats_server
             n.cancel_scope.cancel()
 
 
-async def test_a_killed_switchboard_is_dropped_and_its_regions_pass_to_the_survivors(nats_server):
-    async with shards(nats_server.urls, two_regions(3)) as (a, b, c):
-        pub = await Raw.connect(c)
-        await pub.send(P.Publish(1, 1, (80,), 60_000, b"on c"))  # region 2, c's
-        watch = await _view(a, 80)
-        eid = (await watch.expect(P.Update)).entity
-        assert a.cluster.core.owner_of(2, a.cluster.core.live_shards(trio.current_time())) == 2
-        c.kill_scope.cancel()  # no goodbye: heartbeats just stop
-        lv = await watch.expect(P.Leave, timeout=5)  # dropped after dead_after_s, long before its 60 s validity
-        assert lv.entity == eid
-        core_a, core_b = a.cluster.core, b.cluster.core
-        await until(lambda: core_b.live_shards(b.clock()) == [0, 1])  # b notices within a tick or two of a
-        live = core_a.live_shards(a.clock())
-        assert live == [0, 1]
-        assert core_a.owner_of(2, live) == core_b.owner_of(2, live) == 0  # 2 % 2: the same rule everywhere
-        # the client reconnects to a survivor it knows (b), re-publishes, and is redirected to the new owner (a)
-        from entitynet.connection import Connection
-        from tests.entitynet.server_helpers import DIGEST
+async def test_a_killed_switchboard_is_dropped_and_its_clients_recover_on_the_survivors(nats_server):
+    from entitynet.connection import Connection
+    from tests.entitynet.server_helpers import DIGEST
 
+    async with shards(nats_server.urls, two_regions(3)) as (a, b, c):
+        watch = await _view(a, 80)
+        await _settled(a, b, c)
         redirects: list[P.Redirect] = []
-        conn = Connection(("127.0.0.1", b.port), DIGEST, backoff=(0.01, 0.05),
+        # the client of c knows another shard of the cluster (b): where it fails over
+        conn = Connection(("127.0.0.1", c.port), DIGEST, backoff=(0.05, 0.1), alternates=(("127.0.0.1", b.port),),
+                          failover_s=0.8,  # > the shards' dead_after_s (0.6 s): their copies are gone first
                           on_message=lambda m: redirects.append(m) if isinstance(m, P.Redirect) else None)
         async with trio.open_nursery() as n:
             await n.start(conn.run)
-            await conn.publish(P.Publish(1, 2, (80,), 60_000, b"again"))
-            again = await watch.expect(P.Update, pred=lambda m: m.payload == b"again", timeout=5)
-            assert again.entity != eid
+            await conn.publish(P.Publish(1, 1, (80,), 60_000, b"on c"))  # region 2, c's
+            eid = (await watch.expect(P.Update)).entity
+            killed_at = trio.current_time()
+            c.kill_scope.cancel()  # no goodbye: its connections drop, its heartbeats stop
+            lv = await watch.expect(P.Leave, timeout=5)  # dropped after dead_after_s, not after its 60 s validity
+            assert lv.entity == eid
+            core_a, core_b = a.cluster.core, b.cluster.core
+            await until(lambda: core_b.live_shards(b.clock()) == [0, 1])
+            live = core_a.live_shards(a.clock())
+            assert live == [0, 1]
+            assert core_a.owner_of(2, live) == core_b.owner_of(2, live) == 0  # 2 % 2: the same rule everywhere
+            # the client fails over to b and re-publishes; b redirects it to a, region 2's new owner
+            back = await watch.expect(P.Update, pred=lambda m: m.payload == b"on c", timeout=5)
+            recovery = trio.current_time() - killed_at
+            assert back.entity != eid and back.entity in a.sb.entities
+            assert a.sb.entities[back.entity].owner.mirror is None
             assert [(r.shard, r.address) for r in redirects] == [(0, f"127.0.0.1:{a.port}")]
-            assert again.entity in a.sb.entities and a.sb.entities[again.entity].owner.mirror is None
+            assert recovery < 5.0  # well inside the entity's validity
             n.cancel_scope.cancel()
 
 
