@@ -21,6 +21,7 @@ COMMAND_MODULES = [
     "entitynet.commands.demo_cmd",
     "entitynet.commands.serve_cmd",
     "entitynet.commands.users_cmd",
+    "entitynet.commands.cluster_cmd",
 ]
 
 

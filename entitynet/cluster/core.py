@@ -413,6 +413,7 @@ class ClusterCore:
             counts = self.sb.counts()
             counts["owned_regions"] = len(self.owned_regions(now))
             counts["mirrored"] = sum(len(c.entities) for c in self.sb.mirrors.values())
+            counts["updates_in"] = self.sb.stats["updates_in"]
             self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT, self.shard, self.address, self.regions.digest,
                                                    counts]))
         for p in self.peers.values():
