@@ -98,6 +98,7 @@ class ClusterCore:
         self.follow_ttl_s, self.query_wait_s, self.follow_wait_s = follow_ttl_s, query_wait_s, follow_wait_s
         self.wake = wake or (lambda: None)
         self.redirect_viewers = redirect_viewers
+        self.extra_counts: Any = dict  # the shell's own figures for the heartbeat (NATS messages in and out)
         self.started = now
         self.out: list[tuple[str, bytes, str | None]] = []
         self.peers: dict[int, Peer] = {}
@@ -414,6 +415,8 @@ class ClusterCore:
             counts["owned_regions"] = len(self.owned_regions(now))
             counts["mirrored"] = sum(len(c.entities) for c in self.sb.mirrors.values())
             counts["updates_in"] = self.sb.stats["updates_in"]
+            counts["deliveries"] = self.sb.stats["deliveries"]
+            counts.update(self.extra_counts())
             self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT, self.shard, self.address, self.regions.digest,
                                                    counts]))
         for p in self.peers.values():

@@ -12,7 +12,6 @@ import argparse
 import json
 import os
 import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -80,7 +79,6 @@ def register(sub) -> None:
     up.add_argument("--shards", type=int, default=2, metavar="K", help="switchboards, one per region (default 2)")
     up.add_argument("--nats-nodes", type=int, default=1, metavar="N", help="nats-server nodes (default 1)")
     up.add_argument("--topology", metavar="FILE", help="artifact (default: the bundled Helsinki map)")
-    up.add_argument("--base-port", type=int, default=0, metavar="P", help="shard i listens on P+i (default: free)")
     up.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
     up.add_argument("--state", default=str(DEFAULT_STATE), help=f"state file (default {DEFAULT_STATE})")
     up.set_defaults(func=cmd_up)
@@ -93,7 +91,7 @@ def register(sub) -> None:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from entitynet.cluster.natsd import NatsCluster, NatsServerMissing, free_port
+    from entitynet.cluster.natsd import NatsCluster, NatsServerMissing
     from topology.regions import build_regions
 
     if args.shards < 1 or args.nats_nodes < 1:
@@ -118,14 +116,12 @@ def cmd_up(args: argparse.Namespace) -> int:
         nats.start()
     except (NatsServerMissing, RuntimeError) as exc:
         raise CommandError(str(exc)) from None
-    procs: list[subprocess.Popen] = []
-    ports = [args.base_port + i if args.base_port else free_port() for i in range(args.shards)]
+    from entitynet.cluster.local import LocalShards
+
+    shards = LocalShards(path, map_path, nats.urls, args.shards, run_dir)
     try:
-        for i, port in enumerate(ports):
-            cmd = [sys.executable, "-m", "entitynet", "serve", "--open", "--topology", str(path), "--port", str(port),
-                   "--cluster", nats.urls, "--shard", str(i), "--regions", str(map_path)]
-            log = open(run_dir / f"shard-{i}.log", "ab")  # noqa: SIM115 (the child owns it)
-            procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
+        shards.start()
+        procs, ports = shards.procs, shards.ports
         state = {"nats": nats.urls, "nats_pids": [n.proc.pid for n in nats.nodes], "regions": str(map_path),
                  "topology": str(path), "digest": regions.digest,
                  "shards": [{"shard": i, "address": f"127.0.0.1:{p}", "pid": pr.pid}
@@ -148,15 +144,10 @@ def cmd_up(args: argparse.Namespace) -> int:
             time.sleep(0.2)
     except KeyboardInterrupt:
         pass
+    except RuntimeError as exc:
+        raise CommandError(str(exc)) from None
     finally:
-        for pr in procs:
-            if pr.poll() is None:
-                pr.send_signal(signal.SIGTERM)
-        for pr in procs:
-            try:
-                pr.wait(5)
-            except subprocess.TimeoutExpired:
-                pr.kill()
+        shards.stop()
         nats.stop()
         state_path.unlink(missing_ok=True)
     return 0

@@ -9,4 +9,5 @@ SUITES = {
     "dr": "sims.bench.dr_bench",
     "switch": "sims.bench.switch_bench",
     "pvs": "sims.bench.pvs_bench",
+    "cluster": "sims.bench.cluster_bench",
 }
