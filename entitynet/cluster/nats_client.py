@@ -96,16 +96,10 @@ class NatsClient:
         return await self._nursery_cm.__aexit__(*exc)
 
     async def close(self) -> None:
+        """Stop: the session's own cleanup closes the stream."""
         self._closed = True
         if self._nursery is not None:
             self._nursery.cancel_scope.cancel()
-        if self._stream is not None:
-            with trio.move_on_after(0.2) as cs:
-                cs.shield = True
-                try:
-                    await self._stream.aclose()
-                except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
-                    pass
 
     def _known(self) -> list[tuple[str, int]]:
         known = list(self.servers)
@@ -174,10 +168,17 @@ class NatsClient:
                 self.on_reconnect()
         self._connected_ev.set()
         self._wake.set()
-        async with trio.open_nursery() as n:
-            n.start_soon(self._writer, stream)
-            await self._reader(stream, parser)
-            n.cancel_scope.cancel()
+        try:
+            async with trio.open_nursery() as n:  # neither task raises a lost connection: it just ends
+                n.start_soon(self._writer, stream, n.cancel_scope)
+                await self._reader(stream, parser)
+                n.cancel_scope.cancel()
+        finally:
+            with trio.CancelScope(shield=True), trio.move_on_after(0.2):
+                try:
+                    await stream.aclose()
+                except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
+                    pass
 
     async def _read_info(self, stream, parser: N.Parser) -> dict:
         ev = await self._next(stream, parser)
@@ -194,6 +195,12 @@ class NatsClient:
         return ev
 
     async def _reader(self, stream, parser: N.Parser) -> None:
+        try:
+            await self._read_loop(stream, parser)
+        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError, N.NatsProtocolError) as exc:
+            log.info("NATS connection lost: %s", exc)
+
+    async def _read_loop(self, stream, parser: N.Parser) -> None:
         while True:
             data = await stream.receive_some(262144)
             if not data:
@@ -215,14 +222,18 @@ class NatsClient:
                 elif t is N.Info:
                     self.info.update(ev.info)
 
-    async def _writer(self, stream) -> None:
-        while True:
-            await self._wake.wait()
-            self._wake = trio.Event()
-            while self._out:
-                data = bytes(self._out)
-                self._out.clear()
-                await stream.send_all(data)
+    async def _writer(self, stream, scope: trio.CancelScope) -> None:
+        try:
+            while True:
+                await self._wake.wait()
+                self._wake = trio.Event()
+                while self._out:
+                    data = bytes(self._out)
+                    self._out.clear()
+                    await stream.send_all(data)
+        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as exc:
+            log.info("NATS write failed: %s", exc)
+            scope.cancel()  # the reader ends too; the client dials again
 
     def _dispatch(self, m: N.Msg) -> None:
         self.received += 1
