@@ -12,8 +12,11 @@ Subjects (prefix `en.<cluster-map digest[:12]>`, so shards of different maps nev
   `P.f`          follow request (an entity id) -> its owner answers with its state and publishes `P.e.<eid>`
   `P.q`          query by identity -> every shard answers with what the asker may see (the buddy rule)
   `P.hb`         heartbeats: shard, address, map digest, counts
-Messages are msgpack arrays (kind first). Mirrored entities live in the switchboard's own tables
-(entitynet.switchboard.mirror): seen, followed, queried, expired like local ones.
+  `P.i`          interest: the cells a shard subscribes to (changes at once, the whole set every 2 s)
+Messages are msgpack arrays (kind first). A shard publishes a cell's states only while another shard has
+announced interest in that cell: interior cells, which no other shard's viewers can see, cost nothing on NATS.
+Mirrored entities live in the switchboard's own tables (entitynet.switchboard.mirror): seen, followed, queried,
+expired like local ones.
 
 Ownership and failover: shard k owns region k while it is alive; a region whose shard is dead (no heartbeat for
 `dead_after_s`) passes to the live shards by one deterministic rule, `live[region % len(live)]` (live sorted),
@@ -40,7 +43,7 @@ from entitynet import protocol as P
 
 log = logging.getLogger("entitynet.cluster")
 
-STATE, LEAVE, SNAP_REQ, SNAP_REP, HEARTBEAT, FOLLOW_REQ, QUERY_REQ, QUERY_REP = range(1, 9)
+STATE, LEAVE, SNAP_REQ, SNAP_REP, HEARTBEAT, FOLLOW_REQ, QUERY_REQ, QUERY_REP, INTEREST = range(1, 10)
 MAX_REDIRECT_ENTITIES = 8  # a connection carrying more (a proxy's fleet) is not redirected: mirrors carry it
 
 _packb = msgpack.Packer(use_bin_type=True).pack
@@ -110,6 +113,9 @@ class ClusterCore:
         self.following: set[int] = set()  # remote entities some local client follows through `P.e.<eid>`
         self.queries: dict[int, _Query] = {}
         self.redirected: set[int] = set()
+        self.interest: dict[int, set[int]] = {}  # other shard -> the cells it subscribes to
+        self.wanted: Counter[int] = Counter()  # cell -> how many other shards want it
+        self._next_interest = now
         self.stats: Counter[str] = Counter()
         self._qkeys = itertools.count(1)
         self._next_hb = now
@@ -171,10 +177,12 @@ class ClusterCore:
         msg = _packb([STATE, self.shard, o.session, e.eid, e.seq, list(e.cells), e.validity_ms, e.payload,
                       o.identity, aud, o.user_id])
         p = self.prefix
+        wanted = self.wanted
         for cell in e.cells:
-            self._pub(f"{p}.c.{cell}", msg)
+            if wanted[cell]:
+                self._pub(f"{p}.c.{cell}", msg)
         for cell in old:
-            if cell not in e.cells:
+            if cell not in e.cells and wanted[cell]:
                 self._pub(f"{p}.c.{cell}", msg)
         until = self.remote_followed.get(e.eid)
         if until is not None:
@@ -190,7 +198,8 @@ class ClusterCore:
         self.sent_at.pop(e.eid, None)
         msg = _packb([LEAVE, self.shard, e.eid])
         for cell in e.cells:
-            self._pub(f"{self.prefix}.c.{cell}", msg)
+            if self.wanted[cell]:
+                self._pub(f"{self.prefix}.c.{cell}", msg)
         if self.remote_followed.pop(e.eid, None) is not None:
             self._pub(f"{self.prefix}.e.{e.eid}", msg)
         self.stats["leaves_out"] += 1
@@ -264,6 +273,8 @@ class ClusterCore:
         p = self.prefix
         subs = [f"{p}.c.{c}" for c in sorted(add_cells)]
         unsubs = [f"{p}.c.{c}" for c in sorted(del_cells)]
+        if add_cells or del_cells:  # before the snapshot request: owners publish these cells from now on
+            self._pub(f"{p}.i", _packb([INTEREST, self.shard, sorted(add_cells), sorted(del_cells), False]))
         if add_cells:
             cells = sorted(add_cells)
             for i in range(0, len(cells), 2000):
@@ -314,6 +325,8 @@ class ClusterCore:
                 self._answer_query(m, reply)
             elif kind == QUERY_REP:
                 self._query_reply(shard, int(m[2]), m[3])
+            elif kind == INTEREST:
+                self._interest(shard, m[2], m[3], bool(m[4]))
             else:
                 self.stats["bad_messages"] += 1
         except (TypeError, ValueError, IndexError, KeyError):
@@ -390,6 +403,31 @@ class ClusterCore:
             out.append(b)
         self.sb.answer_query(q.cid, q.query_id, out)
 
+    def _interest(self, shard: int, added: list, removed: list, whole: bool) -> None:
+        """Another shard's cells: a change, or (`whole`) its full set replacing what we knew."""
+        if not 0 <= shard < self.regions.shards:
+            raise ValueError("no such shard")
+        n = self.sb.config.n_cells
+        mine = self.interest.setdefault(shard, set())
+        new = set(mine) if not whole else set()
+        new |= {int(c) for c in added if 0 <= int(c) < n}
+        new -= {int(c) for c in removed}
+        self._set_interest(shard, new)
+
+    def _set_interest(self, shard: int, new: set[int]) -> None:
+        old = self.interest.get(shard, set())
+        wanted = self.wanted
+        for c in old - new:
+            wanted[c] -= 1
+            if wanted[c] <= 0:
+                del wanted[c]
+        for c in new - old:
+            wanted[c] += 1
+        if new:
+            self.interest[shard] = new
+        else:
+            self.interest.pop(shard, None)
+
     def _heartbeat(self, shard: int, m: list, now: float) -> None:
         if not 0 <= shard < self.regions.shards:
             self.stats["bad_messages"] += 1
@@ -423,8 +461,12 @@ class ClusterCore:
             if p.alive and now - p.last_seen > self.dead_after_s:
                 p.alive = False
                 n = self.sb.drop_shard(p.shard)
+                self._set_interest(p.shard, set())
                 self.stats["peers_lost"] += 1
                 log.warning("shard %d is gone: dropped its %d mirrored entities", p.shard, n)
+        if now >= self._next_interest:  # the whole set now and then: a shard that started late learns it
+            self._next_interest = now + 2.0
+            self._pub(f"{self.prefix}.i", _packb([INTEREST, self.shard, sorted(self.nats_cells), [], True]))
         for key in [k for k, q in self.queries.items() if q.deadline <= now]:
             self._finish_query(key)
         for eid in list(self.pending_follows):
@@ -447,7 +489,7 @@ class ClusterCore:
                 self.wake()
 
     def next_deadline(self) -> float:
-        t = min(self._next_hb, self._next_follow_refresh)
+        t = min(self._next_hb, self._next_follow_refresh, self._next_interest)
         for q in self.queries.values():
             t = min(t, q.deadline)
         for waiting in self.pending_follows.values():

@@ -66,7 +66,7 @@ class ClusterLink:
             self.core.extra_counts = lambda: {"nats_in": nc.received, "nats_out": nc.published,
                                               "nats_dropped": nc.dropped, "nats_reconnects": nc.reconnects}
             p = self.core.prefix
-            for sub in ("snap", "hb", "f", "q"):
+            for sub in ("snap", "hb", "f", "q", "i"):
                 nc.subscribe(f"{p}.{sub}", self._on_msg)
             self._pump()
             await nc.flush()

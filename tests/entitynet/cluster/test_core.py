@@ -24,9 +24,10 @@ class Bus:
         self.cores = [ClusterCore(sb, self.regions, i, f"h:{i}", now=0.0, inbox=f"_INBOX.{i}", heartbeat_s=0.5,
                                   dead_after_s=2.0, **kw) for i, sb in enumerate(self.sbs)]
         p = self.cores[0].prefix
-        self.subs = [{f"{p}.snap", f"{p}.hb", f"{p}.f", f"{p}.q", c.inbox} for c in self.cores]
+        self.subs = [{f"{p}.snap", f"{p}.hb", f"{p}.f", f"{p}.q", f"{p}.i", c.inbox} for c in self.cores]
         self.down: set[int] = set()
         self.published = 0
+        self.cell_msgs = 0  # publications on cell subjects
 
     def run(self, now: float, rounds: int = 10) -> None:
         for _ in range(rounds):
@@ -42,6 +43,7 @@ class Bus:
                 for subject, data, reply in core.take_out():
                     moved = True
                     self.published += 1
+                    self.cell_msgs += ".c." in subject
                     for j, other in enumerate(self.cores):
                         if j != i and j not in self.down and subject in self.subs[j]:
                             other.on_message(subject, reply, data, now)
@@ -180,3 +182,29 @@ def test_query_and_follow_answer_in_time_without_the_peer():
     got = recv(b, v)
     assert [m.query_id for m in of(got, P.QueryResult)] == [3]
     assert [e.code for e in of(got, P.Error)] == [P.ErrorCode.NO_SUCH_ENTITY]
+
+
+def test_only_cells_another_shard_watches_go_out_on_nats(bus):
+    a, b = bus.sbs
+    core_a = bus.cores[0]
+    p = join(a)
+    before = bus.cell_msgs
+    for seq in range(1, 6):
+        a.receive(p, [pub(1, seq, (10,))], 0.1 * seq)  # nobody elsewhere looks at cell 10
+        bus.run(0.1 * seq)
+    assert core_a.stats["states_out"] == 5 and bus.cell_msgs == before  # no NATS traffic at all
+    v = join(b)
+    b.receive(v, [P.Subscribe((10,), ())], 1.0)
+    bus.run(1.0)
+    assert core_a.wanted[10] == 1
+    assert [u.seq for u in of(recv(b, v), P.Update)] == [5]  # the snapshot
+    a.receive(p, [pub(1, 6, (10,))], 1.1)
+    bus.run(1.1)
+    assert [u.seq for u in of(recv(b, v), P.Update)] == [6]  # then the live state
+    b.receive(v, [P.Subscribe((), (10,))], 1.2)
+    bus.run(1.2)
+    assert core_a.wanted[10] == 0
+    n = bus.cell_msgs
+    a.receive(p, [pub(1, 7, (10,))], 1.3)
+    bus.run(1.3)
+    assert bus.cell_msgs == n  # b stopped looking: the cell is interior again
