@@ -19,6 +19,7 @@ class Bus:
     """NATS in miniature: exact-subject interest, no echo to the publisher, replies to inboxes."""
 
     def __init__(self, k: int = 2, **kw):
+        kw.setdefault("redirect_viewers", False)  # most tests watch one region from the other's shard
         self.regions = two_regions(k)
         self.sbs = [make(grace_s=0.5, seed=i + 1) for i in range(k)]
         self.cores = [ClusterCore(sb, self.regions, i, f"h:{i}", now=0.0, inbox=f"_INBOX.{i}", heartbeat_s=0.5,
