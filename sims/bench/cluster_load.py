@@ -45,7 +45,8 @@ class Viewer:
     deliveries: int = 0
     duplicates: int = 0
     gaps: list[float] = field(default_factory=list)
-    redirected_at: dict[int, float] = field(default_factory=dict)  # gid -> its mover's last REDIRECT (shared)
+    # gid -> (time, cell) of its mover's last REDIRECT (shared by all viewers)
+    redirected_at: dict[int, tuple[float, int]] = field(default_factory=dict)
     welcomes: int = 0
 
     def on_message(self, m: P.Message) -> None:
@@ -64,8 +65,10 @@ class Viewer:
                 self.visible[m.entity] = gid
                 old = self.last_leave.pop(gid, None)
                 moved = self.redirected_at.get(gid)
-                # a handover: the old id left here around its mover's REDIRECT, and the new id arrived
-                if old is not None and old[0] != m.entity and moved is not None and old[1] >= moved - 0.5:
+                # a handover: the entity was in this viewer's cells when it crossed (REDIRECT), its old id left
+                # here then, and its new id arrived (an entity that also walked out of view is not counted)
+                if (old is not None and old[0] != m.entity and moved is not None and old[1] >= moved[0] - 0.5
+                        and moved[1] in self.cells and m.cells and m.cells[0] in self.cells):
                     self.gaps.append(now - old[1])
         elif t is P.Leave:
             gid = self.visible.pop(m.entity, None)
@@ -99,7 +102,7 @@ class Load:
         self.p = params
         self.rng = rng
         self.movers = [Mover(i + 1, c) for i, c in enumerate(start_cells)]
-        self.redirected_at: dict[int, float] = {}
+        self.redirected_at: dict[int, tuple[float, int]] = {}
         self.viewers = [Viewer(frozenset(cells), redirected_at=self.redirected_at) for cells in view_cells]
         self.viewer_home = viewer_home
         self.moving = True
@@ -123,7 +126,7 @@ class Load:
         def on(msg: P.Message) -> None:
             if type(msg) is P.Redirect:
                 m.redirects += 1
-                self.redirected_at[m.gid] = trio.current_time()
+                self.redirected_at[m.gid] = (trio.current_time(), m.cell)
         return on
 
     async def _move(self, m: Mover) -> None:
