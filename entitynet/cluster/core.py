@@ -113,6 +113,7 @@ class ClusterCore:
         self.following: set[int] = set()  # remote entities some local client follows through `P.e.<eid>`
         self.queries: dict[int, _Query] = {}
         self.redirected: set[int] = set()
+        self.redirects: list[tuple[int, int, str]] = []  # REDIRECTs waiting for NATS to have our LEAVEs
         self.interest: dict[int, set[int]] = {}  # other shard -> the cells it subscribes to
         self.wanted: Counter[int] = Counter()  # cell -> how many other shards want it
         self._next_interest = now
@@ -231,12 +232,24 @@ class ClusterCore:
         self._redirect(c, owners[region_of[e.cells[0]]])
 
     def _redirect(self, c: Any, shard: int) -> None:
+        """The client's entities leave now; the REDIRECT itself waits in `redirects` until the shell has
+        handed those LEAVEs to NATS and NATS has confirmed them (`release_redirects`): only then can the client
+        re-publish elsewhere, so the new shard's first UPDATE never overtakes our LEAVE."""
         address = self.address_of(shard)
         if address is None or shard == self.shard:
             return
         self.redirected.add(c.cid)
-        self.sb.redirect(c.cid, shard, address)
+        self.sb.redirect(c.cid, shard, address, send=False)
+        self.redirects.append((c.cid, shard, address))
         self.stats["redirects"] += 1
+        self.wake()
+
+    def release_redirects(self) -> int:
+        """Send the REDIRECTs held back until now (the shell calls this once NATS has our LEAVEs)."""
+        held, self.redirects = self.redirects, []
+        for cid, shard, address in held:
+            self.sb.send_redirect(cid, shard, address)
+        return len(held)
 
     def follow_remote(self, c: Any, eid: int) -> bool:
         """FOLLOW of an entity not known here: ask its owner (whoever it is) for it; the follow completes when

@@ -47,6 +47,8 @@ class ClusterLink:
         self.nc: NatsClient | None = None
         self._wake = trio.Event()
         self._sids: dict[str, int] = {}
+        self._releasing = False
+        self._nursery: trio.Nursery | None = None
 
     def _poke(self) -> None:
         self._wake.set()
@@ -57,7 +59,8 @@ class ClusterLink:
         address = cfg.address or f"{server.config.host}:{server.port}"
         nc = NatsClient(cfg.servers, name=f"entitynet-shard-{cfg.shard}", token=cfg.token, tls=cfg.tls,
                         on_reconnect=self._reconnected)
-        async with nc:
+        async with nc, trio.open_nursery() as nursery:
+            self._nursery = nursery
             self.nc = nc
             inbox = nc.new_inbox(self._on_msg)
             self.core = ClusterCore(server.sb, cfg.regions, cfg.shard, address, now=clock(), inbox=inbox,
@@ -104,3 +107,21 @@ class ClusterLink:
                 self._sids[subject] = nc.subscribe(subject, self._on_msg)
         for subject, payload, reply in core.take_out():
             nc.publish(subject, payload, reply)
+        if core.redirects and not self._releasing:
+            self._releasing = True
+            self._nursery.start_soon(self._release)
+
+    async def _release(self) -> None:
+        """Held REDIRECTs go out once NATS has confirmed everything published before them (a PING round trip):
+        the client's LEAVEs are then ahead of anything it can publish on its new shard."""
+        try:
+            with trio.move_on_after(1.0):  # NATS unreachable: redirect anyway, a duplicate beats a stuck client
+                await self.nc.flush()
+        except trio.TooSlowError:
+            pass
+        finally:
+            self._releasing = False
+            if self.core.release_redirects():
+                self.server._wake_dirty()
+            if self.core.redirects:
+                self._wake.set()

@@ -113,19 +113,27 @@ class MirrorMixin:
         if not c.entities and c.mirror is not None:
             self.mirrors.pop((c.mirror, c.session), None)
 
-    def redirect(self, cid: int, shard: int, address: str) -> None:
+    def redirect(self, cid: int, shard: int, address: str, send: bool = True) -> None:
         """Tell a local client its home is another shard (protocol v1 REDIRECT: the whole connection moves).
 
-        Its entities leave here at once and whatever it sends afterwards is ignored until it hangs up: the
-        LEAVE goes out before the client can re-publish on the new shard, so no viewer ever shows one entity
-        twice (under two ids); the gap is one round trip plus the new shard's handshake."""
+        Its entities leave here at once and whatever it sends afterwards is ignored until it hangs up, so the
+        LEAVE of its old id goes out before it can re-publish on the new shard: no viewer shows one entity
+        twice. With `send=False` the REDIRECT itself waits for `send_redirect` (the cluster first makes sure
+        NATS has the LEAVEs)."""
         c = self.clients.get(cid)
         if c is not None and not c.closing:
-            self._control(c, P.Redirect(shard, address))
             for eid in list(c.entities.values()):
                 self._remove_entity(self.entities[eid])
             c.closing = True
             self.stats["redirects"] += 1
+            if send:
+                self.send_redirect(cid, shard, address)
+
+    def send_redirect(self, cid: int, shard: int, address: str) -> None:
+        c = self.clients.get(cid)
+        if c is not None:
+            c.outbox.put_control(P.encode_message(P.Redirect(shard, address)))
+            self._dirty.add(cid)
 
     def answer_query(self, cid: int, query_id: int, encoded: list[bytes]) -> None:
         """The deferred answer of a QUERY by identity, once the other shards have answered."""

@@ -158,7 +158,7 @@ def run(args, progress) -> dict[str, Any]:
     p = {
         "entities": 150 if quick else 600, "viewers": 30 if quick else 120, "shards": [1, 2, 4],
         "warmup_s": 2.0 if quick else 4.0, "window_s": 4.0 if quick else 15.0, "publish_interval_s": 1.0,
-        "move_every_s": 2.0, "validity_ms": 5000, "dead_after_s": 1.0, "failover_s": 1.5, "seed": 7,
+        "move_every_s": 2.0, "validity_ms": 5000, "dead_after_s": 1.0, "failover_s": 2.0, "seed": 7,
         "nats_nodes_at_largest": 3,
     }  # fmt: skip
     if getattr(args, "topology", None):

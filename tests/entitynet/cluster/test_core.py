@@ -48,6 +48,7 @@ class Bus:
                     for j, other in enumerate(self.cores):
                         if j != i and j not in self.down and subject in self.subs[j]:
                             other.on_message(subject, reply, data, now)
+                core.release_redirects()  # everything before them was delivered: the held REDIRECTs go out
             if not moved:
                 return
 
@@ -130,6 +131,8 @@ def test_a_publisher_leaving_the_region_is_redirected_once_and_its_entity_leaves
     a.receive(p, [pub(1, 2, (40, 60))], 0.2)  # straddling the border: still ours
     assert not of(recv(a, p), P.Redirect)
     a.receive(p, [pub(1, 3, (60,))], 0.3)
+    assert not of(recv(a, p), P.Redirect) and a.counts()["entities"] == 0  # held until NATS has the LEAVE
+    bus.run(0.3)
     red = of(recv(a, p), P.Redirect)
     assert [(r.shard, r.address) for r in red] == [(1, "h:1")]
     got = recv(a, watcher)
@@ -154,6 +157,7 @@ def test_viewer_redirect_follows_where_its_cells_are():
     a.receive(v, [P.Subscribe(tuple(range(40, 55)), ())], 0.1)  # 10 of ours, 5 of b's
     assert not of(recv(a, v), P.Redirect)
     a.receive(v, [P.Subscribe(tuple(range(55, 75)), tuple(range(40, 50)))], 0.2)  # now mostly b's
+    bus.run(0.2)
     assert [(r.shard, r.address) for r in of(recv(a, v), P.Redirect)] == [(1, "h:1")]
 
 
