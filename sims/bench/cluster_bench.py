@@ -8,7 +8,8 @@ Results (per shard count, and the headline figures at the largest):
   `handover_gap_ms`        p99 at viewers, from the LEAVE of an entity's old id to the first UPDATE of its new
                            one when it crossed a region border (REDIRECT)
   `viewer_duplicates`      times a viewer held one entity under two ids (must be 0)
-  `entities_lost`          entities a viewer should see but does not, after movement stops and 1.5 s pass
+  `entities_lost`          entities a viewer should see but still does not one validity period after movement
+                           stops (`settle_s`: how long until every viewer had them all)
   `failover_recovery_s`    a switchboard SIGKILLed: until every viewer sees exactly what it should again
   `nats_node_failover_s`   the NATS node every shard uses killed: until every shard's heartbeat shows it
                            reconnected
@@ -110,8 +111,14 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
         out["cross_shard_fraction"] = round((n1 - n0) / max(deliveries, 1), 4) if nats else 0.0
         out["redirects"] = sum(m.redirects for m in load.movers)
         load.moving = False
-        await trio.sleep(1.5)
-        missing, doubled = load.missing_and_doubled()
+        t_stop = trio.current_time()
+        with trio.move_on_after(p["validity_ms"] / 1000):  # lost = still missing a validity period later
+            while True:
+                await trio.sleep(0.1)
+                missing, doubled = load.missing_and_doubled()
+                if missing == 0 and trio.current_time() - t_stop > 1.0:
+                    break
+        out["settle_s"] = round(trio.current_time() - t_stop, 2)
         out["entities_lost"] = missing
         out["viewer_duplicates"] = sum(v.duplicates for v in load.viewers) + doubled
         gaps = [g for v in load.viewers for g in v.gaps]
