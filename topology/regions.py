@@ -260,16 +260,17 @@ def _column_regions(topo: Any, centres: np.ndarray, region: np.ndarray, grid: An
     return out
 
 
-def build_regions(topo: Any, k: int, weights: np.ndarray | None = None) -> RegionMap:
-    """The partition, the view-grid columns' regions and each region's border, with a report."""
+def build_regions(topo: Any, k: int, weights: np.ndarray | None = None, borders: bool = True) -> RegionMap:
+    """The partition, the view-grid columns' regions and each region's border, with a report. `borders=False`
+    skips the borders (decoding every view cell's PVS takes seconds on a city): they are left empty."""
     region, facts = partition(topo, k, weights)
     centres, areas = cell_centres_and_areas(topo)
     w = areas if weights is None else np.asarray(weights, float)
     seen: list[set[int]] = [set() for _ in range(k)]
     seen_street: list[set[int]] = [set() for _ in range(k)]  # from the lowest layer only: cameras at street level
     column_region = grid_meta = None
-    border_rule = "network adjacency (no PVS)"
-    if "pvs_grid" in topo.extra and topo.meta.get("pvs"):
+    border_rule = "network adjacency (no PVS)" if borders else "not computed"
+    if borders and "pvs_grid" in topo.extra and topo.meta.get("pvs"):
         from topology.pvs import PvsIndex
 
         idx = PvsIndex.from_topology(topo)
@@ -287,7 +288,7 @@ def build_regions(topo: Any, k: int, weights: np.ndarray | None = None) -> Regio
                     if iz == 0:
                         seen_street[r].update(vis)
         border_rule = "PVS of the region's view cells"
-    else:
+    elif borders:
         adj = cell_adjacency(topo)
         for c in range(len(region)):
             seen[int(region[c])].update(adj[c])

@@ -149,3 +149,9 @@ def test_cli_regions(town, tmp_path, capsys):
     assert rep["shards"] == 2 and len(rep["border_cells"]) == 2
     assert main(["topology", "regions", str(art), "--shards", "0"]) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_regions_without_borders_keep_the_same_partition(town):
+    full, bare = build_regions(town, 3), build_regions(town, 3, borders=False)
+    assert np.array_equal(full.cell_region, bare.cell_region)
+    assert all(len(b) == 0 for b in bare.borders) and bare.report["border_rule"] == "not computed"
