@@ -40,10 +40,12 @@ from typing import Any
 import msgpack
 
 from entitynet import protocol as P
+from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
 
 log = logging.getLogger("entitynet.cluster")
 
-STATE, LEAVE, SNAP_REQ, SNAP_REP, HEARTBEAT, FOLLOW_REQ, QUERY_REQ, QUERY_REP, INTEREST = range(1, 10)
+STATE, LEAVE, SNAP_REQ, SNAP_REP, HEARTBEAT, FOLLOW_REQ = range(1, 7)
+INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py)
 MAX_REDIRECT_ENTITIES = 8  # a connection carrying more (a proxy's fleet) is not redirected: mirrors carry it
 
 _packb = msgpack.Packer(use_bin_type=True).pack
@@ -62,26 +64,9 @@ class Peer:
     counts: dict = field(default_factory=dict)
 
 
-@dataclass
-class _Asker:
-    """The party a remote query asks for (the buddy rule needs its user, identity and audience)."""
-
-    user_id: str
-    identity: str | None
-    audience: frozenset[str] | None
-
-
-@dataclass
-class _Query:
-    cid: int
-    query_id: int
-    encoded: list[bytes]
-    waiting: set[int]
-    deadline: float
-
-
-class ClusterCore:
-    """Cluster logic of one shard; installs itself as the switchboard's `cluster` hook."""
+class ClusterCore(ClusterQueriesMixin):
+    """Cluster logic of one shard; installs itself as the switchboard's `cluster` hook (queries by identity
+    across shards in `queries.py`)."""
 
     def __init__(self, sb: Any, regions: Any, shard: int, address: str, *, now: float, inbox: str,
                  heartbeat_s: float = 0.5, dead_after_s: float = 2.0, follow_ttl_s: float = 6.0,
@@ -111,7 +96,7 @@ class ClusterCore:
         self.remote_followed: dict[int, float] = {}  # local entity -> until when another shard follows it
         self.pending_follows: dict[int, dict[int, float]] = {}  # remote entity -> {cid: give up at}
         self.following: set[int] = set()  # remote entities some local client follows through `P.e.<eid>`
-        self.queries: dict[int, _Query] = {}
+        self.queries: dict = {}  # key -> queries._Query
         self.redirected: set[int] = set()
         self.redirects: list[tuple[int, int, str]] = []  # REDIRECTs waiting for NATS to have our LEAVEs
         self.interest: dict[int, set[int]] = {}  # other shard -> the cells it subscribes to
@@ -263,18 +248,6 @@ class ClusterCore:
         self.stats["follow_requests"] += 1
         return True
 
-    def query_identity(self, c: Any, m: P.Query, encoded: list[bytes], now: float) -> None:
-        """QUERY by identity: the local answer waits for the other live shards' (or `query_wait_s`)."""
-        waiting = set(self.live_shards(now)) - {self.shard}
-        if not waiting:
-            self.sb.answer_query(c.cid, m.query_id, encoded)
-            return
-        key = next(self._qkeys)
-        self.queries[key] = _Query(c.cid, m.query_id, list(encoded), waiting, now + self.query_wait_s)
-        aud = None if c.audience is None else sorted(c.audience)
-        self._pub(f"{self.prefix}.q", _packb([QUERY_REQ, self.shard, key, m.arg, c.user_id, c.identity, aud]),
-                  self.inbox)
-
     # ------------------------------------------------------------------------------------------ NATS interest
     def interest_changes(self) -> tuple[list[str], list[str]]:
         """Subjects to SUB and UNSUB now: the cells local clients subscribe to, and followed remote entities.
@@ -380,41 +353,6 @@ class ClusterCore:
         for eid in [x for x in self.pending_follows if x in self.sb.entities]:
             for cid in self.pending_follows.pop(eid):
                 self.sb.follow_now(cid, eid)
-
-    def _answer_query(self, m: list, reply: str) -> None:
-        key, arg, user, ident, aud = int(m[2]), str(m[3]), str(m[4]), m[5], m[6]
-        asker = _Asker(user, None if ident is None else str(ident), None if aud is None else frozenset(aud))
-        from entitynet.switchboard.privacy import identity_shown
-
-        sb = self.sb
-        found: list[bytes] = []
-        for ocid in sb.by_identity.get(arg, ()):
-            owner = sb.clients.get(ocid)
-            if owner is None or identity_shown(owner, asker) is None:
-                continue
-            for eid in owner.entities.values():
-                found.append(sb._encoded_for(sb.entities[eid], asker))
-        self._pub(reply, _packb([QUERY_REP, self.shard, key, found[: sb.config.max_query_results]]))
-
-    def _query_reply(self, shard: int, key: int, encoded: list) -> None:
-        q = self.queries.get(key)
-        if q is None:
-            return
-        q.encoded.extend(bytes(b) for b in encoded)
-        q.waiting.discard(shard)
-        if not q.waiting:
-            self._finish_query(key)
-
-    def _finish_query(self, key: int) -> None:
-        q = self.queries.pop(key)
-        room = self.sb.config.codec.max_frame - 64
-        out: list[bytes] = []
-        for b in q.encoded[: self.sb.config.max_query_results]:
-            room -= len(b)
-            if room < 0:
-                break
-            out.append(b)
-        self.sb.answer_query(q.cid, q.query_id, out)
 
     def _interest(self, shard: int, added: list, removed: list, whole: bool) -> None:
         """Another shard's cells: a change, or (`whole`) its full set replacing what we knew."""
