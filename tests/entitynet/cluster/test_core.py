@@ -213,3 +213,31 @@ def test_only_cells_another_shard_watches_go_out_on_nats(bus):
     a.receive(p, [pub(1, 7, (10,))], 1.3)
     bus.run(1.3)
     assert bus.cell_msgs == n  # b stopped looking: the cell is interior again
+
+
+def test_a_new_publisher_in_another_region_is_redirected_before_anyone_sees_it(bus):
+    a = bus.sbs[0]
+    watcher = join(a)
+    a.receive(watcher, [P.Subscribe((60,), ())], 0.0)
+    p = join(a)
+    a.receive(p, [pub(1, 1, (60,))], 0.1)  # region 1: b's
+    assert a.counts()["entities"] == 0 and not recv(a, watcher)  # never published here
+    bus.run(0.1)
+    assert [(r.shard, r.address) for r in of(recv(a, p), P.Redirect)] == [(1, "h:1")]
+    assert bus.cell_msgs == 0
+
+
+def test_a_new_publisher_is_held_off_while_its_regions_owner_is_silent():
+    bus = Bus(2)
+    bus.run(0.0)
+    bus.run(0.5)
+    a = bus.sbs[0]
+    bus.down = {1}  # b stops answering; not yet declared dead (2 s)
+    p = join(a, now=1.0)
+XX
+    assert a.counts()["entities"] == 0 and not of(recv(a, p), P.Redirect)
+    assert bus.cores[0].stats["admissions_deferred"] == 1
+    for t in (2.0, 2.6):
+        bus.run(t)
+    a.receive(p, [pub(1, 2, (60,))], 2.7)  # b declared dead: region 1 is a's now
+    assert a.counts()["entities"] == 1
