@@ -234,7 +234,7 @@ def test_a_new_publisher_is_held_off_while_its_regions_owner_is_silent():
     a = bus.sbs[0]
     bus.down = {1}  # b stops answering; not yet declared dead (2 s)
     p = join(a, now=1.0)
-XX
+    a.receive(p, [pub(1, 1, (60,))], 1.6)  # b's last heartbeat was at 0.5: quiet for 1.1 s > 2 heartbeats
     assert a.counts()["entities"] == 0 and not of(recv(a, p), P.Redirect)
     assert bus.cores[0].stats["admissions_deferred"] == 1
     for t in (2.0, 2.6):
