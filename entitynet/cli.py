@@ -25,6 +25,7 @@ COMMAND_MODULES = [
     "entitynet.commands.topology_cmd",
     "entitynet.commands.serve_cmd",
     "entitynet.commands.users_cmd",
+    "entitynet.commands.cluster_cmd",
 ]
 
 #: entry-point group through which other packages register subcommands: `name = "module:register"`

@@ -93,10 +93,14 @@ class Connection:
         clock: Callable[[], float] = time.time,
         incoming_size: int = 10_000,
         limits: P.CodecLimits = P.DEFAULT_LIMITS,
+        alternates: tuple[tuple[str, int] | str, ...] = (),
+        failover_s: float = 3.0,
     ):
+        # alternates: the cluster's other shards, where this client fails over when its shard keeps failing
         self.session = ClientSession(
             address, digest, token, policy=ReconnectPolicy(backoff[0], backoff[1], reconnect),
-            ping_interval=ping_interval, handshake_timeout=handshake_timeout)
+            ping_interval=ping_interval, handshake_timeout=handshake_timeout, alternates=tuple(alternates),
+            failover_s=failover_s)
         self.digest = digest
         self.token = token
         self.ssl_context = ssl_context

@@ -28,6 +28,9 @@ def register(sub) -> None:
     p.add_argument("--flush-ms", type=float, default=10.0, help="outbound batching window (default 10 ms)")
     p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
     p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")
+    from entitynet.commands.cluster_cmd import add_cluster_options
+
+    add_cluster_options(p)
     p.set_defaults(func=run)
 
 
@@ -52,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
         users_db=args.users_db, flush_interval=args.flush_ms / 1000.0, switch={"grace_s": args.grace},
         log_json=args.log_json,
     )
+    if args.cluster:
+        from entitynet.commands.cluster_cmd import cluster_config_from
+
+        config.cluster = cluster_config_from(args)
     try:
         trio.run(serve_until_signal, config)
     except ConfigError as exc:

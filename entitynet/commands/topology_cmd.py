@@ -58,6 +58,9 @@ def register(sub) -> None:
     _add_pvs_export_options(e)
     e.set_defaults(func=cmd_export)
     _register_pvs_command(tsub)
+    from entitynet.commands.regions_cmd import register as register_regions
+
+    register_regions(tsub, load_artifact)
 
 
 def _add_pvs_options(parser: argparse.ArgumentParser) -> None:

@@ -133,6 +133,7 @@ class Server(WritingMixin):
         self._stall_clock = StallClock(max_credit=0.25)
         self._timer_scope: trio.CancelScope | None = None  # the sleep of `_timers`, until `_timer_at` ...
         self._timer_at = math.inf  # ... the core's next deadline (in the core's clock)
+        self.cluster = None  # the ClusterLink when config.cluster is set
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -158,6 +159,11 @@ class Server(WritingMixin):
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
                 nursery.start_soon(self._timers)
+                if cfg.cluster is not None:  # sharded: the link to the other switchboards (entitynet.cluster)
+                    from entitynet.cluster.link import ClusterLink
+
+                    self.cluster = ClusterLink(self, cfg.cluster)
+                    await nursery.start(self.cluster.run)
                 logs.event("listening", host=cfg.host, port=self.port, ws_port=self.ws_port,
                            metrics_port=self.metrics_port, http_port=self.http_port, n_cells=self.sb.config.n_cells,
                            digest=self.sb.config.digest[:16], tls=bool(self.ssl), fd_limit=self.admission.limit)

@@ -51,3 +51,4 @@ class ServerConfig:
     switch: dict[str, Any] = field(default_factory=dict)  # SwitchConfig overrides (limits)
     clock: Callable[[], float] = time.time  # the server clock reported in WELCOME/PONG and used for expiry
     log_json: bool = False
+    cluster: Any = None  # entitynet.cluster.link.ClusterConfig: join a sharded cluster over NATS (docs/cluster.md)

@@ -45,6 +45,7 @@ class _Link:
     dropping: bool = False  # a Drop was asked: ignore the attempt's input until it is reported lost
     failures: int = 0  # consecutive attempts that ended without or after a WELCOME, reset by a WELCOME
     retry_at: float = 0.0
+    failing_since: float = 0.0  # when the current run of failures began
     handshake_deadline: float = math.inf
     next_ping: float = math.inf
     throttle: float = 0.0  # extra wait an AUTH_THROTTLED refusal asked for
@@ -62,11 +63,19 @@ class ClientSession:
 
     def __init__(self, address: Address, digest: str, token: str = "", *,
                  policy: ReconnectPolicy | None = None, ping_interval: float = 5.0,
-                 handshake_timeout: float = 10.0):
+                 handshake_timeout: float = 10.0, alternates: tuple[Address, ...] = (), failover_s: float = 3.0):
         for name, v in (("ping_interval", ping_interval), ("handshake_timeout", handshake_timeout)):
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
         self.home: Address = address
+        # other shards of the cluster (given, or learned from REDIRECTs): once a shard has failed every attempt
+        # for `failover_s`, what it carried moves to the next of these (a dead switchboard's clients find a
+        # survivor, which REDIRECTs them on if their region went elsewhere). Keep it above the cluster's
+        # dead_after_s: the survivors have then dropped the dead shard's copies before we re-publish, so no
+        # viewer shows an entity twice
+        self.alternates: list[Address] = [a for a in alternates if a != address]
+        self.failover_s = float(failover_s)
+        self._failover_turn = 0
         self.digest = digest
         self.token = token
         self.policy = policy or ReconnectPolicy()
@@ -166,8 +175,22 @@ class ClientSession:
             return out
         lk.failures += 1
         lk.retry_at = now + max(self.policy.delay(lk.failures), lk.throttle)
-        lk.throttle = 0.0
+        throttled, lk.throttle = lk.throttle > 0, 0.0
+        if lk.failures == 1:
+            lk.failing_since = now
+        if self.alternates and not throttled and now - lk.failing_since >= self.failover_s:
+            self._fail_over(lk, now, out)
         return out
+
+    def _fail_over(self, lk: _Link, now: float, out: list[Action]) -> None:
+        """The shard at `lk` keeps failing: move what it carries to the next alternate shard (round robin)."""
+        cands = [a for a in self.alternates if a != lk.address]
+        if not cands:
+            return
+        target = cands[self._failover_turn % len(cands)]
+        self._failover_turn += 1
+        out.append(Notice(f"{lk.address} keeps failing: moving to {target}"))
+        self._move(lk, target, None, now, out)
 
     def next_deadline(self, now: float) -> float | None:
         """The earliest local time at which `timers` has something to do (None: nothing until an event)."""
@@ -359,7 +382,15 @@ class ClientSession:
             return
         if target == lk.address:
             return
-        named = getattr(m, "entities", None)  # protocol v1's REDIRECT names none: the whole connection moves
+        if target not in self.alternates:
+            self.alternates.append(target)
+        if lk.address not in self.alternates:
+            self.alternates.append(lk.address)
+        self._move(lk, target, getattr(m, "entities", None), now, out)
+
+    def _move(self, lk: _Link, target: Address, named, now: float, out: list[Action]) -> None:
+        """Move `named` entities (None: everything `lk` carries, the viewer included when it is home) to
+        `target`, dialling it if needed; links left with nothing to carry are dropped."""
         here = [e for e, a in self._where.items() if a == lk.address and e in self._published]
         moving = here if named is None else [e for e in here if e in set(named)]
         viewer = named is None and lk.address == self.home

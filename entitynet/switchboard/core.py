@@ -24,9 +24,11 @@ from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
 from entitynet.switchboard import access
 from entitynet.switchboard.config import SwitchConfig
+from entitynet.switchboard.mirror import MirrorMixin
 from entitynet.switchboard.outbound import OutboundMixin
 from entitynet.switchboard.outbox import Outbox, Outboxes
-from entitynet.switchboard.privacy import claim_refused, identity_shown
+from entitynet.switchboard.privacy import identity_shown
+from entitynet.switchboard.querying import QueriesMixin
 from entitynet.switchboard.ratelimit import TokenBucket
 from entitynet.switchboard.subscribing import SubscriptionsMixin
 from entitynet.switchboard.tables import ClientState, EntityState
@@ -36,8 +38,9 @@ _encode_update = P.encode_update  # the one UPDATE layout (entitynet.protocol.co
 _encode_leave = P.encode_leave
 
 
-class Switchboard(SubscriptionsMixin, OutboundMixin):
-    """The master tables and forwarding (subscriptions in `subscribing.py`, replies and bounds in `outbound.py`).
+class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
+    """The master tables and forwarding (subscriptions in `subscribing.py`, replies and bounds in `outbound.py`,
+    queries and privacy in `querying.py`, other shards' entities in `mirror.py`).
 
     Sans-IO: fed connections, decoded messages and `now`; what to send waits in per-client outboxes
     (`outbox(cid)`, named by `take_dirty()`); what is due (entity expiries, handshake deadlines) happens in
@@ -70,6 +73,10 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         self.stats: Counter[str] = Counter()
         self.errors: Counter[int] = Counter()
         self._start = now
+        # the cluster hook (entitynet.cluster.core.ClusterCore) when sharded: told of every state and LEAVE of a
+        # local entity and every subscription change, asked about follows of unknown and queries by identity
+        self.cluster = None
+        self.mirrors: dict[tuple[int, int], ClientState] = {}  # (shard, owner session) -> stand-in owner
 
     # ------------------------------------------------------------------------------------------ connections
     def connect(self, now: float, peer: str = "") -> int:
@@ -204,6 +211,8 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
                 return
         eid = c.entities.get(local)
         if eid is None:
+            if self.cluster is not None and not self.cluster.admit(c, m.cells, now):
+                return  # sharded: the entity belongs elsewhere; REDIRECTed before anyone here sees it
             if len(c.entities) >= cfg.max_entities_per_client or len(self.entities) >= cfg.max_entities:
                 self._error(c, ErrorCode.LIMIT_ENTITIES, f"at most {cfg.max_entities_per_client} entities")
                 return
@@ -218,7 +227,14 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
                 self.stats["stale"] += 1  # out of order or duplicate: the newer state already went out
                 return
         self.stats["updates_in"] += 1
-        old, new = e.cells, m.cells
+        self._apply_state(c, e, m.seq, m.cells, m.validity_ms, m.payload, now)
+
+    def _apply_state(self, c: ClientState, e: EntityState, seq: int, new: tuple[int, ...], validity_ms: int,
+                     payload: bytes, now: float) -> None:
+        """A new state of entity `e` (local or mirrored): tables, expiry, delivery, LEAVEs, the cluster hook."""
+        cfg = self.config
+        eid = e.eid
+        old = e.cells
         if old != new:
             occ = self.occupants
             for cell in old:
@@ -235,13 +251,19 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
                     else:
                         s.add(eid)
             e.cells = new
-        e.seq = m.seq
-        e.validity_ms = m.validity_ms
-        e.payload = m.payload
-        e.enc_plain = _encode_update(eid, m.seq, new, m.validity_ms, m.payload)
+        e.seq = seq
+        e.validity_ms = validity_ms
+        e.payload = payload
+        e.enc_plain = _encode_update(eid, seq, new, validity_ms, payload)
         e.enc_ident = None
-        self.timers.set(eid, now + m.validity_ms / 1000.0 + cfg.grace_s)
+        self.timers.set(eid, now + validity_ms / 1000.0 + cfg.grace_s)
+        self._route(c, e, old, new)
+        if self.cluster is not None and c.mirror is None:
+            self.cluster.on_state(c, e, old, now)  # after delivery: it may REDIRECT the owner (LEAVEs follow)
 
+    def _route(self, c: ClientState, e: EntityState, old: tuple[int, ...], new: tuple[int, ...]) -> None:
+        """Deliver the new state to the entity's viewers, LEAVE to those who no longer see it."""
+        eid = e.eid
         t = e.viewers_tick
         if t >= self._valid_from and (old is new or old == new):
             cell_tick = self._cell_tick
@@ -321,6 +343,8 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
     def _remove_entity(self, e: EntityState) -> None:
         eid = e.eid
         del self.entities[eid]
+        if self.cluster is not None and e.owner.mirror is None:
+            self.cluster.on_leave(e)
         e.owner.entities.pop(e.local, None)
         self.timers.cancel(eid)
         occ = self.occupants
@@ -363,62 +387,6 @@ class Switchboard(SubscriptionsMixin, OutboundMixin):
         if a is None:
             return b
         return a if b is None or a <= b else b
-
-    # ------------------------------------------------------------------------------------------ queries
-    def _query(self, c: ClientState, m: P.Query, now: float) -> None:
-        if not c.bucket.take(now):
-            self.stats["queries_refused"] += 1
-            rate = self.config.query_rate
-            self._error(c, ErrorCode.QUERY_RATE, f"query {m.query_id} refused: over {rate}/s")
-            return
-        found: list[EntityState] = []
-        if m.kind == P.QUERY_IDENTITY:
-            for ocid in self.by_identity.get(m.arg, ()):
-                owner = self.clients[ocid]
-                if identity_shown(owner, c) is None:
-                    continue  # the buddy rule: not in the audience, or the asker shows no identity itself
-                for eid in owner.entities.values():
-                    found.append(self.entities[eid])
-        else:
-            n = self.config.n_cells
-            seen: set[int] = set()
-            for cell in m.arg:
-                if cell >= n:
-                    self._error(c, ErrorCode.NO_SUCH_CELL, f"cell {cell} does not exist (this map has {n})")
-                    return
-                seen |= self.occupants.get(cell, set())
-            found = [self.entities[eid] for eid in seen]
-        # at most max_query_results, and at most what fits in one frame with room for its headers: the result
-        # is one message (clients wait for one), so it is cut rather than split
-        room = self.config.codec.max_frame - 64
-        encoded: list[bytes] = []
-        for e in found[: self.config.max_query_results]:
-            enc = self._encoded_for(e, c)
-            room -= len(enc)
-            if room < 0:
-                self.stats["query_results_cut"] += 1
-                break
-            encoded.append(enc)
-        self.stats["queries"] += 1
-        self._reply(c, P.encode_query_result(m.query_id, encoded))
-
-    def _privacy(self, c: ClientState, m: P.Privacy) -> None:
-        refused = claim_refused(c.user_id, m.identity, self.config.open_mode)
-        if refused:
-            self._error(c, ErrorCode.NOT_OWNER, refused)
-            return
-        if c.identity is not None:
-            s = self.by_identity.get(c.identity)
-            if s is not None:
-                s.discard(c.cid)
-                if not s:
-                    del self.by_identity[c.identity]
-        c.identity = m.identity
-        c.audience = None if m.audience is None else frozenset(m.audience)
-        if m.identity is not None:
-            self.by_identity.setdefault(m.identity, set()).add(c.cid)
-        for eid in c.entities.values():
-            self.entities[eid].enc_ident = None
 
     # ------------------------------------------------------------------------------------------ helpers
     def _detach(self, c: ClientState) -> None:

@@ -100,10 +100,14 @@ class SubscriptionsMixin:
             if n_snap:
                 self._dirty.add(cid)
                 self.stats["snapshots"] += n_snap
+        if self.cluster is not None and (removed or added):
+            self.cluster.on_subscribe(c, now)
 
     def _follow(self, c: ClientState, m: P.Follow) -> None:
         e = self.entities.get(m.entity)
         if e is None:
+            if self.cluster is not None and self.cluster.follow_remote(c, m.entity):
+                return  # another shard may own it: the cluster asks, and follows it here if it does
             self._error(c, ErrorCode.NO_SUCH_ENTITY, f"no entity {m.entity}")
             return
         if m.entity in c.follows:

@@ -18,7 +18,7 @@ class ClientState:
 
     __slots__ = (
         "cid", "session", "user_id", "identity", "audience", "ready", "closing", "subs", "follows",
-        "entities", "bucket", "churn", "outbox", "replies", "refused", "peer", "token",
+        "entities", "bucket", "churn", "outbox", "replies", "refused", "peer", "token", "mirror",
     )
 
     def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket, churn: TokenBucket,
@@ -40,6 +40,7 @@ class ClientState:
         self.outbox = outbox
         self.replies = 0  # replies queued for the current frame ...
         self.refused = 0  # ... and requests refused because the frame asked for too many
+        self.mirror: int | None = None  # a stand-in for an owner on another shard (its number), see mirror.py
 
 
 class EntityState:

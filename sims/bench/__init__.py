@@ -23,6 +23,7 @@ SUITES = {
     "switch": "sims.bench.switch_bench",
     "pvs": "sims.bench.pvs_bench",
     "sim": "sims.bench.sim_bench",
+    "cluster": "sims.bench.cluster_bench",
 }
 
 

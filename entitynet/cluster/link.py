@@ -1,0 +1,127 @@
+"""The trio shell joining one switchboard server to the cluster: NATS in and out for the sans-IO ClusterCore.
+
+Why so thin: everything that decides (what to publish, what to subscribe, ownership, REDIRECTs, failover) is in
+entitynet.cluster.core and tested without sockets; this task only moves bytes. NATS messages are handled in the
+NATS reader task, synchronously (the core is sans-IO, the switchboard's outboxes are written by the server's
+flusher); publications queued by the core are handed to the NATS client whenever the core wakes the pump, and
+SUB/UNSUB follow the switchboard's subscribed cells.
+"""
+
+from __future__ import annotations
+
+import logging
+import ssl
+from dataclasses import dataclass
+from typing import Any
+
+import trio
+
+from entitynet.cluster.core import ClusterCore
+from entitynet.cluster.nats_client import NatsClient
+
+log = logging.getLogger("entitynet.cluster")
+
+
+@dataclass
+class ClusterConfig:
+    """What `entitynet serve --cluster ... --shard N --regions MAP` gives a server."""
+
+    servers: str  # nats://host:port[,...]
+    shard: int
+    regions: Any  # topology.regions.RegionMap (loaded and checked against the topology)
+    address: str | None = None  # what clients are REDIRECTed to (default: the server's host:port)
+    token: str | None = None  # NATS auth token
+    tls: ssl.SSLContext | None = None  # TLS to NATS
+    heartbeat_s: float = 0.5
+    dead_after_s: float = 2.0
+    redirect_viewers: bool = True  # a client without entities whose cells lie mostly elsewhere moves there
+
+
+class ClusterLink:
+    """Run with `await nursery.start(link.run)` once the server listens (its port is the default address)."""
+
+    def __init__(self, server: Any, config: ClusterConfig):
+        self.server = server
+        self.config = config
+        self.core: ClusterCore | None = None
+        self.nc: NatsClient | None = None
+        self._wake = trio.Event()
+        self._sids: dict[str, int] = {}
+        self._releasing = False
+        self._nursery: trio.Nursery | None = None
+
+    def _poke(self) -> None:
+        self._wake.set()
+
+    async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        cfg, server = self.config, self.server
+        clock = server.clock
+        address = cfg.address or f"{server.config.host}:{server.port}"
+        nc = NatsClient(cfg.servers, name=f"entitynet-shard-{cfg.shard}", token=cfg.token, tls=cfg.tls,
+                        on_reconnect=self._reconnected)
+        async with nc, trio.open_nursery() as nursery:
+            self._nursery = nursery
+            self.nc = nc
+            inbox = nc.new_inbox(self._on_msg)
+            self.core = ClusterCore(server.sb, cfg.regions, cfg.shard, address, now=clock(), inbox=inbox,
+                                    heartbeat_s=cfg.heartbeat_s, dead_after_s=cfg.dead_after_s,
+                                    redirect_viewers=cfg.redirect_viewers, wake=self._poke)
+            self.core.extra_counts = lambda: {"nats_in": nc.received, "nats_out": nc.published,
+                                              "nats_dropped": nc.dropped, "nats_reconnects": nc.reconnects}
+            p = self.core.prefix
+            for sub in ("snap", "hb", "f", "q", "i"):
+                nc.subscribe(f"{p}.{sub}", self._on_msg)
+            self._pump()
+            await nc.flush()
+            log.info("shard %d joined the cluster at %s (map %s)", cfg.shard, nc.server, cfg.regions.digest[:12])
+            task_status.started(self)
+            while True:
+                with trio.move_on_at(trio.current_time() + max(0.0, self.core.next_deadline() - clock())):
+                    await self._wake.wait()
+                self._wake = trio.Event()
+                self.core.tick(clock())
+                self._pump()
+
+    def _on_msg(self, subject: str, reply: str | None, payload: bytes) -> None:
+        if self.core is None:
+            return
+        self.core.on_message(subject, reply, payload, self.server.clock())
+        if self.core.out:
+            self._wake.set()
+
+    def _reconnected(self) -> None:
+        if self.core is not None:
+            self.core.resync()
+            self._wake.set()
+
+    def _pump(self) -> None:
+        """Hand the core's publications to NATS, and follow its interest with SUB/UNSUB."""
+        core, nc = self.core, self.nc
+        subs, unsubs = core.interest_changes()
+        for subject in unsubs:
+            sid = self._sids.pop(subject, None)
+            if sid is not None:
+                nc.unsubscribe(sid)
+        for subject in subs:
+            if subject not in self._sids:
+                self._sids[subject] = nc.subscribe(subject, self._on_msg)
+        for subject, payload, reply in core.take_out():
+            nc.publish(subject, payload, reply)
+        if core.redirects and not self._releasing:
+            self._releasing = True
+            self._nursery.start_soon(self._release)
+
+    async def _release(self) -> None:
+        """Held REDIRECTs go out once NATS has confirmed everything published before them (a PING round trip):
+        the client's LEAVEs are then ahead of anything it can publish on its new shard."""
+        try:
+            with trio.move_on_after(1.0):  # NATS unreachable: redirect anyway, a duplicate beats a stuck client
+                await self.nc.flush()
+        except trio.TooSlowError:
+            pass
+        finally:
+            self._releasing = False
+            if self.core.release_redirects():
+                self.server._wake_dirty()
+            if self.core.redirects:
+                self._wake.set()

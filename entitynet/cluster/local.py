@@ -1,0 +1,72 @@
+"""K switchboard processes (`entitynet serve --cluster`) on loopback, for `entitynet cluster up` and the benchmark.
+
+Why processes: a shard is a process in production, and what the cluster costs (CPU per delivery across shards
+and NATS nodes) is only honest when each shard has its own interpreter.
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from entitynet.cluster.natsd import free_port
+
+
+@dataclass
+class LocalShards:
+    topology: Path
+    regions: Path | None  # None: one plain switchboard, no cluster (the single-server baseline)
+    nats_urls: str | None
+    k: int
+    log_dir: Path
+    extra: list[str] = field(default_factory=list)  # more `serve` options (e.g. --dead-after 1)
+    ports: list[int] = field(default_factory=list)
+    procs: list[subprocess.Popen] = field(default_factory=list)
+
+    def start(self, timeout: float = 30.0) -> LocalShards:
+        self.ports = [free_port() for _ in range(self.k)]
+        for i, port in enumerate(self.ports):
+            cmd = [sys.executable, "-m", "entitynet", "serve", "--open", "--topology", str(self.topology),
+                   "--port", str(port), *self.extra]
+            if self.regions is not None:
+                cmd += ["--cluster", self.nats_urls, "--shard", str(i), "--regions", str(self.regions)]
+            log = open(Path(self.log_dir) / f"shard-{i}.log", "ab")  # noqa: SIM115 (the child owns it)
+            self.procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
+        deadline = time.monotonic() + timeout
+        for i, port in enumerate(self.ports):
+            while True:
+                try:
+                    socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                    break
+                except OSError:
+                    if self.procs[i].poll() is not None or time.monotonic() > deadline:
+                        self.stop()
+                        raise RuntimeError(f"shard {i} did not start; see {self.log_dir}/shard-{i}.log") from None
+                    time.sleep(0.05)
+        return self
+
+    @property
+    def addresses(self) -> list[str]:
+        return [f"127.0.0.1:{p}" for p in self.ports]
+
+    def kill(self, i: int) -> None:
+        if self.procs[i].poll() is None:
+            self.procs[i].kill()
+            self.procs[i].wait(5)
+
+    def stop(self) -> None:
+        import signal
+
+        for pr in self.procs:
+            if pr.poll() is None:
+                pr.send_signal(signal.SIGTERM)
+        for pr in self.procs:
+            try:
+                pr.wait(5)
+            except subprocess.TimeoutExpired:
+                pr.kill()
+                pr.wait(5)

@@ -1,0 +1,296 @@
+"""A small trio NATS client over the sans-IO codec (entitynet.cluster.nats_proto): publish, subscribe,
+request with a reply inbox, and failover between the nodes of a NATS cluster.
+
+Why this shape: the cluster core is synchronous and sans-IO, so a message handler is a plain callable run in
+the reader task (no task per message); publishing only appends to a buffer that one writer task flushes, so
+a switchboard's hot path never awaits the network (many PUBs go out in one write). When the connection to a
+node is lost the client dials the next known node (the given list plus the `connect_urls` the cluster
+announces in INFO), re-sends every SUB and keeps what was published meanwhile, up to `max_pending` bytes
+(beyond that new publications are dropped and counted: entity states are superseded within a validity period
+anyway). `on_reconnect` tells the owner, which re-requests snapshots.
+
+`echo: false` in CONNECT: NATS never delivers a switchboard's own publications back to it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import secrets
+import ssl
+from collections.abc import Callable, Sequence
+from urllib.parse import urlsplit
+
+import trio
+
+from entitynet.cluster import nats_proto as N
+
+log = logging.getLogger("entitynet.cluster.nats")
+
+Handler = Callable[[str, str | None, bytes], None]
+
+
+def parse_servers(spec: str | Sequence[str]) -> list[tuple[str, int]]:
+    """`nats://h1:4222,nats://h2:4222` (or a list) -> [(host, port)]; raises ValueError on a bad entry."""
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    out = []
+    for item in items:
+        item = item.strip()
+        if not item:
+            continue
+        u = urlsplit(item if "://" in item else f"nats://{item}")
+        if u.scheme not in ("nats", "tls") or not u.hostname:
+            raise ValueError(f"bad NATS server {item!r}: expected nats://HOST:PORT")
+        out.append((u.hostname, u.port or 4222))
+    if not out:
+        raise ValueError("no NATS server given")
+    return out
+
+
+class NatsClient:
+    """Use as `async with NatsClient(servers, name=...) as nc:` (connects, runs reader and writer)."""
+
+    def __init__(self, servers: str | Sequence[str], name: str = "entitynet", token: str | None = None,
+                 tls: ssl.SSLContext | None = None, max_pending: int = 64 << 20, reconnect_wait: float = 0.1,
+                 connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None):
+        self.servers = parse_servers(servers)
+        self.name = name
+        self.token = token
+        self.tls = tls
+        self.max_pending = max_pending
+        self.reconnect_wait = reconnect_wait
+        self.connect_timeout = connect_timeout
+        self.on_reconnect = on_reconnect
+        self.info: dict = {}
+        self.connected = False
+        self.reconnects = 0
+        self.dropped = 0  # publications dropped while the buffer was over max_pending
+        self.published = 0
+        self.received = 0
+        self.server: tuple[str, int] | None = None
+        self._subs: dict[int, tuple[str, Handler]] = {}
+        self._sid = itertools.count(1)
+        self._out = bytearray()
+        self._wake = trio.Event()
+        self._pongs: list[trio.Event] = []
+        self._stream: trio.abc.Stream | None = None
+        self._nursery: trio.Nursery | None = None
+        self._connected_ev = trio.Event()
+        self._closed = False
+        self._inbox_prefix = f"_INBOX.{secrets.token_hex(8)}"
+        self._requests: dict[str, Handler] = {}
+        self._inbox_sid: int | None = None
+        self._req = itertools.count(1)
+
+    # ------------------------------------------------------------------------------------------ lifecycle
+    async def __aenter__(self) -> NatsClient:
+        self._nursery_cm = trio.open_nursery()
+        self._nursery = await self._nursery_cm.__aenter__()
+        self._nursery.start_soon(self._run)
+        with trio.fail_after(self.connect_timeout * max(2, len(self.servers)) + 1):
+            await self._connected_ev.wait()
+        return self
+
+    async def __aexit__(self, *exc) -> bool | None:
+        await self.close()
+        return await self._nursery_cm.__aexit__(*exc)
+
+    async def close(self) -> None:
+        """Stop: the session's own cleanup closes the stream."""
+        self._closed = True
+        if self._nursery is not None:
+            self._nursery.cancel_scope.cancel()
+
+    def _known(self) -> list[tuple[str, int]]:
+        known = list(self.servers)
+        for url in self.info.get("connect_urls") or ():
+            try:
+                for hp in parse_servers(url):
+                    if hp not in known:
+                        known.append(hp)
+            except ValueError:
+                continue
+        return known
+
+    async def _run(self) -> None:
+        first = True
+        while not self._closed:
+            for host, port in self._known():
+                try:
+                    await self._session(host, port, first)
+                except (OSError, trio.BrokenResourceError, trio.ClosedResourceError, trio.TooSlowError,
+                        N.NatsProtocolError, ssl.SSLError) as exc:
+                    log.info("NATS connection to %s:%s lost: %s", host, port, exc)
+                if self.connected:
+                    first = False
+                self.connected = False
+                self._stream = None
+                for ev in self._pongs:  # nobody will answer these
+                    ev.set()
+                self._pongs.clear()
+                if self._closed:
+                    return
+                await trio.sleep(self.reconnect_wait)
+
+    async def _session(self, host: str, port: int, first: bool) -> None:
+        with trio.fail_after(self.connect_timeout):
+            stream: trio.abc.Stream = await trio.open_tcp_stream(host, port)
+            parser = N.Parser()
+            info = await self._read_info(stream, parser)
+            if self.tls is not None or info.get("tls_required"):
+                if self.tls is None:
+                    raise N.NatsProtocolError("the NATS server requires TLS: give a TLS context")
+                stream = trio.SSLStream(stream, self.tls, server_hostname=host)
+                await stream.do_handshake()
+            opts = {"verbose": False, "pedantic": False, "echo": False, "name": self.name, "lang": "python-trio",
+                    "version": "0.1", "protocol": 1, "headers": False, "no_responders": False}
+            if self.token:
+                opts["auth_token"] = self.token
+            hello = N.connect(opts)
+            for sid, (subject, _h) in self._subs.items():
+                hello += N.sub(subject, sid)
+            await stream.send_all(hello + N.PING)
+            while True:  # the PONG to our PING means CONNECT and every SUB were accepted
+                ev = await self._next(stream, parser)
+                if isinstance(ev, N.Err):
+                    raise N.NatsProtocolError(f"NATS refused the connection: {ev.text}")
+                if isinstance(ev, N.Pong):
+                    break
+                if isinstance(ev, N.Ping):
+                    await stream.send_all(N.PONG)
+                elif isinstance(ev, N.Msg):
+                    self._dispatch(ev)
+        self.info, self._stream, self.server, self.connected = info, stream, (host, port), True
+        if not first:
+            self.reconnects += 1
+            log.info("NATS reconnected to %s:%s", host, port)
+            if self.on_reconnect is not None:
+                self.on_reconnect()
+        self._connected_ev.set()
+        self._wake.set()
+        try:
+            async with trio.open_nursery() as n:  # neither task raises a lost connection: it just ends
+                n.start_soon(self._writer, stream, n.cancel_scope)
+                await self._reader(stream, parser)
+                n.cancel_scope.cancel()
+        finally:
+            with trio.CancelScope(shield=True), trio.move_on_after(0.2):
+                try:
+                    await stream.aclose()
+                except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
+                    pass
+
+    async def _read_info(self, stream, parser: N.Parser) -> dict:
+        ev = await self._next(stream, parser)
+        if not isinstance(ev, N.Info):
+            raise N.NatsProtocolError(f"expected INFO, got {ev!r:.60}")
+        return ev.info
+
+    async def _next(self, stream, parser: N.Parser) -> N.Event:
+        while (ev := parser.next_event()) is None:
+            data = await stream.receive_some(65536)
+            if not data:
+                raise trio.BrokenResourceError("NATS server closed the connection")
+            parser.receive_data(data)
+        return ev
+
+    async def _reader(self, stream, parser: N.Parser) -> None:
+        try:
+            await self._read_loop(stream, parser)
+        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError, N.NatsProtocolError) as exc:
+            log.info("NATS connection lost: %s", exc)
+
+    async def _read_loop(self, stream, parser: N.Parser) -> None:
+        while True:
+            data = await stream.receive_some(262144)
+            if not data:
+                return
+            parser.receive_data(data)
+            while (ev := parser.next_event()) is not None:
+                t = type(ev)
+                if t is N.Msg:
+                    self._dispatch(ev)
+                elif t is N.Ping:
+                    self._send(N.PONG)
+                elif t is N.Pong:
+                    if self._pongs:
+                        self._pongs.pop(0).set()
+                elif t is N.Err:
+                    log.warning("NATS error: %s", ev.text)
+                    if "authorization" in ev.text.lower() or "stale" in ev.text.lower():
+                        return
+                elif t is N.Info:
+                    self.info.update(ev.info)
+
+    async def _writer(self, stream, scope: trio.CancelScope) -> None:
+        try:
+            while True:
+                await self._wake.wait()
+                self._wake = trio.Event()
+                while self._out:
+                    data = bytes(self._out)
+                    self._out.clear()
+                    await stream.send_all(data)
+        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as exc:
+            log.info("NATS write failed: %s", exc)
+            scope.cancel()  # the reader ends too; the client dials again
+
+    def _dispatch(self, m: N.Msg) -> None:
+        self.received += 1
+        entry = self._subs.get(m.sid)
+        if entry is None:
+            return
+        try:
+            entry[1](m.subject, m.reply, m.payload)
+        except Exception:  # a bad message must not take the link down
+            log.exception("NATS handler failed on %s", m.subject)
+
+    def _send(self, data: bytes) -> None:
+        self._out += data
+        self._wake.set()
+
+    # ------------------------------------------------------------------------------------------ API
+    def publish(self, subject: str, payload: bytes, reply: str | None = None) -> bool:
+        """Queue a publication (no await); False if it was dropped (buffer over `max_pending`)."""
+        if len(self._out) > self.max_pending:
+            self.dropped += 1
+            return False
+        self.published += 1
+        self._send(N.pub(subject, payload, reply))
+        return True
+
+    def subscribe(self, subject: str, handler: Handler) -> int:
+        sid = next(self._sid)
+        frame = N.sub(subject, sid)  # validates the subject before anything is remembered
+        self._subs[sid] = (subject, handler)
+        if self.connected:
+            self._send(frame)
+        return sid
+
+    def unsubscribe(self, sid: int) -> None:
+        if self._subs.pop(sid, None) is not None and self.connected:
+            self._send(N.unsub(sid))
+
+    def new_inbox(self, handler: Handler) -> str:
+        """A reply subject whose messages go to `handler` (one wildcard SUB serves all requests)."""
+        if self._inbox_sid is None:
+            self._inbox_sid = self.subscribe(f"{self._inbox_prefix}.*", self._on_inbox)
+        subject = f"{self._inbox_prefix}.{next(self._req)}"
+        self._requests[subject] = handler
+        return subject
+
+    def drop_inbox(self, subject: str) -> None:
+        self._requests.pop(subject, None)
+
+    def _on_inbox(self, subject: str, reply: str | None, payload: bytes) -> None:
+        h = self._requests.get(subject)
+        if h is not None:
+            h(subject, reply, payload)
+
+    async def flush(self, timeout: float = 2.0) -> None:
+        """Round trip: every publication and SUB before this call has reached the server."""
+        ev = trio.Event()
+        self._pongs.append(ev)
+        self._send(N.PING)
+        with trio.fail_after(timeout):
+            await ev.wait()

@@ -1,0 +1,239 @@
+"""`entitynet bench cluster [--quick]`: the same movers and PVS viewers over one plain switchboard and over 1, 2
+and 4 shards joined by NATS, all real processes on this machine (docs/scaling.md).
+
+Results (per shard count, and the headline figures at the largest):
+  `cross_shard_fraction`   NATS messages received by switchboards per delivery to a viewer
+  `cpu_s_per_million_deliveries`   CPU of every switchboard and nats-server process over the window, beside the
+                           single plain server's (`ratio`)
+  `handover_gap_ms`        p99 at viewers, from the LEAVE of an entity's old id to the first UPDATE of its new
+                           one when it crossed a region border (REDIRECT)
+  `viewer_duplicates`      times a viewer held one entity under two ids (must be 0)
+  `entities_lost`          entities a viewer should see but still does not one validity period after movement
+                           stops (`settle_s`: how long until every viewer had them all)
+  `failover_recovery_s`    a switchboard SIGKILLed: until every viewer sees exactly what it should again
+  `nats_node_failover_s`   the NATS node every shard uses killed: until every shard's heartbeat shows it
+                           reconnected
+"""
+
+from __future__ import annotations
+
+import contextlib
+import random
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import psutil
+import trio
+
+from entitynet.cluster.local import LocalShards
+from entitynet.cluster.natsd import NatsCluster
+from sims.bench.cluster_load import Load
+
+
+def _cpu(pids: list[int]) -> float:
+    total = 0.0
+    for pid in pids:
+        try:
+            t = psutil.Process(pid).cpu_times()
+            total += t.user + t.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def _p99(xs: list[float]) -> float | None:
+    if not xs:
+        return None
+    xs = sorted(xs)
+    return xs[min(len(xs) - 1, int(0.99 * len(xs)))]
+
+
+class _Beats:
+    """The shards' heartbeat counts, as `cluster status` hears them."""
+
+    def __init__(self) -> None:
+        self.latest: dict[int, dict] = {}
+        self.times: dict[int, float] = {}
+
+    def handler(self, subject: str, reply, data: bytes) -> None:
+        import msgpack
+
+        try:
+            m = msgpack.unpackb(data, raw=False, strict_map_key=False)
+            self.latest[int(m[1])] = dict(m[4])
+            self.times[int(m[1])] = trio.current_time()
+        except Exception:
+            pass
+
+    def total(self, key: str) -> int:
+        return sum(int(c.get(key, 0)) for c in self.latest.values())
+
+
+async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p: dict, view_cells, adjacency,
+                 start_cells, failover: bool, progress) -> dict[str, Any]:
+    from entitynet.cluster.nats_client import NatsClient
+
+    k = shards.k
+    addrs = shards.addresses
+
+    def owner(cell: int) -> str:
+        return addrs[int(regions.cell_region[cell])] if regions is not None else addrs[0]
+
+    def home_of(cells) -> str:
+        if regions is None:
+            return addrs[0]
+        votes = [0] * k
+        for c in cells:
+            votes[int(regions.cell_region[c])] += 1
+        return addrs[max(range(k), key=votes.__getitem__)]
+
+    load = Load(topo.digest, addrs, owner, adjacency, start_cells, view_cells, [home_of(c) for c in view_cells],
+                p, random.Random(p["seed"]))
+    beats = _Beats()
+    pids = [pr.pid for pr in shards.procs] + ([n.proc.pid for n in nats.nodes] if nats else [])
+    out: dict[str, Any] = {}
+    # the listener uses the last node: it survives the node kill
+    listen = NatsClient(nats.nodes[-1].url, name="bench") if nats is not None else contextlib.nullcontext()
+    async with listen as nc, trio.open_nursery() as nursery:
+        if nc is not None:
+            nc.subscribe("en.*.hb", beats.handler)
+        await load.start(nursery)
+        await trio.sleep(p["warmup_s"])
+        d0, c0, n0, t0 = load.deliveries(), _cpu(pids), beats.total("nats_in"), time.perf_counter()
+        await trio.sleep(p["window_s"])
+        d1, c1, n1, t1 = load.deliveries(), _cpu(pids), beats.total("nats_in"), time.perf_counter()
+        deliveries = d1 - d0
+        out["deliveries_per_s"] = round(deliveries / (t1 - t0), 1)
+        out["cpu_s_per_million_deliveries"] = round((c1 - c0) / max(deliveries, 1) * 1e6, 1)
+        out["cross_shard_fraction"] = round((n1 - n0) / max(deliveries, 1), 4) if nats else 0.0
+        out["redirects"] = sum(m.redirects for m in load.movers)
+        load.moving = False
+        t_stop = trio.current_time()
+        with trio.move_on_after(p["validity_ms"] / 1000):  # lost = still missing a validity period later
+            while True:
+                await trio.sleep(0.1)
+                missing, doubled = load.missing_and_doubled()
+                if missing == 0 and trio.current_time() - t_stop > 1.0:
+                    break
+        out["settle_s"] = round(trio.current_time() - t_stop, 2)
+        out["entities_lost"] = missing
+        out["viewer_duplicates"] = sum(v.duplicates for v in load.viewers) + doubled
+        gaps = [g for v in load.viewers for g in v.gaps]
+        out["handovers_seen"] = len(gaps)
+        p99 = _p99(gaps)
+        out["handover_gap_ms"] = None if p99 is None else round(p99 * 1000, 1)
+        out["handover_gap_ms_median"] = None if not gaps else round(statistics.median(gaps) * 1000, 1)
+        if failover and nats is not None:
+            progress(f"{k} shards: killing NATS node 0 (every shard's first server)")
+            before = {s: c.get("nats_reconnects", 0) for s, c in beats.latest.items()}
+            t_kill = trio.current_time()
+            nats.nodes[0].kill()
+            with trio.move_on_after(15):
+                while not all(beats.latest.get(s, {}).get("nats_reconnects", 0) > before.get(s, 0)
+                              for s in range(k)):
+                    await trio.sleep(0.02)
+            out["nats_node_failover_s"] = round(trio.current_time() - t_kill, 3)
+            await trio.sleep(1.0)
+            progress(f"{k} shards: SIGKILL of shard 1")
+            t_kill = trio.current_time()
+            shards.kill(1)
+            killed = ("127.0.0.1", shards.ports[1])
+            recovered = None
+            with trio.move_on_after(20):
+                while True:  # its clients are home elsewhere, and every viewer sees exactly what it should
+                    await trio.sleep(0.05)
+                    missing, doubled = load.missing_and_doubled()
+                    if load.all_off(killed) and missing == 0 and doubled == 0:
+                        recovered = trio.current_time() - t_kill
+                        break
+            out["failover_recovery_s"] = None if recovered is None else round(recovered, 3)
+            out["viewer_duplicates_after_failover"] = sum(v.duplicates for v in load.viewers) - \
+                (out["viewer_duplicates"] - doubled)
+        nursery.cancel_scope.cancel()
+    return out
+
+
+def run(args, progress) -> dict[str, Any]:
+    from sims.bench.switch_bench import pvs_viewer_cells
+    from topology.artifact import load
+    from topology.regions import build_regions, cell_adjacency
+
+    quick = bool(getattr(args, "quick", False))
+    p = {
+        "entities": 100 if quick else 600, "viewers": 20 if quick else 120, "shards": [1, 2, 4],
+        "warmup_s": 1.5 if quick else 4.0, "window_s": 3.0 if quick else 15.0, "publish_interval_s": 1.0,
+        "move_every_s": 2.0, "validity_ms": 5000, "dead_after_s": 1.0, "failover_s": 2.0, "seed": 7,
+        "nats_nodes_at_largest": 3,
+    }  # fmt: skip
+    if getattr(args, "topology", None):
+        topo_path = str(args.topology)
+    else:  # the PVS artifact even for --quick: viewers subscribe by PVS (built once, then cached)
+        from entitynet.topology_cache import bundled_topology
+
+        topo_path = str(bundled_topology(progress, with_pvs=True)[1])
+    topo = load(topo_path)
+    rng = random.Random(p["seed"])
+    view_cells = pvs_viewer_cells(topo, p["viewers"], rng)
+    notes = []
+    if view_cells is None:
+        raise SystemExit("the cluster benchmark needs an artifact with a PVS")
+    adj = [sorted(a) for a in cell_adjacency(topo)]
+    moving = [c for c in range(topo.n_cells) if adj[c]]
+    start_cells = [rng.choice(moving) for _ in range(p["entities"])]
+    p["topology_digest"] = topo.digest[:16]
+    p["mean_cells_per_viewer"] = round(statistics.mean(len(c) for c in view_cells), 1)
+    by_k: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="cluster-bench-") as tmpd:
+        tmp = Path(tmpd)
+        runs: list[tuple[str, int | None]] = [("single", None)] + [(f"shards_{k}", k) for k in p["shards"]]
+        for name, k in runs:
+            regions = nats = None
+            extra = ["--dead-after", str(p["dead_after_s"])] if k else []
+            if k:
+                regions = build_regions(topo, k, borders=False)  # the shards need cell -> region only
+                map_path = tmp / f"regions-{k}.json"
+                regions.save(map_path)
+                nodes = p["nats_nodes_at_largest"] if k == max(p["shards"]) else 1
+                nats = NatsCluster(nodes, log_dir=tmp).start()
+            log_dir = tmp / name
+            log_dir.mkdir()
+            shards = LocalShards(Path(topo_path), map_path if k else None, nats.urls if nats else None, k or 1,
+                                 log_dir, extra=extra)
+            progress(f"{name}: starting {k or 1} switchboard process(es)" + (f" and {len(nats.nodes)} NATS node(s)"
+                                                                          if nats else ""))
+            try:
+                shards.start()
+                if k:
+                    time.sleep(0.5)  # heartbeats: the shards learn each other's addresses
+                failover = k == max(p["shards"]) and k > 1
+                res = trio.run(_drive, topo, regions, shards, nats, p, view_cells, adj, start_cells, failover,
+                               progress)
+            finally:
+                shards.stop()
+                if nats is not None:
+                    nats.stop()
+            if regions is not None:
+                res["balance"] = regions.report["balance"]
+            by_k[name] = res
+            progress(f"{name}: {res}")
+    largest = by_k[f"shards_{max(p['shards'])}"]
+    single = by_k["single"]
+    results = {
+        "cross_shard_fraction": largest["cross_shard_fraction"],
+        "cpu_s_per_million_deliveries": largest["cpu_s_per_million_deliveries"],
+        "handover_gap_ms": largest["handover_gap_ms"],
+        "viewer_duplicates": sum(r["viewer_duplicates"] + r.get("viewer_duplicates_after_failover", 0)
+                                 for r in by_k.values()),
+        "entities_lost": sum(r["entities_lost"] for r in by_k.values()),
+        "failover_recovery_s": largest.get("failover_recovery_s"),
+        "nats_node_failover_s": largest.get("nats_node_failover_s"),
+        "by_shards": by_k,
+    }
+    ratio = {"cpu_per_delivery_vs_single": round(largest["cpu_s_per_million_deliveries"]
+                                                 / max(single["cpu_s_per_million_deliveries"], 1e-9), 3)}
+    targets = {"cpu_ratio_max": 1.3, "cross_shard_fraction_max": 0.15, "failover_within_s": p["validity_ms"] / 1000}
+    notes.append(f"targets: {targets}")
+    return {"params": p, "results": results, "peer": {"single_server": single}, "ratio": ratio, "notes": notes}

@@ -1,0 +1,109 @@
+"""`entitynet cluster up` / `cluster status` / `serve --cluster` as real processes: a publisher on one
+switchboard process is seen by a viewer on another, `status` lists both, and a SIGKILLed switchboard's
+entities leave the survivor's viewers within the dead-shard time."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import trio
+
+from entitynet import protocol as P
+from entitynet.cli import main
+from tests.entitynet.server_helpers import Raw
+from tests.topology.mapfixtures import collection, grid
+from topology.artifact import load, save
+from topology.build import build
+from topology.geojson_reader import geojson_to_raw
+from topology.regions import RegionMap
+
+
+@pytest.fixture(scope="module")
+def small_town(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cluster") / "town.enttopo"
+    save(build(geojson_to_raw(collection(*grid(5, 5)))), path)
+    return path
+
+
+class _Port:
+    def __init__(self, port: int):
+        self.port = port
+
+
+async def test_cluster_up_status_and_a_killed_switchboard_process(small_town, tmp_path, capsys, nats_server):
+    del nats_server  # only for the skip when nats-server is missing: `cluster up` starts its own
+    state = tmp_path / "cluster.json"
+    up = subprocess.Popen([sys.executable, "-m", "entitynet", "cluster", "up", "--shards", "2", "--topology",
+                           str(small_town), "--duration", "30", "--state", str(state)],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        with trio.fail_after(20):
+            while not state.exists():
+                assert up.poll() is None, up.stdout.read().decode()
+                await trio.sleep(0.1)
+        st = json.loads(state.read_text())
+        regions = RegionMap.load(st["regions"], topology_digest=load(small_town).digest)
+        digest = load(small_town).digest
+        ports = [int(s["address"].rsplit(":", 1)[1]) for s in st["shards"]]
+        with trio.fail_after(20):  # both switchboards listen
+            while True:
+                try:
+                    for p in ports:
+                        await (await trio.open_tcp_stream("127.0.0.1", p)).aclose()
+                    break
+                except OSError:
+                    await trio.sleep(0.1)
+        cell = int(regions.cells_of(0)[0])
+        pub = await Raw.connect(_Port(ports[0]), digest=digest)
+        view = await Raw.connect(_Port(ports[1]), digest=digest)
+        # the viewer looks mostly at its own shard's region (else it would be redirected to shard 0)
+        await view.send(P.Subscribe((cell, *[int(c) for c in regions.cells_of(1)[:5]]), ()))
+        await view.send(P.Ping(1))
+        await view.expect(P.Pong)
+        with trio.fail_after(10):  # until shard 1 has heard shard 0 and its NATS interest is in place
+            seq = 0
+            while True:
+                seq += 1
+                await pub.send(P.Publish(1, seq, (cell,), 60_000, b"x"))
+                try:
+                    u = await view.expect(P.Update, timeout=0.3)
+                    break
+                except trio.TooSlowError:
+                    pass
+        args = ["cluster", "status", "--state", str(state), "--json", "--listen", "1.2"]
+        assert await trio.to_thread.run_sync(main, args) == 0  # the command runs its own trio loop
+        status = json.loads(capsys.readouterr().out)
+        assert sorted(s["shard"] for s in status) == [0, 1]
+        by = {s["shard"]: s for s in status}
+        assert by[0]["entities"] == 1 and by[1]["mirrored"] == 1 and by[0]["owned_regions"] == 1
+        os.kill(st["shards"][0]["pid"], signal.SIGKILL)
+        t0 = time.monotonic()
+        lv = await view.expect(P.Leave, timeout=10)
+        assert lv.entity == u.entity
+        assert time.monotonic() - t0 < 5.0  # dead after 2 s without heartbeats, not the 60 s validity
+    finally:
+        up.send_signal(signal.SIGTERM)
+        try:
+            up.wait(10)
+        except subprocess.TimeoutExpired:
+            up.kill()
+    assert not state.exists()  # cluster up cleaned up after itself
+
+
+def test_serve_cluster_option_errors(small_town, tmp_path, capsys):
+    base = ["serve", "--topology", str(small_town), "--open", "--port", "0"]
+    assert main([*base, "--cluster", "http://x:1", "--shard", "0", "--shards", "2"]) == 2
+    assert main([*base, "--cluster", "nats://127.0.0.1:1", "--shards", "2"]) == 2
+    assert main([*base, "--cluster", "nats://127.0.0.1:1", "--shard", "0"]) == 2
+    assert main([*base, "--cluster", "nats://127.0.0.1:1", "--shard", "5", "--shards", "2"]) == 2
+    bad = tmp_path / "r.json"
+    bad.write_text("{}")
+    assert main([*base, "--cluster", "nats://127.0.0.1:1", "--shard", "0", "--regions", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("entitynet: error:") == 5 and "Traceback" not in err

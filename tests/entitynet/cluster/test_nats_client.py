@@ -1,0 +1,85 @@
+"""The trio NATS client against real nats-server processes on loopback."""
+
+from __future__ import annotations
+
+import pytest
+import trio
+
+from entitynet.cluster.nats_client import NatsClient, parse_servers
+
+
+async def _until(pred, timeout: float = 5.0) -> None:
+    with trio.fail_after(timeout):
+        while not pred():
+            await trio.sleep(0.01)
+
+
+def test_parse_servers():
+    assert parse_servers("nats://a:1, b:2") == [("a", 1), ("b", 2)]
+    assert parse_servers(["nats://h"]) == [("h", 4222)]
+    for bad in ("", "http://a:1", "nats://:5"):
+        with pytest.raises(ValueError):
+            parse_servers(bad)
+
+
+async def test_publish_subscribe_without_echo_and_request_reply(nats_server):
+    got_a: list[tuple[str, bytes]] = []
+    got_b: list[tuple[str, bytes]] = []
+    async with NatsClient(nats_server.urls, name="a") as a, NatsClient(nats_server.urls, name="b") as b:
+        a.subscribe("en.c.*", lambda s, r, p: got_a.append((s, p)))
+        sid = b.subscribe("en.c.1", lambda s, r, p: got_b.append((s, p)))
+        await a.flush()
+        await b.flush()
+        for i in range(100):
+            a.publish("en.c.1", b"x%d" % i)  # a's own: never echoed back to a
+        b.publish("en.c.2", b"from b")
+        await _until(lambda: len(got_b) == 100 and len(got_a) == 1)
+        assert got_b[0] == ("en.c.1", b"x0") and got_b[-1] == ("en.c.1", b"x99")  # in order
+        assert got_a == [("en.c.2", b"from b")]
+        b.unsubscribe(sid)
+        await b.flush()
+        a.publish("en.c.1", b"late")
+        await a.flush()
+        await trio.sleep(0.05)
+        assert len(got_b) == 100
+        # request/reply: b answers on the reply subject it was given
+        b.subscribe("en.snap", lambda s, r, p: b.publish(r, b"answer to " + p))
+        await b.flush()
+        answers: list[bytes] = []
+        inbox = a.new_inbox(lambda s, r, p: answers.append(p))
+        a.publish("en.snap", b"q1", reply=inbox)
+        await _until(lambda: answers == [b"answer to q1"])
+
+
+async def test_a_large_burst_arrives_whole(nats_server):
+    n, got = 20_000, []
+    async with NatsClient(nats_server.urls) as a, NatsClient(nats_server.urls) as b:
+        b.subscribe("en.c.9", lambda s, r, p: got.append(p))
+        await b.flush()
+        payload = b"p" * 100
+        for _ in range(n):
+            a.publish("en.c.9", payload)
+        await _until(lambda: len(got) == n, timeout=20)
+        assert a.dropped == 0
+
+
+async def test_a_killed_node_is_replaced_by_another_node_of_the_cluster(nats_cluster3):
+    nodes = nats_cluster3.nodes
+    got: list[bytes] = []
+    reconnected = []
+    # the subscriber knows only node 0 (it learns the others from INFO connect_urls); the publisher node 1
+    async with NatsClient(nodes[0].url, on_reconnect=lambda: reconnected.append(1)) as sub, \
+            NatsClient(nodes[1].url) as pub:
+        sub.subscribe("en.c.3", lambda s, r, p: got.append(p))
+        await sub.flush()
+        await trio.sleep(0.2)  # interest propagates over the routes
+        pub.publish("en.c.3", b"before")
+        await _until(lambda: got == [b"before"])
+        assert sub.server == (nodes[0].host, nodes[0].port)
+        nodes[0].kill()
+        await _until(lambda: sub.connected and sub.server != (nodes[0].host, nodes[0].port), timeout=10)
+        assert reconnected == [1]
+        await sub.flush()
+        await trio.sleep(0.3)  # the re-sent SUB propagates to node 1 over its route
+        pub.publish("en.c.3", b"after")
+        await _until(lambda: got[-1:] == [b"after"], timeout=5)
