@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DOCUMENTED = (
     "topology",
     "entitynet/client",
+    "entitynet/cluster",
     "entitynet/server",
     "entitynet/commands",
     "entitynet/auth.py",

@@ -57,6 +57,9 @@ def _unpack(data: bytes) -> Any:
 
 @dataclass
 class Peer:
+    """What this shard knows of another from its heartbeats; `alive` turns False after `dead_after_s` of
+    silence, which hands its regions to the survivors."""
+
     shard: int
     address: str = ""
     last_seen: float = 0.0
@@ -110,6 +113,8 @@ class ClusterCore(ClusterQueriesMixin):
 
     # ------------------------------------------------------------------------------------------ ownership
     def live_shards(self, now: float) -> list[int]:
+        """Shards counted alive now, sorted (the failover rule indexes into it); a shard not heard from yet is
+        presumed alive for `dead_after_s` after start, so a cluster starting together does not reassign regions."""
         live = {self.shard}
         for s in range(self.regions.shards):
             p = self.peers.get(s)
@@ -131,9 +136,11 @@ class ClusterCore(ClusterQueriesMixin):
         return self._owners_cache[1]
 
     def owned_regions(self, now: float) -> list[int]:
+        """The regions this shard serves now: its own, plus those of dead shards that the failover rule gives it."""
         return [r for r, s in enumerate(self._owners(now)) if s == self.shard]
 
     def address_of(self, shard: int) -> str | None:
+        """Where to REDIRECT a client for `shard`; None when that shard is dead or has not told us its address."""
         if shard == self.shard:
             return self.address
         p = self.peers.get(shard)
@@ -181,6 +188,7 @@ class ClusterCore(ClusterQueriesMixin):
             self._roam_publisher(c, e, now)
 
     def on_leave(self, e: Any) -> None:
+        """A local entity left: its LEAVE goes to the cells other shards want, and to its `P.e.<eid>` if followed."""
         self.sent_at.pop(e.eid, None)
         msg = _packb([LEAVE, self.shard, e.eid])
         for cell in e.cells:
@@ -305,6 +313,8 @@ class ClusterCore(ClusterQueriesMixin):
 
     # ------------------------------------------------------------------------------------------ messages in
     def on_message(self, subject: str, reply: str | None, data: bytes, now: float) -> None:
+        """One NATS message in; unreadable or malformed ones are counted as `bad_messages` and dropped, never
+        raised, since a peer's bad bytes must not stop this shard."""
         self._now_hint = now
         try:
             m = _unpack(data)
@@ -462,6 +472,7 @@ class ClusterCore(ClusterQueriesMixin):
                 self.wake()
 
     def next_deadline(self) -> float:
+        """When `tick` must next run: the next heartbeat, interest or follow refresh, or query or follow timeout."""
         t = min(self._next_hb, self._next_follow_refresh, self._next_interest)
         for q in self.queries.values():
             t = min(t, q.deadline)
@@ -470,5 +481,6 @@ class ClusterCore(ClusterQueriesMixin):
         return t
 
     def take_out(self) -> list[tuple[str, bytes, str | None]]:
+        """The publications queued since the last call, for the shell to hand to NATS (the core does no I/O)."""
         out, self.out = self.out, []
         return out

@@ -54,6 +54,8 @@ class ClusterLink:
         self._wake.set()
 
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        """Join NATS, build the core, subscribe to the cluster-wide subjects, then pump until cancelled:
+        `started` is reported only after the first flush, so the shard is on the cluster before it is used."""
         cfg, server = self.config, self.server
         clock = server.clock
         address = cfg.address or f"{server.config.host}:{server.port}"

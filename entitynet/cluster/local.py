@@ -18,6 +18,9 @@ from entitynet.cluster.natsd import free_port
 
 @dataclass
 class LocalShards:
+    """K `entitynet serve` processes on free loopback ports, one per shard (or one plain server when `regions`
+    is None); each logs to `log_dir/shard-<i>.log`."""
+
     topology: Path
     regions: Path | None  # None: one plain switchboard, no cluster (the single-server baseline)
     nats_urls: str | None
@@ -28,6 +31,8 @@ class LocalShards:
     procs: list[subprocess.Popen] = field(default_factory=list)
 
     def start(self, timeout: float = 30.0) -> LocalShards:
+        """Spawn every shard and wait until each accepts TCP connections; a shard that exits or misses
+        `timeout` stops them all, so a failed start leaves no processes behind."""
         self.ports = [free_port() for _ in range(self.k)]
         for i, port in enumerate(self.ports):
             cmd = [sys.executable, "-m", "entitynet", "serve", "--open", "--topology", str(self.topology),
@@ -51,14 +56,17 @@ class LocalShards:
 
     @property
     def addresses(self) -> list[str]:
+        """`host:port` of every shard, in shard order (what clients and REDIRECTs use)."""
         return [f"127.0.0.1:{p}" for p in self.ports]
 
     def kill(self, i: int) -> None:
+        """SIGKILL shard `i` (no goodbye on NATS): the failover test and benchmark need an abrupt death."""
         if self.procs[i].poll() is None:
             self.procs[i].kill()
             self.procs[i].wait(5)
 
     def stop(self) -> None:
+        """SIGTERM every shard for a clean exit, SIGKILL whichever has not exited within 5 s."""
         import signal
 
         for pr in self.procs:

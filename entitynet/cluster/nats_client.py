@@ -260,6 +260,8 @@ class NatsClient:
         return True
 
     def subscribe(self, subject: str, handler: Handler) -> int:
+        """Remember `handler` for `subject` and return its sid; the SUB is sent now if connected, and every
+        remembered subscription is sent again on reconnect."""
         sid = next(self._sid)
         frame = N.sub(subject, sid)  # validates the subject before anything is remembered
         self._subs[sid] = (subject, handler)
@@ -268,6 +270,7 @@ class NatsClient:
         return sid
 
     def unsubscribe(self, sid: int) -> None:
+        """Forget a subscription (and UNSUB it if connected); an unknown sid is ignored."""
         if self._subs.pop(sid, None) is not None and self.connected:
             self._send(N.unsub(sid))
 
@@ -280,6 +283,7 @@ class NatsClient:
         return subject
 
     def drop_inbox(self, subject: str) -> None:
+        """Stop routing a reply subject to its handler (late replies to it are then dropped)."""
         self._requests.pop(subject, None)
 
     def _on_inbox(self, subject: str, reply: str | None, payload: bytes) -> None:

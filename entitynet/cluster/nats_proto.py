@@ -31,11 +31,15 @@ class NatsProtocolError(Exception):
 
 @dataclass(frozen=True)
 class Info:
+    """The server's INFO (parsing it also adopts its `max_payload` as the limit on MSG payloads)."""
+
     info: dict[str, Any]
 
 
 @dataclass(frozen=True)
 class Msg:
+    """A message on a subscription: `sid` says which handler gets it; `reply` is the inbox to answer, if any."""
+
     subject: str
     sid: int
     reply: str | None
@@ -44,21 +48,29 @@ class Msg:
 
 @dataclass(frozen=True)
 class Ping:
+    """The server checks we are alive: answer PONG."""
+
     pass
 
 
 @dataclass(frozen=True)
 class Pong:
+    """The answer to our PING (a flush: everything sent before it has reached the server)."""
+
     pass
 
 
 @dataclass(frozen=True)
 class Ok:
+    """+OK: sent only in verbose mode, which we do not ask for (CONNECT verbose=false)."""
+
     pass
 
 
 @dataclass(frozen=True)
 class Err:
+    """-ERR from the server, with its text (the quotes stripped)."""
+
     text: str
 
 
@@ -76,6 +88,7 @@ def check_subject(subject: str, wildcards: bool = False) -> str:
 
 # ---- encoding (client -> server) -------------------------------------------------------------------------------
 def connect(options: dict[str, Any]) -> bytes:
+    """The CONNECT line: `options` as compact JSON (echo, auth token, name, ...)."""
     return b"CONNECT " + json.dumps(options, separators=(",", ":")).encode() + CRLF
 
 
@@ -86,11 +99,13 @@ def pub(subject: str, payload: bytes, reply: str | None = None) -> bytes:
 
 
 def sub(subject: str, sid: int, queue: str | None = None) -> bytes:
+    """SUB subject [queue] sid; the subject (wildcards allowed) is checked, so no second command can be injected."""
     check_subject(subject, wildcards=True)
     return (f"SUB {subject} {queue} {sid}\r\n" if queue else f"SUB {subject} {sid}\r\n").encode()
 
 
 def unsub(sid: int, max_msgs: int | None = None) -> bytes:
+    """UNSUB sid [max_msgs]: with `max_msgs`, the server unsubscribes after that many more messages."""
     return (f"UNSUB {sid} {max_msgs}\r\n" if max_msgs else f"UNSUB {sid}\r\n").encode()
 
 
@@ -110,6 +125,8 @@ class Parser:
         self._pending: tuple[str, int, str | None, int] | None = None  # a MSG head waiting for its payload
 
     def receive_data(self, data: bytes) -> None:
+        """Append bytes from the socket; consumed bytes are compacted away only once they are most of a large
+        buffer, so parsing stays linear without copying on every call."""
         if self._pos > 65536 and self._pos * 2 > len(self._buf):
             del self._buf[: self._pos]
             self._pos = 0
@@ -117,9 +134,12 @@ class Parser:
 
     @property
     def buffered(self) -> int:
+        """Bytes received but not yet parsed into events."""
         return len(self._buf) - self._pos
 
     def next_event(self) -> Event | None:
+        """The next complete event, or None until more bytes arrive; raises `NatsProtocolError` on anything
+        malformed or over the limits, never buffers without bound."""
         buf = self._buf
         if self._pending is not None:
             subject, sid, reply, n = self._pending

@@ -20,6 +20,7 @@ class NatsServerMissing(RuntimeError):
 
 
 def nats_server_binary() -> str:
+    """Path of nats-server (PATH, then Debian's /usr/sbin); `NatsServerMissing` says how to install it."""
     path = shutil.which("nats-server") or (
         "/usr/sbin/nats-server" if Path("/usr/sbin/nats-server").exists() else None)
     if path is None:
@@ -28,6 +29,7 @@ def nats_server_binary() -> str:
 
 
 def free_port(host: str = "127.0.0.1") -> int:
+    """A port the OS says is free now (bound and released; a race is possible but rare on loopback)."""
     with socket.socket() as s:
         s.bind((host, 0))
         return s.getsockname()[1]
@@ -44,6 +46,8 @@ def _answers(host: str, port: int) -> bool:
 
 @dataclass
 class NatsNode:
+    """One nats-server process: its client port and, in a routed cluster, its route port."""
+
     port: int
     cluster_port: int | None
     proc: subprocess.Popen | None = None
@@ -51,9 +55,11 @@ class NatsNode:
 
     @property
     def url(self) -> str:
+        """The URL clients connect to."""
         return f"nats://{self.host}:{self.port}"
 
     def kill(self) -> None:
+        """SIGKILL the node if it still runs (tests of a NATS node's failure need it abrupt)."""
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(5)
@@ -71,9 +77,12 @@ class NatsCluster:
 
     @property
     def urls(self) -> str:
+        """Comma-separated client URLs of every node, the form `--cluster` takes."""
         return ",".join(node.url for node in self.nodes)
 
     def start(self, timeout: float = 10.0) -> NatsCluster:
+        """Spawn the nodes (routed to each other when n > 1) and wait until each answers with INFO; a node
+        that exits or misses `timeout` stops them all and raises RuntimeError."""
         binary = nats_server_binary()
         self.nodes = [NatsNode(free_port(self.host), free_port(self.host) if self.n > 1 else None, host=self.host)
                       for _ in range(self.n)]
@@ -104,6 +113,7 @@ class NatsCluster:
         return self
 
     def stop(self) -> None:
+        """Kill every node."""
         for node in self.nodes:
             node.kill()
 

@@ -22,6 +22,7 @@ DEFAULT_STATE = Path(os.environ.get("ENTITYNET_CLUSTER_STATE", Path.home() / ".c
 
 
 def add_cluster_options(p: argparse.ArgumentParser) -> None:
+    """The `--cluster ...` options of `entitynet serve`; `cluster_config_from` checks them together."""
     g = p.add_argument_group("cluster (sharded switchboards over NATS)")
     g.add_argument("--cluster", metavar="URLS", help="join a cluster: NATS servers nats://HOST:PORT[,...]")
     g.add_argument("--shard", type=int, metavar="N", help="this switchboard's shard (owns region N)")
@@ -73,6 +74,7 @@ def cluster_config_from(args: argparse.Namespace):
 
 
 def register(sub) -> None:
+    """The `entitynet cluster up | status` subcommands."""
     p = sub.add_parser("cluster", help="a local sharded cluster (nats-server + switchboards) and its status")
     csub = p.add_subparsers(dest="cluster_command", metavar="ACTION", required=True)
     up = csub.add_parser("up", help="start nats-server nodes and K switchboards on loopback")
@@ -91,6 +93,8 @@ def register(sub) -> None:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
+    """Start NATS and one switchboard per region on loopback, write the state file `cluster status` reads, and
+    keep running until Ctrl-C, `--duration` or every shard dying (one dying is the failover demo)."""
     from entitynet.cluster.natsd import NatsCluster, NatsServerMissing
     from topology.regions import build_regions
 
@@ -158,6 +162,8 @@ def _interrupt(*_args) -> None:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
+    """Listen to the shards' heartbeats on NATS and print one line per shard; NATS comes from `--nats` or the
+    state file of `cluster up`. Exit 1 when no switchboard is heard."""
     import trio
 
     urls = args.nats

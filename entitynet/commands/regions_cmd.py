@@ -15,6 +15,8 @@ from entitynet.cli import CommandError
 
 
 def register(tsub, load_artifact: Callable[[str], Any]) -> None:
+    """The `entitynet topology regions` subcommand (`load_artifact` is passed in, as the topology command
+    loads artifacts its own way)."""
     r = tsub.add_parser("regions", help="partition the cells into K shard regions with their border cells")
     r.add_argument("file", help="topology artifact")
     r.add_argument("--shards", type=int, required=True, metavar="K", help="number of regions (switchboards)")

@@ -80,6 +80,8 @@ class MirrorMixin:
         return True
 
     def inject_leave(self, eid: int) -> bool:
+        """Another shard's entity left: remove its mirror (and its stand-in client once empty); a local entity
+        with that id is never touched. False when there was no such mirror."""
         e = self.entities.get(eid)
         if e is None or e.owner.mirror is None:
             return False
@@ -130,6 +132,8 @@ class MirrorMixin:
                 self.send_redirect(cid, shard, address)
 
     def send_redirect(self, cid: int, shard: int, address: str) -> None:
+        """Queue the REDIRECT control message to a client marked by `redirect(send=False)`, once NATS has its
+        LEAVEs; a client already gone is ignored."""
         c = self.clients.get(cid)
         if c is not None:
             c.outbox.put_control(P.encode_message(P.Redirect(shard, address)))

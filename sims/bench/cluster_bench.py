@@ -157,6 +157,8 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
 
 
 def run(args, progress) -> dict[str, Any]:
+    """The benchmark: the same load over one plain switchboard, then 1, 2 and 4 shards (a shard and a NATS node
+    killed at the largest), each as real processes; returns parameters, per-run figures and the headline results."""
     from sims.bench.switch_bench import pvs_viewer_cells
     from topology.artifact import load
     from topology.regions import build_regions, cell_adjacency

@@ -28,6 +28,8 @@ def _addr(a: str) -> tuple[str, int]:
 
 @dataclass
 class Mover:
+    """A publishing client; `gid` travels in its payload so viewers can recognise it under any server id."""
+
     gid: int
     cell: int
     conn: Connection | None = None
@@ -37,6 +39,8 @@ class Mover:
 
 @dataclass
 class Viewer:
+    """A subscribing client and what it saw: duplicates (one gid under two ids) and handover gaps."""
+
     cells: frozenset[int]
     conn: Connection | None = None
     visible: dict[int, int] = field(default_factory=dict)  # server id -> gid
@@ -50,6 +54,7 @@ class Viewer:
     welcomes: int = 0
 
     def on_message(self, m: P.Message) -> None:
+        """Track visible entities by gid; a Welcome (new session) clears everything, since server ids start afresh."""
         t = type(m)
         now = trio.current_time()
         if t is P.Update:
@@ -86,6 +91,7 @@ class Viewer:
             self.last_leave.clear()
 
     def seen(self) -> set[int]:
+        """The global ids this viewer sees now (to compare with what it should see)."""
         return set(self.by_gid)
 
 
@@ -113,6 +119,8 @@ class Load:
                           alternates=alts, failover_s=self.p["failover_s"], on_message=on_message)
 
     async def start(self, nursery: trio.Nursery) -> None:
+        """Connect every viewer (subscribed) first, then every mover on its start cell's shard, so the first
+        updates already have an audience."""
         for v, home in zip(self.viewers, self.viewer_home, strict=True):
             v.conn = self._conn(home, v.on_message)
             await nursery.start(v.conn.run)
@@ -141,6 +149,7 @@ class Load:
 
     # ---- figures ---------------------------------------------------------------------------------------------
     def deliveries(self) -> int:
+        """UPDATEs received by all viewers so far (the denominator of the per-delivery figures)."""
         return sum(v.deliveries for v in self.viewers)
 
     def all_off(self, address: tuple[str, int]) -> bool:
