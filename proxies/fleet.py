@@ -87,6 +87,8 @@ class Fleet:
         self._next_entity = first_entity
         self._paths: dict[int, Path] = {}
         self._poly: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._route_index: dict[int, dict[int, int]] = {}
+        self._route_stops: dict[int, dict[str, list[int]]] = {}
         self._offsets: deque[float] = deque(maxlen=20)
         self.pending: list[Publish | Unpublish] = []
 
@@ -131,18 +133,41 @@ class Fleet:
         cost = np.where(ok, d + 0.05 * np.abs(s - s_near), np.inf)
         return float(s[int(np.argmin(cost))])
 
-    def _new_vehicle(self, ref: str, trip: str, route: TransitRoute, line: str) -> Vehicle:
+    def _new_motion(self, route: TransitRoute) -> EtaMotion:
+        """The ETA motion of a vehicle on `route` (cheap: placed before the costlier Player exists)."""
         et = entity_type("tram" if route.mode == "tram" else "bus")
-        motion = EtaMotion([st.s for st in route.stops], [(st.sched_arr, st.sched_dep) for st in route.stops],
-                           Limits(vmax=min(et.vmax, 14.0 if route.mode == "tram" else 15.0), accel=et.amax * 0.8,
-                                  brake=et.brake), granularity=self.granularity)
+        return EtaMotion([st.s for st in route.stops], [(st.sched_arr, st.sched_dep) for st in route.stops],
+                         Limits(vmax=min(et.vmax, 14.0 if route.mode == "tram" else 15.0), accel=et.amax * 0.8,
+                                brake=et.brake), granularity=self.granularity)
+
+    def _new_vehicle(self, ref: str, trip: str, route: TransitRoute, motion: EtaMotion) -> Vehicle:
+        """A vehicle with its honest client core. Built only once its motion is placed on the map: a Player
+        (its path, its stops located) costs more than reading a poll, and a vehicle still off the map is asked
+        about at every poll until it enters."""
+        et = entity_type("tram" if route.mode == "tram" else "bus")
         path = self.path_of(route)
         stops = [path.locate(min(st.s, path.length)) for st in route.stops]
         player = Player(self.topo, self._next_entity, et, route=route.edges, stops=stops,
                         accuracy=self.accuracy, threshold=self.threshold)
         self._next_entity += 1
-        return Vehicle(ref, trip, route, player.entity, motion, player,
-                       {st.index: i for i, st in enumerate(route.stops)}, 0.0)
+        return Vehicle(ref, trip, route, player.entity, motion, player, self._index_of(route), 0.0)
+
+    def _index_of(self, route: TransitRoute) -> dict[int, int]:
+        """Trip stop index -> route stop index, once per route object (shared: read only)."""
+        got = self._route_index.get(id(route))
+        if got is None:
+            got = self._route_index[id(route)] = {st.index: i for i, st in enumerate(route.stops)}
+        return got
+
+    def _stop_index(self, route: TransitRoute) -> dict[str, list[int]]:
+        """Stop id -> route stop indices (several where the route passes a stop twice), once per route."""
+        got = self._route_stops.get(id(route))
+        if got is None:
+            got = {}
+            for i, st in enumerate(route.stops):
+                got.setdefault(st.stop_id, []).append(i)
+            self._route_stops[id(route)] = got
+        return got
 
     # ---- input ---------------------------------------------------------------------------------------------
     def ingest(self, calls: list[Call], response_time: float, received: float, *,
@@ -168,10 +193,8 @@ class Fleet:
             if veh is not None and veh.trip != trip:
                 self.pending.extend(self._retire(ref))  # the vehicle started its next trip: a new route
                 veh = None
-            index_of = veh.index_of if veh is not None else {st.index: i for i, st in enumerate(route.stops)}
-            stop_index: dict[str, list[int]] = {}
-            for i, st in enumerate(route.stops):
-                stop_index.setdefault(st.stop_id, []).append(i)
+            index_of = self._index_of(route)
+            stop_index = self._stop_index(route)
             etas, etds, aimed = {}, {}, {}
             at_stop = None
             loc = None
@@ -202,10 +225,10 @@ class Fleet:
             c.vehicles_seen.add(ref)
             nxt = min(etas)
             if veh is None:
-                veh = self._new_vehicle(ref, trip, route, vcalls[0].line)
-                if not self._place(veh, nxt, etas[nxt], at_stop, received, loc, to_local):
+                motion = self._new_motion(route)
+                if not self._place(motion, route, nxt, etas[nxt], at_stop, received, loc, to_local):
                     continue  # not on the map yet
-                self.vehicles[ref] = veh
+                veh = self.vehicles[ref] = self._new_vehicle(ref, trip, route, motion)
             loc_s = None
             if loc is not None:
                 x, y = to_local(*loc)
@@ -213,9 +236,8 @@ class Fleet:
             veh.motion.observe(received, etas, etds, at_stop, aimed, loc_s)
             veh.last_data = received
 
-    def _place(self, veh: Vehicle, nxt: int, eta: float, at_stop: int | None, now: float, loc,
-               to_local) -> bool:
-        m, route = veh.motion, veh.route
+    def _place(self, m: EtaMotion, route: TransitRoute, nxt: int, eta: float, at_stop: int | None, now: float,
+               loc, to_local) -> bool:
         if loc is not None:
             x, y = to_local(*loc)
             s = self._project(route, x, y, route.stops[nxt].s)
@@ -270,10 +292,10 @@ class Fleet:
                 continue
             t = pos.t + offset
             if veh is None:
-                veh = self._new_vehicle(pos.vehicle, trip, route, pos.route_id)
+                motion = self._new_motion(route)
                 nxt = next((i for i, st in enumerate(route.stops) if st.s > s + 1.0), len(route.stops) - 1)
-                veh.motion.place(s, t, nxt)
-                self.vehicles[pos.vehicle] = veh
+                motion.place(s, t, nxt)
+                veh = self.vehicles[pos.vehicle] = self._new_vehicle(pos.vehicle, trip, route, motion)
             c.used += 1
             c.vehicles_seen.add(pos.vehicle)
             veh.motion.observe(t, {}, location_s=s)
