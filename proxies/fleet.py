@@ -22,6 +22,7 @@ import numpy as np
 
 from entitynet.client import FixRejected, Path, Player, netview
 from entitynet.client.entities import entity_type
+from entitynet.client.motion import NetworkModel
 from entitynet.protocol import Publish, Unpublish
 from proxies.eta_motion import EtaMotion, Limits
 from proxies.routes import RouteBook, TransitRoute
@@ -62,6 +63,7 @@ class Vehicle:
     index_of: dict[int, int]  # trip stop index -> route stop index
     last_data: float
     last_fix: float = -math.inf
+    still_s: float | None = None  # path coordinate of the last fix fed while standing at a stop, else None
     positions: bool = False  # a position feed gives its fixes (the ETA motion only fills gaps)
 
 
@@ -82,6 +84,7 @@ class Fleet:
         self.accuracy = accuracy
         self.entry_horizon = entry_horizon
         self.position_gap = 60.0  # s without a position before the ETA motion feeds the fixes again
+        self.standing_refresh = 10.0  # s between fixes of a vehicle standing at a stop once its ghost stands
         self.vehicles: dict[str, Vehicle] = {}
         self.counters = Counters()
         self._next_entity = first_entity
@@ -313,19 +316,39 @@ class Fleet:
         except FixRejected:
             return
         veh.last_fix = t
+        veh.still_s = None
         veh.last_data = max(veh.last_data, t)
         self.counters.fixes += 1
 
     # ---- time ----------------------------------------------------------------------------------------------
     def position(self, veh: Vehicle, now: float) -> tuple[float, float, float, float]:
-        """(x, y, speed, heading) of the vehicle's motion at `now`."""
+        """(x, y, speed, heading) of the vehicle's motion at `now`; the heading from the chord to 2 m ahead
+        (behind at the route's end), two path look-ups per fix."""
         s, v = veh.motion.advance(now)
         path = self.path_of(veh.route)
         x, y = path.xy(s)
-        x1, y1 = path.xy(min(s + 2.0, path.length))
-        x0, y0 = path.xy(max(s - 2.0, 0.0))
-        heading = math.degrees(math.atan2(x1 - x0, y1 - y0)) % 360.0
+        if s + 2.0 <= path.length:
+            x1, y1 = path.xy(s + 2.0)
+            heading = math.degrees(math.atan2(x1 - x, y1 - y)) % 360.0
+        else:
+            x0, y0 = path.xy(max(s - 2.0, 0.0))
+            heading = math.degrees(math.atan2(x - x0, y - y0)) % 360.0
         return x, y, v, heading
+
+    def _idle(self, veh: Vehicle, now: float) -> bool:
+        """True when a fix now would tell the client core nothing new: the vehicle stands at a stop where the
+        last fix already had it, its published ghost stands too, and the last fix is under `standing_refresh`
+        seconds old (far below the type's `max_gap`). Then only the player's clock runs (validity, heartbeat);
+        the fix that shows it moving again is fed at once. Standing is a third of a transit vehicle's time."""
+        still = veh.still_s
+        if still is None or now - veh.last_fix >= self.standing_refresh:
+            return False
+        m = veh.motion
+        m.advance(now)
+        if not m.standing or m.s != still:
+            return False
+        g = veh.player.ghost
+        return isinstance(g, NetworkModel) and g.v == 0.0 and g.a == 0.0
 
     def tick(self, now: float, *, motion_fixes: bool = True) -> list[Publish | Unpublish]:
         """Move every vehicle to `now`; returns what to send. `motion_fixes=False` when a GTFS-rt position
@@ -342,10 +365,11 @@ class Fleet:
                 out.extend(self._retire(ref))
                 continue
             gap = self.fix_interval if not veh.positions else max(self.fix_interval, self.position_gap)
-            if motion_fixes and now - veh.last_fix >= gap:
+            if motion_fixes and now - veh.last_fix >= gap and not self._idle(veh, now):
                 x, y, v, heading = self.position(veh, now)
                 msgs = veh.player.feed(x, y, now, self.accuracy, speed=v, heading=heading, speed_accuracy=0.3)
                 veh.last_fix = now
+                veh.still_s = veh.motion.s if veh.motion.standing else None
                 self.counters.fixes += 1
             else:
                 msgs = veh.player.tick(now)
