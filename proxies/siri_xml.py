@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 from datetime import UTC, datetime, timedelta, timezone
+from typing import NamedTuple
 from xml.sax.saxutils import escape
 
 from lxml import etree
