@@ -64,6 +64,7 @@ class Vehicle:
     last_data: float
     last_fix: float = -math.inf
     still_s: float | None = None  # path coordinate of the last fix fed while standing at a stop, else None
+    next_check: float = -math.inf  # a fix found needless is not looked at again before this time
     positions: bool = False  # a position feed gives its fixes (the ETA motion only fills gaps)
 
 
@@ -73,7 +74,8 @@ class Fleet:
 
     def __init__(self, topo, book: RouteBook, *, fix_interval: float = 2.0, stale_after: float = 300.0,
                  granularity: float = 60.0, threshold: float = 8.0, accuracy: float = 3.0,
-                 first_entity: int = 1, entry_horizon: float = 20.0) -> None:
+                 first_entity: int = 1, entry_horizon: float = 20.0, quiet_drift: float = 2.0,
+                 quiet_refresh: float = 6.0) -> None:
         self.topo = topo
         self.net = netview(topo)
         self.book = book
@@ -85,6 +87,8 @@ class Fleet:
         self.entry_horizon = entry_horizon
         self.position_gap = 60.0  # s without a position before the ETA motion feeds the fixes again
         self.standing_refresh = 10.0  # s between fixes of a vehicle standing at a stop once its ghost stands
+        self.quiet_refresh = quiet_refresh  # s between fixes of a vehicle moving as its ghost does
+        self.quiet_drift = quiet_drift  # m from its ghost within which a moving vehicle is "as its ghost"
         self.vehicles: dict[str, Vehicle] = {}
         self.counters = Counters()
         self._next_entity = first_entity
@@ -336,19 +340,31 @@ class Fleet:
         return x, y, v, heading
 
     def _idle(self, veh: Vehicle, now: float) -> bool:
-        """True when a fix now would tell the client core nothing new: the vehicle stands at a stop where the
-        last fix already had it, its published ghost stands too, and the last fix is under `standing_refresh`
-        seconds old (far below the type's `max_gap`). Then only the player's clock runs (validity, heartbeat);
-        the fix that shows it moving again is fed at once. Standing is a third of a transit vehicle's time."""
-        still = veh.still_s
-        if still is None or now - veh.last_fix >= self.standing_refresh:
-            return False
+        """True when a fix now would tell the client core nothing new, so only the player's clock runs
+        (validity, heartbeat): the vehicle stands at a stop where the last fix already had it and its ghost
+        stands too (a third of a transit vehicle's time), or it moves within `quiet_drift` metres of its
+        published ghost (cruising as published), in both cases with a fix under `standing_refresh` or
+        `quiet_refresh` seconds old (far below the type's `max_gap`). The fix that shows it stopping, starting or
+        drifting is fed at the next tick."""
         m = veh.motion
-        m.advance(now)
-        if not m.standing or m.s != still:
-            return False
         g = veh.player.ghost
-        return isinstance(g, NetworkModel) and g.v == 0.0 and g.a == 0.0
+        age = now - veh.last_fix
+        if not isinstance(g, NetworkModel) or not veh.player.published:
+            return False
+        still = veh.still_s
+        if still is not None:
+            if age >= self.standing_refresh:
+                return False
+            m.advance(now)
+            return m.standing and m.s == still and g.v == 0.0 and g.a == 0.0
+        if age >= self.quiet_refresh or self.quiet_drift <= 0.0:
+            return False
+        s, _v = m.advance(now)
+        if m.standing:
+            return False
+        x, y = self.path_of(veh.route).xy(s)
+        gx, gy = g.xy_at(now)
+        return (x - gx) ** 2 + (y - gy) ** 2 < self.quiet_drift ** 2
 
     def tick(self, now: float, *, motion_fixes: bool = True) -> list[Publish | Unpublish]:
         """Move every vehicle to `now`; returns what to send. `motion_fixes=False` when a GTFS-rt position
@@ -365,7 +381,11 @@ class Fleet:
                 out.extend(self._retire(ref))
                 continue
             gap = self.fix_interval if not veh.positions else max(self.fix_interval, self.position_gap)
-            if motion_fixes and now - veh.last_fix >= gap and not self._idle(veh, now):
+            if motion_fixes and now - veh.last_fix >= gap and now >= veh.next_check:
+                if self._idle(veh, now):
+                    veh.next_check = now + gap  # the same cadence as the fixes it stands for
+                    out.extend(veh.player.tick(now))
+                    continue
                 x, y, v, heading = self.position(veh, now)
                 msgs = veh.player.feed(x, y, now, self.accuracy, speed=v, heading=heading, speed_accuracy=0.3)
                 veh.last_fix = now
