@@ -166,7 +166,7 @@ def run(args, progress) -> dict:
     results["http_outage"] = {"outage_s": http_outage, "poll_s": http_poll, **real}
     params = {"feed": feed.name, "start": "08:00:00", "duration_s": duration, "latency_s": latency,
               "polls_s": list(polls), "eta_granularity_s": [60.0, 1.0], "outage_s": list(outage),
-              "fleet": {"fix_interval_s": 2.0, "threshold_m": 8.0, "stale_after_s": 300.0}, "preview_s": 600.0}
+              "fleet": {"fix_interval_s": 2.0, "threshold_m": 8.0, "stale_after_s": 300.0}, "preview_s": 300.0}
     notes = ("virtual time; CPU = process time of the proxy's own work; error = distance between the published "
              "model extrapolated (what a viewer sees) and the replay's true position, every second per vehicle")
     return {"params": params, "results": results, "notes": notes}

@@ -138,6 +138,11 @@ class EtaMotion:
         if self.t is None:
             self.t = now
             return self.s, self.v
+        if self.standing and (self.target >= len(self.stop_s) - 1
+                              or self.dwell_until is not None and now < self.dwell_until):
+            # dwelling (or at the end of the route) until after `now`: every step would leave it standing
+            self.t = max(self.t, now)
+            return self.s, self.v
         while self.t < now - 1e-9:
             dt = min(STEP, now - self.t)
             self._step(self.t, dt)

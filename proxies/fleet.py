@@ -22,6 +22,7 @@ import numpy as np
 
 from entitynet.client import FixRejected, Path, Player, netview
 from entitynet.client.entities import entity_type
+from entitynet.client.motion import NetworkModel
 from entitynet.protocol import Publish, Unpublish
 from proxies.eta_motion import EtaMotion, Limits
 from proxies.routes import RouteBook, TransitRoute
@@ -62,6 +63,8 @@ class Vehicle:
     index_of: dict[int, int]  # trip stop index -> route stop index
     last_data: float
     last_fix: float = -math.inf
+    still_s: float | None = None  # path coordinate of the last fix fed while standing at a stop, else None
+    next_check: float = -math.inf  # a fix found needless is not looked at again before this time
     positions: bool = False  # a position feed gives its fixes (the ETA motion only fills gaps)
 
 
@@ -71,7 +74,8 @@ class Fleet:
 
     def __init__(self, topo, book: RouteBook, *, fix_interval: float = 2.0, stale_after: float = 300.0,
                  granularity: float = 60.0, threshold: float = 8.0, accuracy: float = 3.0,
-                 first_entity: int = 1, entry_horizon: float = 20.0) -> None:
+                 first_entity: int = 1, entry_horizon: float = 20.0, quiet_drift: float = 2.0,
+                 quiet_refresh: float = 6.0) -> None:
         self.topo = topo
         self.net = netview(topo)
         self.book = book
@@ -82,11 +86,16 @@ class Fleet:
         self.accuracy = accuracy
         self.entry_horizon = entry_horizon
         self.position_gap = 60.0  # s without a position before the ETA motion feeds the fixes again
+        self.standing_refresh = 10.0  # s between fixes of a vehicle standing at a stop once its ghost stands
+        self.quiet_refresh = quiet_refresh  # s between fixes of a vehicle moving as its ghost does
+        self.quiet_drift = quiet_drift  # m from its ghost within which a moving vehicle is "as its ghost"
         self.vehicles: dict[str, Vehicle] = {}
         self.counters = Counters()
         self._next_entity = first_entity
         self._paths: dict[int, Path] = {}
         self._poly: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._route_index: dict[int, dict[int, int]] = {}
+        self._route_stops: dict[int, dict[str, list[int]]] = {}
         self._offsets: deque[float] = deque(maxlen=20)
         self.pending: list[Publish | Unpublish] = []
 
@@ -131,18 +140,41 @@ class Fleet:
         cost = np.where(ok, d + 0.05 * np.abs(s - s_near), np.inf)
         return float(s[int(np.argmin(cost))])
 
-    def _new_vehicle(self, ref: str, trip: str, route: TransitRoute, line: str) -> Vehicle:
+    def _new_motion(self, route: TransitRoute) -> EtaMotion:
+        """The ETA motion of a vehicle on `route` (cheap: placed before the costlier Player exists)."""
         et = entity_type("tram" if route.mode == "tram" else "bus")
-        motion = EtaMotion([st.s for st in route.stops], [(st.sched_arr, st.sched_dep) for st in route.stops],
-                           Limits(vmax=min(et.vmax, 14.0 if route.mode == "tram" else 15.0), accel=et.amax * 0.8,
-                                  brake=et.brake), granularity=self.granularity)
+        return EtaMotion([st.s for st in route.stops], [(st.sched_arr, st.sched_dep) for st in route.stops],
+                         Limits(vmax=min(et.vmax, 14.0 if route.mode == "tram" else 15.0), accel=et.amax * 0.8,
+                                brake=et.brake), granularity=self.granularity)
+
+    def _new_vehicle(self, ref: str, trip: str, route: TransitRoute, motion: EtaMotion) -> Vehicle:
+        """A vehicle with its honest client core. Built only once its motion is placed on the map: a Player
+        (its path, its stops located) costs more than reading a poll, and a vehicle still off the map is asked
+        about at every poll until it enters."""
+        et = entity_type("tram" if route.mode == "tram" else "bus")
         path = self.path_of(route)
         stops = [path.locate(min(st.s, path.length)) for st in route.stops]
         player = Player(self.topo, self._next_entity, et, route=route.edges, stops=stops,
                         accuracy=self.accuracy, threshold=self.threshold)
         self._next_entity += 1
-        return Vehicle(ref, trip, route, player.entity, motion, player,
-                       {st.index: i for i, st in enumerate(route.stops)}, 0.0)
+        return Vehicle(ref, trip, route, player.entity, motion, player, self._index_of(route), 0.0)
+
+    def _index_of(self, route: TransitRoute) -> dict[int, int]:
+        """Trip stop index -> route stop index, once per route object (shared: read only)."""
+        got = self._route_index.get(id(route))
+        if got is None:
+            got = self._route_index[id(route)] = {st.index: i for i, st in enumerate(route.stops)}
+        return got
+
+    def _stop_index(self, route: TransitRoute) -> dict[str, list[int]]:
+        """Stop id -> route stop indices (several where the route passes a stop twice), once per route."""
+        got = self._route_stops.get(id(route))
+        if got is None:
+            got = {}
+            for i, st in enumerate(route.stops):
+                got.setdefault(st.stop_id, []).append(i)
+            self._route_stops[id(route)] = got
+        return got
 
     # ---- input ---------------------------------------------------------------------------------------------
     def ingest(self, calls: list[Call], response_time: float, received: float, *,
@@ -168,10 +200,8 @@ class Fleet:
             if veh is not None and veh.trip != trip:
                 self.pending.extend(self._retire(ref))  # the vehicle started its next trip: a new route
                 veh = None
-            index_of = veh.index_of if veh is not None else {st.index: i for i, st in enumerate(route.stops)}
-            stop_index: dict[str, list[int]] = {}
-            for i, st in enumerate(route.stops):
-                stop_index.setdefault(st.stop_id, []).append(i)
+            index_of = self._index_of(route)
+            stop_index = self._stop_index(route)
             etas, etds, aimed = {}, {}, {}
             at_stop = None
             loc = None
@@ -202,10 +232,10 @@ class Fleet:
             c.vehicles_seen.add(ref)
             nxt = min(etas)
             if veh is None:
-                veh = self._new_vehicle(ref, trip, route, vcalls[0].line)
-                if not self._place(veh, nxt, etas[nxt], at_stop, received, loc, to_local):
+                motion = self._new_motion(route)
+                if not self._place(motion, route, nxt, etas[nxt], at_stop, received, loc, to_local):
                     continue  # not on the map yet
-                self.vehicles[ref] = veh
+                veh = self.vehicles[ref] = self._new_vehicle(ref, trip, route, motion)
             loc_s = None
             if loc is not None:
                 x, y = to_local(*loc)
@@ -213,9 +243,8 @@ class Fleet:
             veh.motion.observe(received, etas, etds, at_stop, aimed, loc_s)
             veh.last_data = received
 
-    def _place(self, veh: Vehicle, nxt: int, eta: float, at_stop: int | None, now: float, loc,
-               to_local) -> bool:
-        m, route = veh.motion, veh.route
+    def _place(self, m: EtaMotion, route: TransitRoute, nxt: int, eta: float, at_stop: int | None, now: float,
+               loc, to_local) -> bool:
         if loc is not None:
             x, y = to_local(*loc)
             s = self._project(route, x, y, route.stops[nxt].s)
@@ -270,10 +299,10 @@ class Fleet:
                 continue
             t = pos.t + offset
             if veh is None:
-                veh = self._new_vehicle(pos.vehicle, trip, route, pos.route_id)
+                motion = self._new_motion(route)
                 nxt = next((i for i, st in enumerate(route.stops) if st.s > s + 1.0), len(route.stops) - 1)
-                veh.motion.place(s, t, nxt)
-                self.vehicles[pos.vehicle] = veh
+                motion.place(s, t, nxt)
+                veh = self.vehicles[pos.vehicle] = self._new_vehicle(pos.vehicle, trip, route, motion)
             c.used += 1
             c.vehicles_seen.add(pos.vehicle)
             veh.motion.observe(t, {}, location_s=s)
@@ -291,19 +320,51 @@ class Fleet:
         except FixRejected:
             return
         veh.last_fix = t
+        veh.still_s = None
         veh.last_data = max(veh.last_data, t)
         self.counters.fixes += 1
 
     # ---- time ----------------------------------------------------------------------------------------------
     def position(self, veh: Vehicle, now: float) -> tuple[float, float, float, float]:
-        """(x, y, speed, heading) of the vehicle's motion at `now`."""
+        """(x, y, speed, heading) of the vehicle's motion at `now`; the heading from the chord to 2 m ahead
+        (behind at the route's end), two path look-ups per fix."""
         s, v = veh.motion.advance(now)
         path = self.path_of(veh.route)
         x, y = path.xy(s)
-        x1, y1 = path.xy(min(s + 2.0, path.length))
-        x0, y0 = path.xy(max(s - 2.0, 0.0))
-        heading = math.degrees(math.atan2(x1 - x0, y1 - y0)) % 360.0
+        if s + 2.0 <= path.length:
+            x1, y1 = path.xy(s + 2.0)
+            heading = math.degrees(math.atan2(x1 - x, y1 - y)) % 360.0
+        else:
+            x0, y0 = path.xy(max(s - 2.0, 0.0))
+            heading = math.degrees(math.atan2(x - x0, y - y0)) % 360.0
         return x, y, v, heading
+
+    def _idle(self, veh: Vehicle, now: float) -> bool:
+        """True when a fix now would tell the client core nothing new, so only the player's clock runs
+        (validity, heartbeat): the vehicle stands at a stop where the last fix already had it and its ghost
+        stands too (a third of a transit vehicle's time), or it moves within `quiet_drift` metres of its
+        published ghost (cruising as published), in both cases with a fix under `standing_refresh` or
+        `quiet_refresh` seconds old (far below the type's `max_gap`). The fix that shows it stopping, starting or
+        drifting is fed at the next tick."""
+        m = veh.motion
+        g = veh.player.ghost
+        age = now - veh.last_fix
+        if not isinstance(g, NetworkModel) or not veh.player.published:
+            return False
+        still = veh.still_s
+        if still is not None:
+            if age >= self.standing_refresh:
+                return False
+            m.advance(now)
+            return m.standing and m.s == still and g.v == 0.0 and g.a == 0.0
+        if age >= self.quiet_refresh or self.quiet_drift <= 0.0:
+            return False
+        s, _v = m.advance(now)
+        if m.standing:
+            return False
+        x, y = self.path_of(veh.route).xy(s)
+        gx, gy = g.xy_at(now)
+        return (x - gx) ** 2 + (y - gy) ** 2 < self.quiet_drift ** 2
 
     def tick(self, now: float, *, motion_fixes: bool = True) -> list[Publish | Unpublish]:
         """Move every vehicle to `now`; returns what to send. `motion_fixes=False` when a GTFS-rt position
@@ -320,10 +381,15 @@ class Fleet:
                 out.extend(self._retire(ref))
                 continue
             gap = self.fix_interval if not veh.positions else max(self.fix_interval, self.position_gap)
-            if motion_fixes and now - veh.last_fix >= gap:
+            if motion_fixes and now - veh.last_fix >= gap and now >= veh.next_check:
+                if self._idle(veh, now):
+                    veh.next_check = now + gap  # the same cadence as the fixes it stands for
+                    out.extend(veh.player.tick(now))
+                    continue
                 x, y, v, heading = self.position(veh, now)
                 msgs = veh.player.feed(x, y, now, self.accuracy, speed=v, heading=heading, speed_accuracy=0.3)
                 veh.last_fix = now
+                veh.still_s = veh.motion.s if veh.motion.standing else None
                 self.counters.fixes += 1
             else:
                 msgs = veh.player.tick(now)

@@ -47,7 +47,7 @@ class SimResult:
 
 def run_sim(topo, book: RouteBook, world: ReplayWorld, *, start: float, duration: float, poll: float = 20.0,
             latency: float = 3.0, warmup: float = 120.0, outage: tuple[float, float] | None = None,
-            fleet_kw: dict | None = None, preview: float = 600.0) -> tuple[SimResult, Fleet]:
+            fleet_kw: dict | None = None, preview: float = 300.0) -> tuple[SimResult, Fleet]:
     """Run from service second `start` for `duration` s (errors counted after `warmup`). `outage` = (from, to)
     seconds after start during which polls fail."""
     from topology.projection import LocalProjection

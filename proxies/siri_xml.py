@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta, timezone
+from typing import NamedTuple
 from xml.sax.saxutils import escape
 
 from lxml import etree
@@ -131,9 +132,10 @@ def build_fault(code: str = "soapenv:Server", text: str = "service unavailable")
 
 
 # ---------------------------------------------------------------------------------------------- reading
-@dataclass(frozen=True)
-class Call:
-    """One MonitoredStopVisit as read from any producer. Times are POSIX seconds (None when absent)."""
+class Call(NamedTuple):
+    """One MonitoredStopVisit as read from any producer. Times are POSIX seconds (None when absent). A named
+    tuple rather than a frozen dataclass: an answer makes thousands and the tuple is built in C, several
+    times faster."""
 
     stop_id: str
     vehicle: str
@@ -213,21 +215,38 @@ def _true(text: str | None, default: bool) -> bool:
 
 
 #: the elements of a MonitoredStopVisit the proxy reads (any namespace)
-_FIELDS = ("MonitoredVehicleJourney", "StopPointRef", "MonitoringRef", "DatedVehicleJourneyRef",
-           "VehicleJourneyRef", "Longitude", "Latitude", "Order", "VisitNumber", "VehicleRef", "LineRef",
-           "DirectionRef", "ExpectedArrivalTime", "ExpectedDepartureTime", "AimedArrivalTime", "VehicleAtStop",
-           "Monitored")
-_FIELD_TAGS = tuple("{*}" + f for f in _FIELDS)
+_FIELDS = frozenset(("MonitoredVehicleJourney", "StopPointRef", "MonitoringRef", "DatedVehicleJourneyRef",
+                     "VehicleJourneyRef", "Longitude", "Latitude", "Order", "VisitNumber", "VehicleRef", "LineRef",
+                     "DirectionRef", "ExpectedArrivalTime", "ExpectedDepartureTime", "AimedArrivalTime",
+                     "VehicleAtStop", "Monitored"))
+#: full tag (with its namespace, whatever it is) -> the field's local name, or None for every other element; an
+#: answer has a few dozen distinct tags, so this stays small (bounded all the same)
+_TAG_NAMES: dict[object, str | None] = {}
+
+
+def _field_of(tag) -> str | None:
+    name = None
+    if isinstance(tag, str):
+        local = tag[tag.rfind("}") + 1:]
+        if local in _FIELDS:
+            name = local
+    if len(_TAG_NAMES) > 10_000:
+        _TAG_NAMES.clear()
+    _TAG_NAMES[tag] = name
+    return name
 
 
 def _flat(visit) -> dict[str, str]:
-    """Local name -> stripped text of the elements the proxy reads, the first occurrence of each (lxml filters
-    the tags in C; a visit's fields of interest have unique names, wherever a producer nests them)."""
+    """Local name -> stripped text of the elements the proxy reads, the first occurrence of each (a visit's
+    fields of interest have unique names, wherever a producer nests them). One walk over the visit's elements
+    with the tag looked up in `_TAG_NAMES`: about twice as fast as lxml's wildcard tag filter (`{*}name` for 17
+    names) plus a split of every tag, and the proxy's largest cost per answer."""
     out: dict[str, str] = {}
-    for el in visit.iter(*_FIELD_TAGS):
+    names = _TAG_NAMES
+    for el in visit.iter():
         tag = el.tag
-        name = tag[tag.rfind("}") + 1:]
-        if name not in out:
+        name = names[tag] if tag in names else _field_of(tag)
+        if name is not None and name not in out:
             text = el.text
             out[name] = text.strip() if text else ""
     return out
