@@ -209,16 +209,7 @@ class Server(WritingMixin):
                 # a small kernel queue keeps the backlog of a slow reader in the outbox, where a newer state
                 # replaces an older one, instead of megabytes of stale states in the socket buffer
                 stream.socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.config.sndbuf)
-        try:
-            async with trio.open_nursery() as n:
-                conn.scope = n.cancel_scope
-                n.start_soon(self._writer, conn)
-                await self._read_tcp(conn)
-                if not conn.outbox.close_after:
-                    n.cancel_scope.cancel()  # peer went away: nothing left to write
-                # else the writer sends the ERROR and then cancels (the stall watchdog bounds the wait)
-        finally:
-            await self._close(conn)
+        await self._serve(conn, self._read_tcp)
 
     async def _handle_ws(self, request) -> None:
         if self._stopping:
@@ -226,13 +217,18 @@ class Server(WritingMixin):
             return
         ws = await request.accept()  # admitted (counted) and its upgrade read by `Listeners`
         conn = self._open(ws, "ws", str(ws.remote), peer_address(ws))
+        await self._serve(conn, self._read_ws)
+
+    async def _serve(self, conn: _Conn, read) -> None:
+        """Read the connection until it ends, with its writer beside; then close it (TCP and WebSocket alike)."""
         try:
             async with trio.open_nursery() as n:
                 conn.scope = n.cancel_scope
                 n.start_soon(self._writer, conn)
-                await self._read_ws(conn)
+                await read(conn)
                 if not conn.outbox.close_after:
-                    n.cancel_scope.cancel()
+                    n.cancel_scope.cancel()  # peer went away: nothing left to write
+                # else the writer sends the ERROR and then cancels (the stall watchdog bounds the wait)
         finally:
             await self._close(conn)
 
