@@ -198,17 +198,23 @@ async def test_a_killed_nats_node_is_replaced_without_losing_the_switchboards(na
         pub = await Raw.connect(a)
         remote = await _view(b, 30)
         await _settled(a, b)
-        await trio.sleep(0.3)  # interest crosses the routes
-        await pub.send(P.Publish(1, 1, (30,), 10_000, b"before"))
-        eid = (await remote.expect(P.Update)).entity
+        seq = 1
+        with trio.fail_after(10):  # until interest has crossed the routes (a delay that depends on the load)
+            while True:
+                await pub.send(P.Publish(1, seq, (30,), 10_000, b"before"))
+                try:
+                    eid = (await remote.expect(P.Update, timeout=0.3)).entity
+                    break
+                except trio.TooSlowError:
+                    seq += 1
         nodes[0].kill()
         await until(lambda: a.cluster.nc.connected and a.cluster.nc.server[1] != nodes[0].port, timeout=10)
         assert a.cluster.nc.reconnects == 1
         # b never lost a: no peer was declared dead, the mirror was not dropped
         await trio.sleep(0.3)
         assert b.cluster.core.stats["peers_lost"] == 0 and eid in b.sb.entities
-        seq = 2
-        with trio.fail_after(5):  # until the new route carries a's publications again
+        seq += 1
+        with trio.fail_after(10):  # until the new route carries a's publications again
             while True:
                 await pub.send(P.Publish(1, seq, (30,), 10_000, b"after"))
                 try:
