@@ -7,21 +7,23 @@ import pytest
 from entitynet.cluster.natsd import NatsCluster, NatsServerMissing, nats_server_binary
 
 
-@pytest.fixture
-def nats_server():
+def _cluster(n: int):
+    """`n` real nats-server nodes on loopback, stopped after the test; a clean skip without the binary."""
     try:
         nats_server_binary()
     except NatsServerMissing as exc:
         pytest.skip(str(exc))
-    with NatsCluster(1) as c:
+    with NatsCluster(n) as c:
         yield c
+
+
+@pytest.fixture
+def nats_server():
+    """One nats-server node."""
+    yield from _cluster(1)
 
 
 @pytest.fixture
 def nats_cluster3():
-    try:
-        nats_server_binary()
-    except NatsServerMissing as exc:
-        pytest.skip(str(exc))
-    with NatsCluster(3) as c:
-        yield c
+    """A three-node NATS cluster (its routes carry interest between the nodes)."""
+    yield from _cluster(3)
