@@ -42,6 +42,8 @@ class _Recorder:
         self.subs = [Counter() for _ in sim.viewers]
         self.publishes = Counter()  # by type
         self.entity_s = Counter()  # entity-seconds by type
+        self.disc_inside: list[float] = []  # share of a 500 m disc round a street camera that lies on the map
+        self._map = _map_box(sim.topo)
         orig_deliver = sim.deliver
 
         def deliver(i: int, msg: P.Message, size: int = 0) -> None:
@@ -88,6 +90,10 @@ class _Recorder:
         sim = self.sim
         for a in sim.world.agents.values():
             self.entity_s[a.name] += dt
+        if sim.ticks % 4 == 0:
+            for v in sim.viewers:
+                if not v.high:
+                    self.disc_inside.append(_disc_share(self._map, *v.traj.position(), sim.config.radius))
         keep = []
         for r, i, until, aid in self.pending:
             a = sim.world.agents.get(aid)
@@ -98,6 +104,21 @@ class _Recorder:
                 continue
             keep.append((r, i, until, aid))
         self.pending = keep
+
+
+def _map_box(topo):
+    import shapely
+
+    return shapely.box(*topo.meta["bounds"])
+
+
+def _disc_share(box, x: float, y: float, r: float) -> float:
+    """The share of the disc of radius r round (x, y) inside the map's bounding box: how much a radius set
+    is clipped by the map's edge (an unbounded city would fill the rest with more cells and entities)."""
+    import shapely
+
+    disc = shapely.Point(x, y).buffer(r, 32)
+    return float(shapely.intersection(disc, box).area / disc.area)
 
 
 def instrumented_run(topo, schedule, cfg: SimConfig, seconds: float) -> dict[str, Any]:
@@ -152,6 +173,11 @@ def instrumented_run(topo, schedule, cfg: SimConfig, seconds: float) -> dict[str
         "subscribe_per_viewer_s": {k: sub_tot[k] / vs for k in ("messages", "added", "removed")},
         "mean_subscribed_cells": sum(len(sim.viewers[i].subs.cells) for i in street) / max(len(street), 1),
         "mean_visible_entities": tv.get("mean_visible_entities"),
+        # in-view deliveries per entity-second in a subscribed cell: equal for PVS and radius when neither set
+        # holds entities that publish more often (vehicles along streets) than the other
+        "in_view_deliveries_per_visible_entity_s": by["in_view"] / vs / tv["mean_visible_entities"]
+        if tv.get("mean_visible_entities") else None,
+        "radius_disc_on_map": sum(rec.disc_inside) / max(len(rec.disc_inside), 1),
         "missed_visibility": tv.get("missed_visibility"),
         "stale_ghost_fraction": tv.get("stale_ghost_fraction"),
     }
