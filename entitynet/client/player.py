@@ -30,7 +30,7 @@ from entitynet.client.limits import HORIZON, max_speed
 from entitynet.client.modes import AREA, EDGE, MODELS, ModelKind, Place
 from entitynet.client.motion import Model, NetworkModel
 from entitynet.client.network import NetView, netview
-from entitynet.client.occupation import Occupation
+from entitynet.client.occupation import LOOKAHEAD, Occupation
 from entitynet.client.path import Path
 from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.route import Route
@@ -82,7 +82,7 @@ class Player:
         self.max_validity = max_validity
         self.off_network_timeout = off_network_timeout
         self.estimate = estimate
-        lookahead = 150.0 if lookahead is None else lookahead  # without a route `occupy` stops at a choice
+        lookahead = LOOKAHEAD if lookahead is None else lookahead  # without a route `occupy` stops at a choice
         lateral = 2.0 * accuracy if lateral is None else float(lateral)
         self.net: NetView | None = netview(topo) if topo is not None else None
         self.route = Route(self.net, route, stops)

@@ -45,7 +45,8 @@ def replay(name: str, model: str, etype: str, with_route: bool, seed: int) -> st
     path = _walk_path(net, rng, networks)
     route = path.edges if with_route else None
     stops = [(path.edges[-1][0], 0.5 * float(net.edge_len[path.edges[-1][0]]))] if with_route else ()
-    p = Player(topo, 1, etype, model=model, route=route, stops=stops, accuracy=5.0, max_gap=6.0, lost_after=25.0)
+    p = Player(topo, 1, etype, model=model, route=route, stops=stops, accuracy=5.0, max_gap=6.0, lost_after=25.0,
+               lookahead=150.0)  # the look-ahead the digests were recorded with (the default is 40 m since issue 11)
     h = hashlib.sha256()
     s, v = 0.0, float(rng.uniform(0.0, 10.0))
     doppler = bool(rng.random() < 0.5)
