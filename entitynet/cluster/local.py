@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from entitynet.cluster.natsd import free_port
+from entitynet.cluster.natsd import die_with_parent, free_port
 
 
 @dataclass
@@ -27,6 +27,7 @@ class LocalShards:
     k: int
     log_dir: Path
     extra: list[str] = field(default_factory=list)  # more `serve` options (e.g. --dead-after 1)
+    tie_to_parent: bool = False  # shards die with this process (start from the main thread only)
     ports: list[int] = field(default_factory=list)
     procs: list[subprocess.Popen] = field(default_factory=list)
 
@@ -40,7 +41,9 @@ class LocalShards:
             if self.regions is not None:
                 cmd += ["--cluster", self.nats_urls, "--shard", str(i), "--regions", str(self.regions)]
             log = open(Path(self.log_dir) / f"shard-{i}.log", "ab")  # noqa: SIM115 (the child owns it)
-            self.procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
+            self.procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                               preexec_fn=die_with_parent if self.tie_to_parent else None,
+                                               start_new_session=self.tie_to_parent))
         deadline = time.monotonic() + timeout
         for i, port in enumerate(self.ports):
             while True:
