@@ -64,6 +64,7 @@ class Shell:
         self.server = None
         self.subscribe_msgs = 0
         self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
+        self._cameras: dict[int, tuple[float, float]] = {}  # viewer -> where its camera was last sent
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
 
     # ---- the run ---------------------------------------------------------------------------------------------
@@ -172,7 +173,14 @@ class Shell:
             for m in msgs:
                 if isinstance(m, P.Unpublish):
                     await c.unpublish(m.entity)
-        for c, msgs in zip(views, out_subs, strict=True):
+        for i, (c, msgs) in enumerate(zip(views, out_subs, strict=True)):
+            if self.config.cluster is not None:  # shards hand viewers on by their camera (CAMERA)
+                v = self.sim.viewers[i]
+                x, y = v.traj.position()
+                last = self._cameras.get(i)
+                if last is None or math.hypot(x - last[0], y - last[1]) >= 5.0:
+                    self._cameras[i] = (x, y)
+                    await c.camera(float(x), float(y), v.z)
             for m in msgs:
                 await c.subscribe(m.added, m.removed)
                 self.subscribe_msgs += 1
