@@ -34,6 +34,11 @@ class LocalShards:
     def start(self, timeout: float = 30.0) -> LocalShards:
         """Spawn every shard and wait until each accepts TCP connections; a shard that exits or misses
         `timeout` stops them all, so a failed start leaves no processes behind."""
+        self.spawn()
+        return self.wait_ready(timeout)
+
+    def spawn(self) -> LocalShards:
+        """Spawn every shard without waiting for it (`wait_ready` waits): several clusters can start at once."""
         self.ports = [free_port() for _ in range(self.k)]
         for i, port in enumerate(self.ports):
             cmd = [sys.executable, "-m", "entitynet", "serve", "--open", "--topology", str(self.topology),
@@ -44,6 +49,10 @@ class LocalShards:
             self.procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                                preexec_fn=die_with_parent if self.tie_to_parent else None,
                                                start_new_session=self.tie_to_parent))
+        return self
+
+    def wait_ready(self, timeout: float = 30.0) -> LocalShards:
+        """Until every spawned shard accepts TCP connections; one that exits or misses `timeout` stops them all."""
         deadline = time.monotonic() + timeout
         for i, port in enumerate(self.ports):
             while True:
