@@ -188,9 +188,15 @@ def _setup(name: str, k: int | None, topo, topo_path: str, p: dict, tmp: Path, p
     return regions, nats, shards
 
 
-def _teardown(setup: tuple) -> None:
+def _teardown(setup: tuple, fast: bool = False) -> None:
+    """Stop a run's processes: SIGTERM and a wait for each, or with `fast` (--quick, after its measurement)
+    SIGKILL at once, which saves the shards' orderly goodbyes (about 0.5 s a run)."""
     _regions, nats, shards = setup
-    shards.stop()
+    if fast:
+        for i in range(len(shards.procs)):
+            shards.kill(i)
+    else:
+        shards.stop()
     if nats is not None:
         nats.stop()
 
@@ -250,14 +256,14 @@ def run(args, progress) -> dict[str, Any]:
                     res = trio.run(_drive, topo, regions, shards, nats, p, view_cells, adj, start_cells, failover,
                                    progress)
                 finally:
-                    _teardown(setups.pop(name))
+                    _teardown(setups.pop(name), fast=quick)
                 if regions is not None:
                     res["balance"] = regions.report["balance"]
                 by_k[name] = res
                 progress(f"{name}: {res}")
         finally:
             for setup in setups.values():
-                _teardown(setup)
+                _teardown(setup, fast=True)
     largest = by_k[f"shards_{max(p['shards'])}"]
     single = by_k["single"]
     results = {

@@ -38,6 +38,10 @@ class _FakeShards:
     def stop(self):
         self.events.append(("stop", self.name))
 
+    def kill(self, i: int):
+        if i == 0:
+            self.events.append(("stop", self.name))
+
 
 class _FakeNats:
     def __init__(self, n, log_dir=None):
