@@ -58,7 +58,8 @@ def town_pvs(tmp_path_factory):
     except NatsServerMissing as exc:
         pytest.skip(str(exc))
     path = tmp_path_factory.mktemp("camera") / "town.enttopo"
-    save(build(geojson_to_raw(collection(*grid(5, 5))), BuildConfig(pvs=PvsConfig())), path)  # a view grid
+    pvs = PvsConfig(max_height=20.0, view_distance=300.0, workers=1)  # a view grid, built in a few seconds
+    save(build(geojson_to_raw(collection(*grid(5, 5))), BuildConfig(pvs=pvs)), path)
     return path
 
 
@@ -153,13 +154,13 @@ async def test_a_viewer_walking_its_camera_across_a_border_is_redirected_once(to
                 # walk to the border, dither across it for a while (+-6 m), then walk on into region 1
                 f = _border_on_line(regions, a, b)
                 at = lambda t: (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), 1.7)  # noqa: E731
-                step = 4.0 / 424.0  # 4 m along the 424 m diagonal
+                step = 6.0 / 424.0  # 6 m along the 424 m diagonal
                 path = [i * step for i in range(int(f / step))]
                 path += [f + (1 if i % 2 else -1) * 6.0 / 424.0 for i in range(30)]
                 path += [f + i * step for i in range(int((1 - f) / step))]
                 for t in path:
                     await viewer.camera(*at(t))
-                    await trio.sleep(0.03)
+                    await trio.sleep(0.02)
                 with trio.fail_after(10):
                     while not redirects or len(shown()) < len(names):
                         await trio.sleep(0.05)
