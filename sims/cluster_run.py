@@ -131,6 +131,7 @@ async def local_cluster(topo: Any, artifact: Path, regions: Any, nats_nodes: int
 
     k = regions.shards
     run_dir = Path(tempfile.mkdtemp(prefix="entitynet-cluster-"))
+    keep_logs = False
     try:
         map_path = run_dir / "regions.json"
         regions.save(map_path)
@@ -143,12 +144,17 @@ async def local_cluster(topo: Any, artifact: Path, regions: Any, nats_nodes: int
             shards = LocalShards(Path(artifact), map_path, nats.urls, k, run_dir, extra=list(extra or []),
                                  tie_to_parent=True)
             try:
-                shards.start(timeout=start_timeout)
+                try:
+                    shards.start(timeout=start_timeout)
+                except RuntimeError:
+                    keep_logs = True  # the error names a log in run_dir
+                    raise
                 run = ClusterRun(regions, [("127.0.0.1", p) for p in shards.ports], nats.urls,
                                  shard_locator(topo, regions),
                                  [n.proc.pid for n in nats.nodes] + [pr.pid for pr in shards.procs])
                 say(f"cluster: NATS {nats.urls} ({nats_nodes} node{'s' if nats_nodes > 1 else ''}), {k} shards "
-                    + ", ".join(f"#{i} {h}:{p}" for i, (h, p) in enumerate(run.addresses)) + f"; logs in {run_dir}")
+                    + ", ".join(f"#{i} {h}:{p}" for i, (h, p) in enumerate(run.addresses))
+                    + f"; logs in {run_dir} (kept if the run fails)")
                 async with NatsClient(nats.nodes[-1].url, name="entitynet-sim") as nc:
                     nc.subscribe(f"en.{regions.digest[:12]}.hb", run.on_beat)
                     with trio.move_on_after(start_timeout):
@@ -157,11 +163,17 @@ async def local_cluster(topo: Any, artifact: Path, regions: Any, nats_nodes: int
                             await trio.sleep(0.05)
                     missing = [s for s in range(k) if s not in run.beats]
                     if missing:
+                        keep_logs = True
                         raise RuntimeError(f"shards {missing} never joined the cluster; see {run_dir}")
-                    yield run
+                    try:
+                        yield run
+                    except Exception:
+                        keep_logs = True  # the shards' logs may say why
+                        raise
             finally:
                 shards.stop()
         finally:
             nats.stop()
     finally:
-        shutil.rmtree(run_dir, ignore_errors=True)
+        if not keep_logs:
+            shutil.rmtree(run_dir, ignore_errors=True)

@@ -47,7 +47,7 @@ class LocalShards:
                 cmd += ["--cluster", self.nats_urls, "--shard", str(i), "--regions", str(self.regions)]
             log = open(Path(self.log_dir) / f"shard-{i}.log", "ab")  # noqa: SIM115 (the child owns it)
             self.procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                               preexec_fn=die_with_parent if self.tie_to_parent else None,
+                                               preexec_fn=die_with_parent() if self.tie_to_parent else None,
                                                start_new_session=self.tie_to_parent))
         return self
 

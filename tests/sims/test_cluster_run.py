@@ -32,10 +32,13 @@ def town(tmp_path_factory):
 
 
 def _sim(town, *extra: str) -> subprocess.Popen:
+    import os
+
+    env = {**os.environ, "TMPDIR": str(town.parent)}  # the cluster's run folder (a SIGKILL leaves it behind)
     return subprocess.Popen([sys.executable, "-m", "entitynet", "sim", "--shards", "2", "--topology", str(town),
                              "--entities", "24", "--viewers", "6", "--connections", "2", "--gtfs", "none",
                              "--summary-every", "0.5", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
 def _children_once_running(proc: subprocess.Popen, want: int = 3, timeout: float = 30.0) -> list[psutil.Process]:
