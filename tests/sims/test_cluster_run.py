@@ -119,3 +119,13 @@ def test_demo_with_shards_runs_as_the_sim_preset_on_a_cluster(monkeypatch):
     assert main(["demo", "--shards", "3", "--nats-nodes", "2", "--entities", "50", "--duration", "5"]) == 0
     (ns,) = seen
     assert (ns.shards, ns.nats_nodes, ns.entities, ns.duration, ns.server) == (3, 2, 50, 5.0, None)
+
+
+def test_sim_refuses_bad_cluster_options(capsys):
+    from entitynet.cli import main
+
+    assert main(["sim", "--shards", "2", "--server", "127.0.0.1:7400", "--duration", "1"]) == 2
+    assert "either --shards or --server" in capsys.readouterr().err
+    assert main(["sim", "--shards", "0", "--duration", "1"]) == 2
+    assert main(["sim", "--shards", "2", "--nats-nodes", "0", "--duration", "1"]) == 2
+    assert "--nats-nodes must be at least 1" in capsys.readouterr().err

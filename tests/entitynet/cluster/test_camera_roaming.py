@@ -51,6 +51,28 @@ def test_a_session_sends_its_camera_only_where_welcome_announced_it():
         assert (P.Camera(4.0, 5.0, 6.0) in sent(s.set_camera(4.0, 5.0, 6.0))) == expect
 
 
+async def test_only_a_shard_announces_camera_and_a_single_server_ignores_it(nats_server):
+    """One server's WELCOME is unchanged (no `camera`: clients never send it there), and a CAMERA that reaches
+    it anyway is accepted and does nothing; a shard's WELCOME announces it."""
+    from tests.entitynet.server_helpers import Raw, running
+
+    from .shard_helpers import shards, two_regions
+
+    async with running() as server:
+        c = Raw(await trio.open_tcp_stream("127.0.0.1", server.port))
+        await c.send(P.Hello(P.PROTOCOL_VERSION, "", server.sb.config.digest))
+        w = await c.expect(P.Welcome)
+        assert "camera" not in w.limits
+        await c.send(P.Camera(1.0, 2.0, 3.0), P.Ping(7))
+        await c.expect(P.Pong)
+        assert not [m for m in c.pending if isinstance(m, P.Error)]
+    async with shards(nats_server.urls, two_regions()) as (a, _b):
+        c = Raw(await trio.open_tcp_stream("127.0.0.1", a.port))
+        await c.send(P.Hello(P.PROTOCOL_VERSION, "", a.sb.config.digest))
+        w = await c.expect(P.Welcome)
+        assert w.limits.get("camera") == 1
+
+
 @pytest.fixture(scope="module")
 def town_pvs(tmp_path_factory):
     try:
