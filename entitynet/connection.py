@@ -159,6 +159,10 @@ class Connection:
         """Add and remove cells from our subscription."""
         await self._apply(self.session.subscribe(added, removed))
 
+    async def camera(self, x: float, y: float, z: float = 0.0) -> None:
+        """Tell a sharded server where the viewer's camera is (sent only where WELCOME announced `camera`)."""
+        await self._apply(self.session.set_camera(x, y, z))
+
     async def set_subscription(self, cells: Iterable[int]) -> None:
         """Subscribe to exactly these cells, sending only the difference."""
         await self._apply(self.session.set_subscription(cells))

@@ -30,6 +30,9 @@ def register_demo(sub) -> None:
                    help="serve the 3D browser viewer here (default 8400; 0 = any free port; -1 = no viewer)")
     p.add_argument("--transit", metavar="GTFS", help="add trams and buses from this GTFS feed through the SIRI "
                    "replay producer and the transit proxy (needs the proxies package)")
+    p.add_argument("--shards", type=int, metavar="K", help="run on a local cluster of K switchboard processes and "
+                   "nats-server (`entitynet sim --shards K` with the demo's numbers; no 3D viewer)")
+    p.add_argument("--nats-nodes", type=int, default=1, metavar="N", help="nats-server nodes with --shards (default 1)")
     p.set_defaults(func=run_demo_command)
 
 
@@ -47,6 +50,14 @@ def run_demo_command(args: argparse.Namespace) -> int:
         raise CommandError(f"GTFS feed {args.transit} not found")
     if args.duration is not None and not args.duration > 0:
         raise CommandError("--duration must be a positive number of seconds")
+    if args.shards is not None:  # the demo as a preset of `entitynet sim`, on a local cluster (sims.cluster_run)
+        from sims import sim_cmd
+
+        return sim_cmd.run(argparse.Namespace(
+            entities=args.entities, car_share=0.3, viewers=args.viewers, gtfs=args.transit, date=None,
+            start=8 * 3600.0, duration=args.duration, speed=1.0, tick_hz=2.0, server=None, token="",
+            connections=args.connections, radius=args.no_pvs, seed=args.seed, summary_every=args.summary_every,
+            report=None, shards=args.shards, nats_nodes=args.nats_nodes, topology=None))
     start = time.perf_counter()
 
     def say(msg: str) -> None:

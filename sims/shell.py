@@ -16,6 +16,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import trio
@@ -42,6 +43,7 @@ class ShellConfig:
     port: int = 0  # of the in-process server (0: any free port)
     keys: bool = True  # read `p` from a terminal
     warmup_ticks: int = 0  # ticks left out of the lateness figures (the start's burst of first publishes)
+    cluster: Any = None  # a sims.cluster_run.ClusterRun: connect to its shards by where entities and cameras are
 
 
 class Shell:
@@ -61,6 +63,8 @@ class Shell:
         self.outages = 0
         self.server = None
         self.subscribe_msgs = 0
+        self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
+        self._cameras: dict[int, tuple[float, float]] = {}  # viewer -> where its camera was last sent
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
 
     # ---- the run ---------------------------------------------------------------------------------------------
@@ -70,7 +74,7 @@ class Shell:
         cfg = self.config
         async with trio.open_nursery() as nursery:
             address = cfg.server
-            if address is None:
+            if address is None and cfg.cluster is None:
                 from entitynet.server.app import serve
                 from entitynet.server.config import ServerConfig
 
@@ -80,10 +84,13 @@ class Shell:
                 self.say(f"shard server listening on {cfg.host}:{self.server.port} (in this process, open mode)")
             digest = self.sim.topo.digest
             async with trio.open_nursery() as clients:
-                pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
-                        for _ in range(self.sim.config.connections)]
-                views = [Connection(address, digest, cfg.token, on_message=self._on_view(i))
-                         for i in range(len(self.sim.viewers))]
+                if cfg.cluster is not None:
+                    pubs, views = self._cluster_connections(cfg.cluster, digest)
+                else:
+                    pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
+                            for _ in range(self.sim.config.connections)]
+                    views = [Connection(address, digest, cfg.token, on_message=self._on_view(i))
+                             for i in range(len(self.sim.viewers))]
                 for c in pubs + views:
                     await clients.start(c.run)
                 stop = trio.Event()
@@ -97,10 +104,22 @@ class Shell:
             nursery.cancel_scope.cancel()
         return self.report()
 
+    def _cluster_connections(self, cl: Any, digest: str) -> tuple[list[Connection], list[Connection]]:
+        """Publishers: the fleet's connections to each shard (an entity rides one to the shard it started in);
+        viewers: to the shard whose region holds the camera. Every connection knows every shard (failover)."""
+        fleet, cfg, alts = self.sim.fleet, self.config, tuple(cl.addresses)
+        pubs = [Connection(cl.addresses[j // fleet.per_shard], digest, cfg.token, on_message=lambda m: None,
+                           alternates=alts) for j in range(fleet.connections)]
+        views = [Connection(cl.address_at(*v.traj.position()), digest, cfg.token, on_message=self._on_view(i),
+                            alternates=alts) for i, v in enumerate(self.sim.viewers)]
+        return pubs, views
+
     def _on_view(self, i: int):
         sim = self.sim
 
         def on_message(m: P.Message) -> None:
+            if isinstance(m, P.Redirect):
+                self.redirects += 1
             size = len(P.encode_message(m)) if isinstance(m, P.Update | P.Leave) else 0
             sim.deliver(i, m, size)
 
@@ -154,7 +173,14 @@ class Shell:
             for m in msgs:
                 if isinstance(m, P.Unpublish):
                     await c.unpublish(m.entity)
-        for c, msgs in zip(views, out_subs, strict=True):
+        for i, (c, msgs) in enumerate(zip(views, out_subs, strict=True)):
+            if self.config.cluster is not None:  # shards hand viewers on by their camera (CAMERA)
+                v = self.sim.viewers[i]
+                x, y = v.traj.position()
+                last = self._cameras.get(i)
+                if last is None or math.hypot(x - last[0], y - last[1]) >= 5.0:
+                    self._cameras[i] = (x, y)
+                    await c.camera(float(x), float(y), v.z)
             for m in msgs:
                 await c.subscribe(m.added, m.removed)
                 self.subscribe_msgs += 1
@@ -203,6 +229,8 @@ class Shell:
                 f"updates {d_pub / wall_dt:6.1f}/s | deliveries {d_del / wall_dt:7.1f}/s | collisions avoided "
                 f"{col['avoided']} accepted {col['accepted']} deleted {col['deleted']} | viewer error {err}, "
                 f"missed {100 * tv['missed_visibility']:.1f}%")
+        if self.config.cluster is not None:
+            line += " | " + self.config.cluster.summary()
         if self.config.duration and self.config.speed > 1.0:
             frac = min(1.0, sim.ticks * sim.dt / self.config.duration)
             line += f" [{'#' * int(20 * frac):<20}] {100 * frac:3.0f}%"
@@ -220,6 +248,9 @@ class Shell:
             "ticks_behind": self.behind,
         }
         rep["server"] = {"in_process": self.server is not None, "gap_s": self.gap_s, "outages": self.outages}
+        if self.config.cluster is not None:
+            cl = self.config.cluster
+            rep["cluster"] = {"shards": cl.per_shard(), "nats": cl.nats_urls, "viewer_redirects": self.redirects}
         if self.server is None:
             rep["truth_vs_viewer"] = "not measured: the server's entity ids are not known outside its process"
         return rep

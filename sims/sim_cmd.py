@@ -53,6 +53,11 @@ def register(sub) -> None:
     p.add_argument("--server", type=_hostport, metavar="HOST:PORT",
                    help="an existing shard server (default: start one in this process)")
     p.add_argument("--token", default="", help="auth token for --server")
+    p.add_argument("--shards", type=int, metavar="K", help="start a local cluster of K switchboard processes "
+                   "joined by nats-server and run against it (entities and viewers by where they are)")
+    p.add_argument("--nats-nodes", type=int, default=1, metavar="N", help="nats-server nodes with --shards "
+                                                                           "(default 1)")
+    p.add_argument("--topology", metavar="FILE", help="topology artifact (default: the bundled Helsinki map)")
     p.add_argument("--connections", type=int, default=4, help="connections carrying the entities (default 4)")
     p.add_argument("--radius", action="store_true", help="viewers subscribe to a 500 m radius instead of the PVS")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
@@ -75,6 +80,12 @@ def run(args: argparse.Namespace) -> int:
         problems.append("--summary-every must be positive")
     if args.gtfs not in (None, "none") and not Path(args.gtfs).is_file():
         problems.append(f"{args.gtfs}: cannot read the feed (no such file)")
+    if args.shards is not None and not 1 <= args.shards <= 64:
+        problems.append("--shards must be between 1 and 64")
+    if args.shards is not None and args.server is not None:
+        problems.append("--shards starts its own cluster: give either --shards or --server")
+    if args.nats_nodes < 1:
+        problems.append("--nats-nodes must be at least 1")
     if problems:
         raise CommandError("; ".join(problems))
     import trio
@@ -99,7 +110,12 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("--car-share must be within 0..1")
     if args.entities < 0:
         raise CommandError("--entities must be at least 0")
-    topo, path = bundled_topology(lambda m: say(f"[{time.perf_counter() - t0:6.1f}s] {m}"), with_pvs=True)
+    if args.topology:
+        from entitynet.commands.topology_cmd import load_artifact
+
+        topo, path = load_artifact(args.topology), Path(args.topology)
+    else:
+        topo, path = bundled_topology(lambda m: say(f"[{time.perf_counter() - t0:6.1f}s] {m}"), with_pvs=True)
     schedule = None
     if config.transit:
         feed = Path(args.gtfs) if args.gtfs else BUNDLED_FEED
@@ -110,13 +126,29 @@ def run(args: argparse.Namespace) -> int:
         n_run = len(schedule.running_at(config.start))
         say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
             f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
-    sim = Sim(topo, config, schedule)
+    regions = shard_at = None
+    if args.shards:
+        from sims.cluster_run import shard_locator
+        from topology.regions import RegionError, build_regions
+
+        try:
+            regions = build_regions(topo, args.shards)
+        except RegionError as exc:
+            raise CommandError(str(exc)) from None
+        shard_at = shard_locator(topo, regions)
+    sim = Sim(topo, config, schedule, shards=args.shards or 1, shard_at=shard_at)
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
         f"{len(sim.viewers)} viewers subscribing by {sim.subscribe_by}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path), say)
-    report = trio.run(shell.run)
+    if regions is None:
+        report = trio.run(shell.run)
+    else:
+        report = trio.run(_on_cluster, shell, topo, path, regions, args.nats_nodes, say)
+        if report is None:
+            say("interrupted before the simulation began; the cluster is stopped")
+            return 130
     text = json.dumps(report, indent=2, default=float)
     if args.report:
         Path(args.report).write_text(text + "\n")
@@ -124,3 +156,34 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(text)
     return 0
+
+
+async def _on_cluster(shell, topo, path: Path, regions, nats_nodes: int, say) -> dict | None:
+    """Run the shell against a local cluster that lives exactly as long as the run (sims.cluster_run); None
+    when Ctrl-C (or SIGTERM) came before the run began. Why the signal receiver: an interrupt while the cluster
+    starts must still tear it down in order, not surface as a KeyboardInterrupt in whichever task ran."""
+    import signal
+
+    import trio
+
+    from entitynet.cli import CommandError
+    from sims.cluster_run import local_cluster
+
+    report = None
+
+    async def cancel_on_signal(signals, scope: trio.CancelScope) -> None:
+        async for _sig in signals:
+            scope.cancel()
+            return
+
+    try:
+        with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:  # from the very start
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(cancel_on_signal, signals, nursery.cancel_scope)
+                async with local_cluster(topo, path, regions, nats_nodes, say) as cluster:
+                    shell.config.cluster = cluster
+                    report = await shell.run()  # its own receiver takes the signals while it runs
+                nursery.cancel_scope.cancel()
+    except RuntimeError as exc:
+        raise CommandError(str(exc)) from None
+    return report

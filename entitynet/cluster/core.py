@@ -41,6 +41,7 @@ import msgpack
 
 from entitynet import protocol as P
 from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
+from entitynet.cluster.roaming import CameraRoamingMixin
 
 log = logging.getLogger("entitynet.cluster")
 
@@ -67,7 +68,7 @@ class Peer:
     counts: dict = field(default_factory=dict)
 
 
-class ClusterCore(ClusterQueriesMixin):
+class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
     """Cluster logic of one shard; installs itself as the switchboard's `cluster` hook (queries by identity
     across shards in `queries.py`)."""
 
@@ -202,8 +203,8 @@ class ClusterCore(ClusterQueriesMixin):
         """A local client's cells changed: NATS interest may change (the shell asks), maybe a viewer REDIRECT."""
         self._now_hint = now
         self.wake()
-        if not self.redirect_viewers or c.entities or c.cid in self.redirected or not c.subs:
-            return
+        if not self.redirect_viewers or c.entities or c.cid in self.redirected or not c.subs or c.camera:
+            return  # (a viewer that says where its camera is roams by the camera: roaming.py)
         owners = self._owners(now)
         by_shard: Counter[int] = Counter(owners[self.region_of[cell]] for cell in c.subs)
         best, n_best = by_shard.most_common(1)[0]

@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from entitynet.cluster.natsd import free_port
+from entitynet.cluster.natsd import die_with_parent, free_port
 
 
 @dataclass
@@ -27,12 +27,18 @@ class LocalShards:
     k: int
     log_dir: Path
     extra: list[str] = field(default_factory=list)  # more `serve` options (e.g. --dead-after 1)
+    tie_to_parent: bool = False  # shards die with this process (start from the main thread only)
     ports: list[int] = field(default_factory=list)
     procs: list[subprocess.Popen] = field(default_factory=list)
 
     def start(self, timeout: float = 30.0) -> LocalShards:
         """Spawn every shard and wait until each accepts TCP connections; a shard that exits or misses
         `timeout` stops them all, so a failed start leaves no processes behind."""
+        self.spawn()
+        return self.wait_ready(timeout)
+
+    def spawn(self) -> LocalShards:
+        """Spawn every shard without waiting for it (`wait_ready` waits): several clusters can start at once."""
         self.ports = [free_port() for _ in range(self.k)]
         for i, port in enumerate(self.ports):
             cmd = [sys.executable, "-m", "entitynet", "serve", "--open", "--topology", str(self.topology),
@@ -40,7 +46,13 @@ class LocalShards:
             if self.regions is not None:
                 cmd += ["--cluster", self.nats_urls, "--shard", str(i), "--regions", str(self.regions)]
             log = open(Path(self.log_dir) / f"shard-{i}.log", "ab")  # noqa: SIM115 (the child owns it)
-            self.procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
+            self.procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                               preexec_fn=die_with_parent() if self.tie_to_parent else None,
+                                               start_new_session=self.tie_to_parent))
+        return self
+
+    def wait_ready(self, timeout: float = 30.0) -> LocalShards:
+        """Until every spawned shard accepts TCP connections; one that exits or misses `timeout` stops them all."""
         deadline = time.monotonic() + timeout
         for i, port in enumerate(self.ports):
             while True:

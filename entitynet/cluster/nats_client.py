@@ -87,8 +87,14 @@ class NatsClient:
         self._nursery_cm = trio.open_nursery()
         self._nursery = await self._nursery_cm.__aenter__()
         self._nursery.start_soon(self._run)
-        with trio.fail_after(self.connect_timeout * max(2, len(self.servers)) + 1):
-            await self._connected_ev.wait()
+        try:
+            with trio.fail_after(self.connect_timeout * max(2, len(self.servers)) + 1):
+                await self._connected_ev.wait()
+        except BaseException as exc:  # cancelled or timed out while connecting: close the nursery we opened
+            self._closed = True
+            self._nursery.cancel_scope.cancel()
+            await self._nursery_cm.__aexit__(type(exc), exc, exc.__traceback__)
+            raise
         return self
 
     async def __aexit__(self, *exc) -> bool | None:

@@ -11,8 +11,32 @@ import shutil
 import socket
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+
+def die_with_parent() -> Callable[[], None] | None:
+    """A `preexec_fn` for a child that must not outlive this process (Linux: PR_SET_PDEATHSIG = SIGKILL), or None
+    where that is not available. Why: a local cluster started for a demo or a simulation must leave no orphan
+    nats-server or switchboard behind, even when its parent is SIGKILLed and cannot clean up. The libc call is
+    looked up here, in the parent, so the child between fork and exec only calls it. The signal fires when the
+    *thread* that started the child exits, so only children started from the main thread may use it."""
+    import ctypes
+    import signal
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+    def preexec() -> None:
+        prctl(1, signal.SIGKILL, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+
+    return preexec
 
 
 class NatsServerMissing(RuntimeError):
@@ -73,6 +97,7 @@ class NatsCluster:
     token: str | None = None
     host: str = "127.0.0.1"
     log_dir: Path | None = None
+    tie_to_parent: bool = False  # children die with this process and miss a terminal's Ctrl-C (main thread only)
     nodes: list[NatsNode] = field(default_factory=list)
 
     @property
@@ -97,7 +122,9 @@ class NatsCluster:
             out = subprocess.DEVNULL
             if self.log_dir is not None:
                 out = open(Path(self.log_dir) / f"nats-{i}.log", "ab")  # noqa: SIM115 (the child owns it)
-            node.proc = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+            node.proc = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                         preexec_fn=die_with_parent() if self.tie_to_parent else None,
+                                         start_new_session=self.tie_to_parent)
         deadline = time.monotonic() + timeout
         for node in self.nodes:
             while not _answers(node.host, node.port):

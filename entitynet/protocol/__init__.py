@@ -20,6 +20,7 @@ from entitynet.protocol.codec import (
 )
 from entitynet.protocol.framing import LENGTH_PREFIX, FrameDecoder, encode_frame, frame, frame_head, frame_prefix
 from entitynet.protocol.messages import (
+    CAMERA,
     ERROR,
     FATAL_ERRORS,
     FOLLOW,
@@ -27,6 +28,7 @@ from entitynet.protocol.messages import (
     LEAVE,
     LOCAL_ID_LIMIT,
     MAX_CELL,
+    MAX_COORD,
     MAX_INT,
     MAX_VALIDITY_MS,
     PING,
@@ -44,6 +46,7 @@ from entitynet.protocol.messages import (
     UNPUBLISH,
     UPDATE,
     WELCOME,
+    Camera,
     Error,
     ErrorCode,
     Follow,
@@ -67,6 +70,7 @@ from entitynet.protocol.messages import (
 )
 
 __all__ = [
+    "CAMERA", "MAX_COORD", "Camera",
     "DEFAULT_LIMITS", "ERROR", "FATAL_ERRORS", "FOLLOW", "HELLO", "LEAVE", "LENGTH_PREFIX", "LOCAL_ID_LIMIT",
     "MAX_CELL", "MAX_INT", "MAX_VALIDITY_MS", "PING", "PONG", "PRIVACY", "PROTOCOL_VERSION", "PUBLISH", "QUERY",
     "QUERY_CELLS", "QUERY_IDENTITY", "QUERY_RESULT", "REDIRECT", "SUBSCRIBE", "UNFOLLOW", "UNPUBLISH", "UPDATE",

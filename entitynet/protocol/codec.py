@@ -16,6 +16,7 @@ dataclasses, so the bytes a switch forwards and the bytes the protocol defines c
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -23,11 +24,13 @@ from typing import Any
 import msgpack
 
 from entitynet.protocol.messages import (
+    CAMERA,
     ERROR,
     FOLLOW,
     HELLO,
     LEAVE,
     MAX_CELL,
+    MAX_COORD,
     MAX_INT,
     MAX_VALIDITY_MS,
     PING,
@@ -44,6 +47,7 @@ from entitynet.protocol.messages import (
     UNPUBLISH,
     UPDATE,
     WELCOME,
+    Camera,
     Error,
     ErrorCode,
     Follow,
@@ -128,6 +132,8 @@ def _to_list(msg: Message) -> list:
         return [QUERY, msg.query_id, msg.kind, arg]
     if t is Redirect:
         return [REDIRECT, msg.shard, msg.address]
+    if t is Camera:
+        return [CAMERA, float(msg.x), float(msg.y), float(msg.z)]
     if t is Privacy:
         return [PRIVACY, msg.identity, None if msg.audience is None else list(msg.audience)]
     if t is Ping:
@@ -210,6 +216,12 @@ def _bytes(v: Any, name: str, lim: CodecLimits) -> bytes:
     if type(v) is not bytes or len(v) > lim.max_payload:
         raise _bad(f"{name} must be binary of at most {lim.max_payload} bytes")
     return v
+
+
+def _coord(v: Any, name: str) -> float:
+    if type(v) not in (int, float) or not math.isfinite(v) or abs(v) > MAX_COORD:
+        raise _bad(f"{name} must be a finite number of metres within {MAX_COORD:g} of the origin")
+    return float(v)
 
 
 def _arity(m: tuple, n: int, name: str) -> None:
@@ -305,6 +317,9 @@ def _decode_one(m: Any, lim: CodecLimits) -> Message:
     if t == REDIRECT:
         _arity(m, 3, "REDIRECT")
         return Redirect(_int(m[1], "shard"), _str(m[2], "address", lim))
+    if t == CAMERA:
+        _arity(m, 4, "CAMERA")
+        return Camera(_coord(m[1], "camera x"), _coord(m[2], "camera y"), _coord(m[3], "camera z"))
     if t == PRIVACY:
         _arity(m, 3, "PRIVACY")
         aud = m[2]

@@ -33,6 +33,7 @@ REDIRECT = 13
 PRIVACY = 14
 PING = 15
 PONG = 16
+CAMERA = 17  # optional, v1: sent only to servers whose WELCOME limits announce "camera" (a cluster's shards)
 
 #: QUERY kinds: by published identity (arg: str) or by cells (arg: tuple of cell ids)
 QUERY_IDENTITY = "identity"
@@ -233,6 +234,18 @@ class Privacy:
 
 
 @dataclass(frozen=True, slots=True)
+class Camera:
+    """Client -> server (optional in v1): where the viewer's camera is, in the artifact's local metres, so a
+    sharded server can hand the viewer to the shard whose region holds the camera (cells seen from a border
+    lie on both sides; the camera does not). Sent only to a server whose WELCOME limits carry `camera`: an
+    older server would refuse the unknown type."""
+
+    x: float
+    y: float
+    z: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
 class Ping:
     """Client -> server: a clock probe (the client's send time, echoed back)."""
 
@@ -249,8 +262,10 @@ class Pong:
 
 Message = (
     Hello | Welcome | Error | Publish | Unpublish | Subscribe | Follow | Unfollow | Query | QueryResult
-    | Update | Leave | Redirect | Privacy | Ping | Pong
+    | Update | Leave | Redirect | Privacy | Ping | Pong | Camera
 )
+
+MAX_COORD = 1.0e7  # metres from the artifact's local origin: anything beyond is not on a city map
 
 
 def now_ms(seconds: float) -> int:

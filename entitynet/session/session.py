@@ -23,7 +23,8 @@ from entitynet.session.events import Action, Answer, Connect, Deliver, Drop, Not
 from entitynet.session.policy import Address, ReconnectPolicy, parse_address
 
 #: messages only a client sends: a server sending one is broken, and the link is dropped
-_CLIENT_ONLY = (P.Hello, P.Publish, P.Unpublish, P.Subscribe, P.Follow, P.Unfollow, P.Query, P.Privacy, P.Ping)
+_CLIENT_ONLY = (P.Hello, P.Publish, P.Unpublish, P.Subscribe, P.Follow, P.Unfollow, P.Query, P.Privacy, P.Ping,
+                P.Camera)
 #: errors that refuse the oldest pending query (the server answers queries in order)
 _QUERY_REFUSALS = (P.ErrorCode.QUERY_RATE, P.ErrorCode.NO_SUCH_CELL)
 REPLAY_CHUNK = 5000  # messages per replay frame at most, well inside the codec's 20,000 ...
@@ -51,6 +52,7 @@ class _Link:
     throttle: float = 0.0  # extra wait an AUTH_THROTTLED refusal asked for
     pings: dict[int, float] = field(default_factory=dict)  # PING client_ms -> local send time
     max_frame: int = P.DEFAULT_LIMITS.max_frame  # ours, or the server's from WELCOME when smaller
+    camera: bool = False  # the server's WELCOME announced CAMERA (a shard): older servers refuse the type
 
 
 class ClientSession:
@@ -93,6 +95,7 @@ class ClientSession:
         self._subs: set[int] = set()
         self._follows: set[int] = set()
         self._privacy: P.Privacy | None = None
+        self._camera: P.Camera | None = None
         self._queries: dict[int, None] = {}  # pending query ids, oldest first
         self._next_query = 1
         self._last_now: float | None = None
@@ -245,6 +248,15 @@ class ClientSession:
         self._subs.update(added)
         return self._send_to(self.home, [P.Subscribe(added, removed)])
 
+    def set_camera(self, x: float, y: float, z: float = 0.0) -> list[Action]:
+        """The viewer's camera: kept (re-sent first after a reconnect or REDIRECT), sent where WELCOME said `camera`."""
+        for v in (x, y, z):
+            if not (math.isfinite(v) and abs(v) <= P.MAX_COORD):
+                raise ValueError(f"camera coordinates must be finite metres, got {(x, y, z)!r}")
+        self._camera = P.Camera(float(x), float(y), float(z))
+        lk = self._links.get(self.home)
+        return self._send_to(self.home, [self._camera]) if lk is not None and lk.camera else []
+
     def set_subscription(self, cells) -> list[Action]:
         """Subscribe to exactly these cells, sending only the difference (nothing when there is none)."""
         want = set(cells)
@@ -325,6 +337,7 @@ class ClientSession:
             announced = m.limits.get("max_frame")
             if isinstance(announced, int) and announced > 0:
                 lk.max_frame = min(P.DEFAULT_LIMITS.max_frame, announced)
+            lk.camera = m.limits.get("camera") == 1
             self.connects += 1
             out.extend(self._replay(lk, now))
             if lk.address == self.home:
@@ -406,7 +419,7 @@ class ClientSession:
             dest = self._links[target] = _Link(target)
             out.append(self._dial(dest, now))
         elif dest.phase == "open" and not dest.dropping:
-            msgs = self._viewer_state() if viewer else []
+            msgs = self._viewer_state(dest) if viewer else []
             msgs += self._entity_states(moving, now)
             out.extend(Send(dest.token, batch) for batch in _batches(msgs, dest.max_frame))
         out.extend(self._prune())
@@ -421,8 +434,8 @@ class ClientSession:
                 out.append(Drop(lk.token, "nothing left to carry on this shard"))
         return out
 
-    def _viewer_state(self) -> list[P.Message]:
-        msgs: list[P.Message] = []
+    def _viewer_state(self, lk: _Link) -> list[P.Message]:
+        msgs: list[P.Message] = [self._camera] if self._camera is not None and lk.camera else []
         if self._subs:
             msgs.append(P.Subscribe(tuple(sorted(self._subs)), ()))
         msgs.extend(P.Follow(e) for e in sorted(self._follows))
@@ -442,7 +455,7 @@ class ClientSession:
         every entity this link carries, with its validity shortened by the time since it was published."""
         msgs: list[P.Message] = [self._privacy] if self._privacy is not None else []
         if lk.address == self.home:
-            msgs += self._viewer_state()
+            msgs += self._viewer_state(lk)
         mine = [e for e in self._published if self._where.get(e) == lk.address]
         msgs += self._entity_states(mine, now)
         return [Send(lk.token, batch) for batch in _batches(msgs, lk.max_frame)]

@@ -176,6 +176,10 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
                 self._query(c, m, now)
             elif t is P.Privacy:
                 self._privacy(c, m)
+            elif t is P.Camera:  # kept for the cluster's viewer roaming; one server has nothing to do with it
+                c.camera = (m.x, m.y, m.z)
+                if self.cluster is not None:
+                    self.cluster.on_camera(c, now)
             elif t is P.Hello:
                 self._error(c, ErrorCode.BAD_FIELD, "HELLO sent twice")
             else:
@@ -195,7 +199,10 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
             c.token = m.token
         c.ready = True
         self.hello_timers.cancel(c.cid)
-        self._reply_msg(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), cfg.wire_limits()))
+        limits = cfg.wire_limits()
+        if self.cluster is not None:
+            limits["camera"] = 1  # a shard roams viewers by their camera: clients may send CAMERA
+        self._reply_msg(c, P.Welcome(P.PROTOCOL_VERSION, c.session, P.now_ms(max(now, 0.0)), limits))
 
     # ------------------------------------------------------------------------------------------ publishing
     def _publish(self, c: ClientState, m: P.Publish, now: float) -> None:

@@ -1,8 +1,8 @@
 """Queries and privacy of the switchboard core: QUERY by cells or identity, and PRIVACY (the buddy rule).
 
 A mixin of `Switchboard` (entitynet.switchboard.core), split off to keep each module to one job. In a cluster
-(entitynet.cluster) a QUERY by identity also asks the other shards: the core hands the local answer to the
-cluster hook, which replies once the others have answered (or their time is up).
+(entitynet.cluster) a QUERY by identity or by cells also asks the other shards: the core hands the local answer
+to the cluster hook, which replies once the others have answered (or their time is up).
 """
 
 from __future__ import annotations
@@ -57,6 +57,9 @@ class QueriesMixin:
         self.stats["queries"] += 1
         if m.kind == P.QUERY_IDENTITY and self.cluster is not None:
             self.cluster.query_identity(c, m, encoded, now)  # answers when the other shards have
+            return
+        if self.cluster is not None:  # by cells: the cells' occupants owned by other shards, too
+            self.cluster.query_cells(c, m, [(e.eid, b) for e, b in zip(found, encoded, strict=False)], now)
             return
         self._reply(c, P.encode_query_result(m.query_id, encoded))
 

@@ -19,6 +19,7 @@ class ClientState:
     __slots__ = (
         "cid", "session", "user_id", "identity", "audience", "ready", "closing", "subs", "follows",
         "entities", "bucket", "churn", "outbox", "replies", "refused", "peer", "token", "mirror",
+        "camera",
     )
 
     def __init__(self, cid: int, session: int, outbox: Outbox, bucket: TokenBucket, churn: TokenBucket,
@@ -41,6 +42,7 @@ class ClientState:
         self.replies = 0  # replies queued for the current frame ...
         self.refused = 0  # ... and requests refused because the frame asked for too many
         self.mirror: int | None = None  # a stand-in for an owner on another shard (its number), see mirror.py
+        self.camera: tuple[float, float, float] | None = None  # the viewer's camera (CAMERA), when it says
 
 
 class EntityState:

@@ -120,14 +120,26 @@ class Load:
 
     async def start(self, nursery: trio.Nursery) -> None:
         """Connect every viewer (subscribed) first, then every mover on its start cell's shard, so the first
-        updates already have an audience."""
-        for v, home in zip(self.viewers, self.viewer_home, strict=True):
+        updates already have an audience. Each group connects concurrently: one handshake after another cost
+        1-2 s of every run on a loaded machine, and the order that matters is only viewers before movers."""
+        async def viewer(v: Viewer, home: str, task_status=trio.TASK_STATUS_IGNORED) -> None:
             v.conn = self._conn(home, v.on_message)
             await nursery.start(v.conn.run)
             await v.conn.set_subscription(v.cells)
-        for m in self.movers:
+            task_status.started()
+
+        async def mover(m: Mover, task_status=trio.TASK_STATUS_IGNORED) -> None:
             m.conn = self._conn(self.owner_of_cell(m.cell), self._mover_messages(m))
             await nursery.start(m.conn.run)
+            task_status.started()
+
+        async with trio.open_nursery() as group:
+            for v, home in zip(self.viewers, self.viewer_home, strict=True):
+                group.start_soon(viewer, v, home)
+        async with trio.open_nursery() as group:
+            for m in self.movers:
+                group.start_soon(mover, m)
+        for m in self.movers:
             nursery.start_soon(self._move, m)
 
     def _mover_messages(self, m: Mover):

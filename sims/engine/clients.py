@@ -11,6 +11,7 @@ client cores' timers (validity expiry, heartbeat) run every tick.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -25,13 +26,19 @@ class Fleet:
     """Every live entity's `Player`; `step(now)` returns the messages to send, one list per connection."""
 
     def __init__(self, world: World, connections: int = 4, *, fix_interval: float = 1.0,
-                 gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None):
+                 gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None,
+                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None):
         if connections < 1:
             raise ValueError(f"at least one connection, got {connections}")
         if not fix_interval > 0.0:
             raise ValueError(f"the fix interval must be > 0, got {fix_interval}")
+        if shards < 1 or (shards > 1 and shard_at is None):
+            raise ValueError(f"{shards} shards need a shard_at(x, y) locator")
         self.world = world
-        self.connections = connections
+        self.per_shard = connections
+        self.connections = connections * shards  # `connections` to each shard, shard-major
+        self.shard_at = shard_at
+        self.home: dict[int, int] = {}  # entity -> its connection, when chosen by where it starts (shards)
         self.fix_interval = fix_interval
         self.gps_sigma = gps_sigma
         self.threshold = threshold  # the client core's drift threshold (None: its default, the GPS accuracy)
@@ -41,8 +48,10 @@ class Fleet:
         self.counters = {"fixes": 0, "rejected_fixes": 0, "published": 0, "unpublished": 0}
 
     def conn_of(self, entity: int) -> int:
-        """The publisher connection carrying `entity` (id modulo the connection count, as a proxy splits a fleet)."""
-        return entity % self.connections
+        """The publisher connection carrying `entity`: id modulo the connection count (as a proxy splits a
+        fleet), among the connections to the shard whose region the entity started in when there are shards."""
+        home = self.home.get(entity)
+        return entity % self.connections if home is None else home
 
     def add(self, a: Agent) -> None:
         """Give a new entity its client core. Scheduled vehicles get their route and stops a priori; the first fix
@@ -53,6 +62,9 @@ class Fleet:
             stops = [a.route.edge_offset(st.s) for st in a.stops]
         self.players[a.id] = Player(self.world.topo, a.id, a.name, accuracy=self.gps_sigma, route=route,
                                     stops=stops, threshold=self.threshold)
+        if self.shard_at is not None:  # by where it is: its first PUBLISH then needs no REDIRECT
+            x, y = a.xy()
+            self.home[a.id] = self.shard_at(float(x), float(y)) * self.per_shard + a.id % self.per_shard
         phase = (a.id * 0.618033988749895) % 1.0
         self.next_fix[a.id] = self.world.now + phase * self.fix_interval
 
@@ -67,6 +79,7 @@ class Fleet:
                 msgs = p.leave()
                 self.counters["unpublished"] += len(msgs)
                 out[self.conn_of(aid)].extend(msgs)
+            self.home.pop(aid, None)
         agents = self.world.agents
         for aid, due in self.next_fix.items():
             if due > now:

@@ -10,6 +10,7 @@ service day's midnight, so the schedule and the clients agree); the driver decid
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 from entitynet import protocol as P
@@ -69,14 +70,16 @@ class Sim:
     """The whole simulation as one sans-IO core (see the module docstring): every driver calls `start()`, then
     `step()` per tick, hands arrivals to `deliver` and calls `maybe_sample`."""
 
-    def __init__(self, topo, config: SimConfig, schedule: Schedule | None = None, cells_at: CellsAt | None = None):
+    def __init__(self, topo, config: SimConfig, schedule: Schedule | None = None, cells_at: CellsAt | None = None,
+                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None):
         self.topo = topo
         self.config = config
         self.world = World(topo, config.seed, start=config.start)
         self.population = Population(self.world, PopulationConfig(config.entities, config.car_share,
                                                                   transit=config.transit), schedule)
         self.fleet = Fleet(self.world, config.connections, fix_interval=config.fix_interval,
-                           gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold)
+                           gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold,
+                           shards=shards, shard_at=shard_at)  # shards: `connections` to each, by where entities are
         if cells_at is None:
             cells_at = pvs_cells_at(topo) if config.subscribe == "pvs" else None
             if cells_at is None:

@@ -91,3 +91,16 @@ async def test_a_killed_node_is_replaced_by_another_node_of_the_cluster(nats_clu
         assert reconnected == [1]
         await sub.flush()
         await _publish_until_heard(pub, "en.c.3", b"after", got)  # the re-sent SUB crosses to node 1's route
+
+
+async def test_cancelled_while_connecting_leaves_trio_intact():
+    """A server that accepts but never says INFO: cancelling the connect (Ctrl-C while a local cluster starts)
+    must close the client's own nursery, not leave trio's nursery stack corrupted."""
+    listener = (await trio.open_tcp_listeners(0, host="127.0.0.1"))[0]
+    port = listener.socket.getsockname()[1]
+    with trio.move_on_after(0.3) as scope:
+        async with NatsClient(f"nats://127.0.0.1:{port}", name="t"):
+            pytest.fail("connected to a server that never answered")
+    assert scope.cancelled_caught
+    await trio.sleep(0.01)  # trio still runs tasks normally afterwards
+    await listener.aclose()

@@ -33,6 +33,7 @@ messages = st.one_of(
     st.builds(P.Privacy, st.none() | text, st.none() | st.lists(text, max_size=4).map(tuple)),
     st.builds(P.Ping, ids),
     st.builds(P.Pong, ids, ids),
+    st.builds(P.Camera, *[st.floats(-P.MAX_COORD, P.MAX_COORD, allow_nan=False)] * 3),
 )
 
 
