@@ -301,7 +301,7 @@ def load_schedule(path: str | Path, topo, *, date: str | None = None, cache: Pat
         tmp = file.with_suffix(".tmp")
         tmp.write_text(json.dumps({
             "departures": [[d.time, d.trip_id, d.mode, d.ref, [list(e) for e in d.edges],
-                            [[st.s, st.dwell, st.name] for st in d.stops]] for d in sched.departures],
+                            [[st.s, st.dwell, st.name, st.arrive] for st in d.stops]] for d in sched.departures],
             "report": dict(sched.report), "service_date": sched.service_date}))
         tmp.replace(file)
     except OSError:

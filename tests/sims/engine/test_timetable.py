@@ -94,3 +94,24 @@ def test_a_vehicle_under_way_is_placed_by_its_timetable():
     assert timetable_position(stops, 50.0, 9.0) == (200.0, True)  # dwelling there
     assert timetable_position(stops, 80.0, 9.0) == (pytest.approx(350.0), False)  # half way to the next
     assert timetable_position(stops, 120.0, 9.0) == (pytest.approx(590.0), False)  # on at cruise after the last
+
+
+def test_the_cached_schedule_keeps_the_timetable(tmp_path):
+    from sims.engine.schedule import load_schedule
+
+    feed, topo = write_feed(tmp_path / "f.zip"), line_map()
+    fresh = load_schedule(feed, topo, date="20220222", cache=tmp_path / "cache")
+    cached = load_schedule(feed, topo, date="20220222", cache=tmp_path / "cache")  # read back from the JSON
+    assert list(tmp_path.joinpath("cache").glob("schedule-*.json"))
+    assert [st.arrive for d in cached.departures for st in d.stops] == \
+        [st.arrive for d in fresh.departures for st in d.stops]
+    assert all(st.arrive is not None for d in cached.departures for st in d.stops)
+
+
+def test_the_report_summarises_schedule_adherence():
+    from sims.engine.sim import timetable_summary
+
+    assert timetable_summary([])["stops"] == 0 and timetable_summary([])["lateness_p50_s"] is None
+    s = timetable_summary([0.0, 1.0, 2.0, 100.0])
+    assert s["stops"] == 4 and s["lateness_p50_s"] == 1.5 and s["lateness_max_s"] == 100.0
+    assert s["late_over_60s"] == 0.25
