@@ -16,9 +16,14 @@ from entitynet.cli import CommandError
 
 # ---- entitynet demo ----------------------------------------------------------------------------------------
 def register_demo(sub) -> None:
-    """`entitynet demo`: the bundled Helsinki map, a shard server, a few hundred honest clients and viewers."""
-    p = sub.add_parser("demo", help="run a live city on loopback: server, honest clients, PVS viewers")
-    p.add_argument("--entities", type=int, default=300, help="simulated entities (default 300)")
+    """`entitynet demo`: a preset of `entitynet sim` on the bundled Helsinki map and schedule, in real time, with
+    the 3D browser viewer (sims/demo.py)."""
+    from sims.sim_cmd import _clock
+
+    p = sub.add_parser("demo", help="run a live city on loopback (a preset of `sim`): server, trams and buses on "
+                                    "the bundled schedule, pedestrians and cars, PVS viewers, the 3D viewer")
+    p.add_argument("--entities", type=int, default=300, help="pedestrians and cars (default 300; trams and buses "
+                                                             "come from the schedule on top)")
     p.add_argument("--viewers", type=int, default=24, help="viewers subscribing by PVS (default 24)")
     p.add_argument("--connections", type=int, default=4, help="connections carrying the entities (default 4)")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: run until Ctrl-C)")
@@ -28,25 +33,36 @@ def register_demo(sub) -> None:
     p.add_argument("--no-pvs", action="store_true", help="use an artifact without PVS (subscribe by distance)")
     p.add_argument("--http-port", type=int, default=8400, metavar="PORT",
                    help="serve the 3D browser viewer here (default 8400; 0 = any free port; -1 = no viewer)")
-    p.add_argument("--transit", metavar="GTFS", help="add trams and buses from this GTFS feed through the SIRI "
-                   "replay producer and the transit proxy (needs the proxies package)")
+    p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
+                                                  "extract); 'none' for no transit")
+    p.add_argument("--start", type=_clock, default=8 * 3600.0, metavar="HH:MM",
+                   help="service-day time the demo starts at (default 08:00)")
+    p.add_argument("--transit", metavar="GTFS", help="instead of the simulated schedule, trams and buses from this "
+                   "GTFS feed through the SIRI replay producer and the transit proxy (needs the proxies package)")
+    p.add_argument("--report", metavar="FILE.json", help="write the final JSON report here (default: stdout)")
     p.set_defaults(func=run_demo_command)
 
 
 def run_demo_command(args: argparse.Namespace) -> int:
-    """Check the numbers (a clear error, not a traceback from deep inside), then run the demo until done."""
+    """Check the numbers (a clear error, not a traceback from deep inside), load the map and the schedule, run
+    the preset until done and write its report."""
     import trio
 
     from entitynet.topology_cache import bundled_topology
     from sims.demo import DemoConfig, run_demo
+    from sims.sim_cmd import emit_report, load_feed
 
     for name in ("entities", "viewers", "connections"):
         if getattr(args, name) < (0 if name == "viewers" else 1):
             raise CommandError(f"--{name} must be at least {0 if name == 'viewers' else 1}")
     if args.transit is not None and not Path(args.transit).exists():
         raise CommandError(f"GTFS feed {args.transit} not found")
+    if args.gtfs not in (None, "none") and not Path(args.gtfs).is_file():
+        raise CommandError(f"{args.gtfs}: cannot read the feed (no such file)")
     if args.duration is not None and not args.duration > 0:
         raise CommandError("--duration must be a positive number of seconds")
+    if not args.summary_every > 0:
+        raise CommandError("--summary-every must be positive")
     start = time.perf_counter()
 
     def say(msg: str) -> None:
@@ -54,23 +70,24 @@ def run_demo_command(args: argparse.Namespace) -> int:
 
     topo, path = bundled_topology(say, with_pvs=not args.no_pvs)
     c = topo.meta["counts"]
-    print(
-        f"Helsinki topology {path.name}: {c['edges']} edges, {topo.n_cells} cells, "
-        f"{'PVS for ' + str(topo.meta['pvs']['view_cells']) + ' view cells' if 'pvs' in topo.meta else 'no PVS'}",
-        flush=True,
-    )
+    say(f"Helsinki topology {path.name}: {c['edges']} edges, {topo.n_cells} cells, "
+        f"{'PVS for ' + str(topo.meta['pvs']['view_cells']) + ' view cells' if 'pvs' in topo.meta else 'no PVS'}")
+    schedule = None
+    if args.gtfs != "none" and args.transit is None:
+        schedule = load_feed(args.gtfs, topo, None, args.seed, args.start, say)
     config = DemoConfig(
         entities=args.entities, viewers=args.viewers, connections=args.connections, duration=args.duration,
         summary_every=args.summary_every, seed=args.seed, port=args.port, transit=args.transit,
-        http_port=None if args.http_port < 0 else args.http_port, bus_share=0.03, tram_share=0.03,
+        http_port=None if args.http_port < 0 else args.http_port, start=args.start,
     )  # fmt: skip
     try:
-        trio.run(run_demo, topo, path, config, lambda m: print(m, flush=True))
+        report = trio.run(run_demo, topo, path, config, say, schedule)
     except* OSError as group:
         first = group.exceptions[0]
         while isinstance(first, BaseExceptionGroup):
             first = first.exceptions[0]
         raise CommandError(f"cannot listen: {first} (choose another --http-port, or 0 for any free port)") from None
+    emit_report(report, args.report, say)
     return 0
 
 

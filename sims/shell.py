@@ -6,6 +6,12 @@ records how late each tick starts (tick lateness) and how many ticks it ran behi
 are `entitynet.connection.Connection`s: when the server goes away they reconnect through the client session
 while the simulation keeps stepping, and the shell reports the gap (seconds with a connection down).
 Pause: SIGUSR1, or `p` + Enter on a terminal; the simulated clock stops while paused.
+
+The in-process server runs on the simulation's clock (`clock()`: the last tick's time, advanced with the wall
+clock times the speed until the next tick): the honest clients stamp their models with that clock, and the
+browser viewer (served with `http_port`, the way `entitynet demo` serves it) takes its clock offset from the
+server's WELCOME and PONG, so its ghosts move in the publishers' time. Other parts of a run (the demo's transit
+proxy) are started with the server's address through `parts`; `task_status.started(server)` once all connected.
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ from __future__ import annotations
 import math
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +48,9 @@ class ShellConfig:
     port: int = 0  # of the in-process server (0: any free port)
     keys: bool = True  # read `p` from a terminal
     warmup_ticks: int = 0  # ticks left out of the lateness figures (the start's burst of first publishes)
+    http_port: int | None = None  # the in-process server also serves the browser viewer here (0: any free port)
+    #: started with the server's address once the clients are connected (`await nursery.start(part, address)`)
+    parts: tuple[Callable[..., Awaitable[object]], ...] = ()
 
 
 class Shell:
@@ -51,6 +60,9 @@ class Shell:
     def __init__(self, sim: Sim, config: ShellConfig, say: Say = print):
         if not config.speed > 0 or not math.isfinite(config.speed):
             raise ValueError(f"speed must be a positive number, got {config.speed}")
+        if config.http_port is not None and config.server is not None:
+            raise ValueError("the browser viewer is served by the in-process server: an external server serves "
+                             "its own (entitynet serve --ws-port P --http-port Q)")
         self.sim = sim
         self.config = config
         self.say = say
@@ -62,11 +74,22 @@ class Shell:
         self.server = None
         self.subscribe_msgs = 0
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
+        self.published = 0
+        self._tick_wall: float | None = None  # trio time of the last tick (the clock runs on from it)
+
+    def clock(self) -> float:
+        """The simulation's time now, between ticks too (the in-process server's clock, see the module
+        docstring): the last tick's time plus the wall time since, times the speed, at most one tick on."""
+        sim = self.sim
+        if self._tick_wall is None or self.paused:
+            return sim.now
+        return sim.now + min(max(trio.current_time() - self._tick_wall, 0.0) * self.config.speed, sim.dt)
 
     # ---- the run ---------------------------------------------------------------------------------------------
-    async def run(self) -> dict:
-        """Start the in-process server when none is given, connect the publishers and viewers, run the tick loop
-        until the duration or a signal, and return the report."""
+    async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> dict:
+        """Start the in-process server when none is given, connect the publishers and viewers, start the parts,
+        run the tick loop until the duration or a signal, and return the report. `task_status.started(server)`
+        (None for an external one) once everything is connected."""
         cfg = self.config
         async with trio.open_nursery() as nursery:
             address = cfg.server
@@ -75,9 +98,16 @@ class Shell:
                 from entitynet.server.config import ServerConfig
 
                 self.server = await nursery.start(serve, ServerConfig(
-                    host=cfg.host, port=cfg.port, topology=str(cfg.artifact), open_mode=True))
+                    host=cfg.host, port=cfg.port, topology=str(cfg.artifact), open_mode=True, clock=self.clock,
+                    ws_port=None if cfg.http_port is None else 0, http_port=cfg.http_port))
                 address = (cfg.host, self.server.port)
                 self.say(f"shard server listening on {cfg.host}:{self.server.port} (in this process, open mode)")
+                if self.server.http_port is not None:
+                    from entitynet.viewer.routes import BUILD_HINT, BUNDLE, STATIC
+
+                    self.say(f"open the 3D viewer: http://{cfg.host}:{self.server.http_port}/")
+                    if not (STATIC / BUNDLE).exists():
+                        self.say(BUILD_HINT)
             digest = self.sim.topo.digest
             async with trio.open_nursery() as clients:
                 pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
@@ -86,12 +116,16 @@ class Shell:
                          for i in range(len(self.sim.viewers))]
                 for c in pubs + views:
                     await clients.start(c.run)
+                for part in cfg.parts:
+                    await clients.start(part, address)
+                task_status.started(self.server)
                 stop = trio.Event()
                 clients.start_soon(self._signals, stop)
                 if cfg.keys and sys.stdin is not None and sys.stdin.isatty():
                     clients.start_soon(self._keys)
                 await self._loop(pubs, views, stop)
-                clients.cancel_scope.cancel()
+                self.say(self.final_line())
+                clients.cancel_scope.cancel()  # clients first, so that none of them sees the server go away
             if self.server is not None:
                 await self.server.stop()
             nursery.cancel_scope.cancel()
@@ -110,7 +144,7 @@ class Shell:
         sim, cfg = self.sim, self.config
         period = sim.dt / cfg.speed
         await self._send(pubs, views, *sim.start())
-        wall0 = last_summary = trio.current_time()
+        wall0 = last_summary = self._tick_wall = trio.current_time()
         due = wall0 + period
         while not stop.is_set():
             if cfg.duration is not None and sim.ticks * sim.dt >= cfg.duration - 1e-9:
@@ -136,7 +170,9 @@ class Shell:
                     self.say(f"[{sim.ticks * sim.dt:6.0f}s] server unreachable: {down} connection(s) down, "
                              "stepping on and reconnecting")
             self._was_down = bool(down)
-            await self._send(pubs, views, *sim.step())
+            out = sim.step()
+            self._tick_wall = trio.current_time()
+            await self._send(pubs, views, *out)
             sim.maybe_sample(self._eid_map())
             due += period
             if t - due > 10 * period:  # hopelessly behind: do not try to catch up in a burst
@@ -151,6 +187,7 @@ class Shell:
             if ps:
                 await c.publish(*ps)
                 self._window["published"] += len(ps)
+                self.published += len(ps)
             for m in msgs:
                 if isinstance(m, P.Unpublish):
                     await c.unpublish(m.entity)
@@ -183,6 +220,7 @@ class Shell:
 
     def _toggle(self) -> None:
         self.paused = not self.paused
+        self._tick_wall = trio.current_time()  # the clock runs on from here, not from before the pause
         self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
 
     # ---- output ----------------------------------------------------------------------------------------------
@@ -207,6 +245,13 @@ class Shell:
             frac = min(1.0, sim.ticks * sim.dt / self.config.duration)
             line += f" [{'#' * int(20 * frac):<20}] {100 * frac:3.0f}%"
         return line
+
+    def final_line(self) -> str:
+        """What the run did, in one line (before the JSON report)."""
+        sim = self.sim
+        return (f"[{sim.ticks * sim.dt:6.0f}s] stopped after {sim.ticks * sim.dt:.0f} simulated s: "
+                f"{self.published} updates published, {sum(v.deliveries for v in sim.viewers)} deliveries to "
+                f"viewers, {sim.world.counters['stops_served']} bus and tram stops served")
 
     def report(self) -> dict:
         """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps.

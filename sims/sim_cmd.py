@@ -79,8 +79,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("; ".join(problems))
     import trio
 
-    from entitynet.topology_cache import bundled_topology, cache_dir
-    from sims.engine.schedule import BUNDLED_FEED, GtfsError, load_schedule
+    from entitynet.topology_cache import bundled_topology
     from sims.engine.sim import Sim, SimConfig
     from sims.shell import Shell, ShellConfig
 
@@ -100,27 +99,41 @@ def run(args: argparse.Namespace) -> int:
     if args.entities < 0:
         raise CommandError("--entities must be at least 0")
     topo, path = bundled_topology(lambda m: say(f"[{time.perf_counter() - t0:6.1f}s] {m}"), with_pvs=True)
-    schedule = None
-    if config.transit:
-        feed = Path(args.gtfs) if args.gtfs else BUNDLED_FEED
-        try:
-            schedule = load_schedule(feed, topo, date=args.date, cache=cache_dir(), seed=args.seed)
-        except (GtfsError, ValueError) as exc:
-            raise CommandError(str(exc)) from None
-        n_run = len(schedule.running_at(config.start))
-        say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
-            f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
+    schedule = load_feed(args.gtfs, topo, args.date, args.seed, config.start, say) if config.transit else None
     sim = Sim(topo, config, schedule)
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
         f"{len(sim.viewers)} viewers subscribing by {sim.subscribe_by}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path), say)
-    report = trio.run(shell.run)
-    text = json.dumps(report, indent=2, default=float)
-    if args.report:
-        Path(args.report).write_text(text + "\n")
-        say(f"report written to {args.report}")
-    else:
-        print(text)
+    emit_report(trio.run(shell.run), args.report, say)
     return 0
+
+
+def emit_report(report: dict, path: str | None, say) -> None:
+    """The final JSON report: to `path`, or to stdout (the live summary goes to stderr, so stdout pipes into
+    jq). Shared by `entitynet sim` and `entitynet demo`."""
+    text = json.dumps(report, indent=2, default=float)
+    if path:
+        Path(path).write_text(text + "\n")
+        say(f"report written to {path}")
+    else:
+        print(text, flush=True)
+
+
+def load_feed(gtfs: str | None, topo, date: str | None, seed: int, start: float, say):
+    """The schedule of `gtfs` (None: the bundled HSL extract) on the map, cached; a clear CommandError for a
+    feed that cannot be used. Shared by `entitynet sim` and `entitynet demo`."""
+    from entitynet.cli import CommandError
+    from entitynet.topology_cache import cache_dir
+    from sims.engine.schedule import BUNDLED_FEED, GtfsError, load_schedule
+
+    feed = Path(gtfs) if gtfs else BUNDLED_FEED
+    try:
+        schedule = load_schedule(feed, topo, date=date, cache=cache_dir(), seed=seed)
+    except (GtfsError, ValueError) as exc:
+        raise CommandError(str(exc)) from None
+    n_run = len(schedule.running_at(start))
+    say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
+        f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
+    return schedule
