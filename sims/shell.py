@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import signal
 import sys
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,15 +76,16 @@ class Shell:
         self.subscribe_msgs = 0
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
         self.published = 0
-        self._tick_wall: float | None = None  # trio time of the last tick (the clock runs on from it)
+        self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
 
     def clock(self) -> float:
         """The simulation's time now, between ticks too (the in-process server's clock, see the module
-        docstring): the last tick's time plus the wall time since, times the speed, at most one tick on."""
+        docstring): the last tick's time plus the wall time since, times the speed, at most one tick on. Wall
+        time from `time.monotonic`, not trio's clock: parts call it from worker threads too (the proxy's polls)."""
         sim = self.sim
         if self._tick_wall is None or self.paused:
             return sim.now
-        return sim.now + min(max(trio.current_time() - self._tick_wall, 0.0) * self.config.speed, sim.dt)
+        return sim.now + min(max(time.monotonic() - self._tick_wall, 0.0) * self.config.speed, sim.dt)
 
     # ---- the run ---------------------------------------------------------------------------------------------
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> dict:
@@ -144,7 +146,8 @@ class Shell:
         sim, cfg = self.sim, self.config
         period = sim.dt / cfg.speed
         await self._send(pubs, views, *sim.start())
-        wall0 = last_summary = self._tick_wall = trio.current_time()
+        self._tick_wall = time.monotonic()
+        wall0 = last_summary = trio.current_time()
         due = wall0 + period
         while not stop.is_set():
             if cfg.duration is not None and sim.ticks * sim.dt >= cfg.duration - 1e-9:
@@ -171,7 +174,7 @@ class Shell:
                              "stepping on and reconnecting")
             self._was_down = bool(down)
             out = sim.step()
-            self._tick_wall = trio.current_time()
+            self._tick_wall = time.monotonic()
             await self._send(pubs, views, *out)
             sim.maybe_sample(self._eid_map())
             due += period
@@ -220,7 +223,7 @@ class Shell:
 
     def _toggle(self) -> None:
         self.paused = not self.paused
-        self._tick_wall = trio.current_time()  # the clock runs on from here, not from before the pause
+        self._tick_wall = time.monotonic()  # the clock runs on from here, not from before the pause
         self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
 
     # ---- output ----------------------------------------------------------------------------------------------

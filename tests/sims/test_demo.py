@@ -45,6 +45,7 @@ async def test_demo_is_a_sim_preset_with_viewer_and_readiness(helsinki, helsinki
             # the server runs on the simulation's clock (service-day seconds from 08:00), which the page's
             # WELCOME / PONG clock offset maps onto the publishers' time
             assert 8 * 3600.0 <= server.clock() < 8 * 3600.0 + 60.0
+            assert 8 * 3600.0 <= await trio.to_thread.run_sync(server.clock) < 8 * 3600.0 + 60.0  # from threads too
     rep = result["report"]
     assert rep["entities"]["tram"] == 1 and rep["config"]["entities"] == 40 and rep["config"]["transit"] is True
     assert rep["clients"]["published"] >= 40 and rep["viewers"]["deliveries"] > 0
@@ -62,3 +63,25 @@ def test_the_demo_options_map_onto_the_sim():
     assert sim_config(config, scheduled=False).transit is False
     # --transit FEED: the proxy brings the trams and buses, not the engine's schedule as well
     assert sim_config(DemoConfig(transit="feed.zip"), scheduled=True).transit is False
+
+
+async def test_the_transit_part_runs_with_the_servers_address_and_clock(helsinki, helsinki_path, monkeypatch):
+    import sims.demo
+
+    calls: list[dict] = []
+
+    async def fake_transit(topo, address, feed, say, *, start, clock, task_status=trio.TASK_STATUS_IGNORED):
+        calls.append({"address": address, "feed": feed, "start": start,
+                      "clock": await trio.to_thread.run_sync(clock)})  # the proxy polls in a worker thread
+        task_status.started(None)
+        await trio.sleep_forever()
+
+    monkeypatch.setattr(sims.demo, "demo_part", lambda name: fake_transit)
+    config = DemoConfig(entities=5, viewers=1, connections=1, duration=1.0, summary_every=10.0, transit="feed.zip",
+                        start=9 * 3600.0)
+    with trio.fail_after(60):
+        async with trio.open_nursery() as nursery:
+            server = await nursery.start(run_demo, helsinki, helsinki_path, config, lambda m: None, _one_tram(helsinki))
+            assert calls == [{"address": ("127.0.0.1", server.port), "feed": "feed.zip", "start": 9 * 3600.0,
+                              "clock": 9 * 3600.0}]  # the simulation's clock, from before its first tick
+            assert server.http_port is None  # no viewer asked for
