@@ -76,6 +76,7 @@ class Shell:
         self.subscribe_msgs = 0
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
         self.published = 0
+        self.publishers: list[Connection] = []
         self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
 
     def clock(self) -> float:
@@ -112,8 +113,8 @@ class Shell:
                         self.say(BUILD_HINT)
             digest = self.sim.topo.digest
             async with trio.open_nursery() as clients:
-                pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
-                        for _ in range(self.sim.config.connections)]
+                self.publishers = pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
+                                          for _ in range(self.sim.config.connections)]
                 views = [Connection(address, digest, cfg.token, on_message=self._on_view(i))
                          for i in range(len(self.sim.viewers))]
                 for c in pubs + views:
@@ -176,7 +177,7 @@ class Shell:
             out = sim.step()
             self._tick_wall = time.monotonic()
             await self._send(pubs, views, *out)
-            sim.maybe_sample(self._eid_map())
+            sim.maybe_sample(self._eid_map(pubs))
             due += period
             if t - due > 10 * period:  # hopelessly behind: do not try to catch up in a burst
                 due = t + period
@@ -199,10 +200,13 @@ class Shell:
                 await c.subscribe(m.added, m.removed)
                 self.subscribe_msgs += 1
 
-    def _eid_map(self) -> dict[int, int] | None:
+    def _eid_map(self, pubs: list[Connection]) -> dict[int, int] | None:
+        """Server entity id -> simulated entity, for the entities our publishers own (the demo's transit proxy
+        publishes others into the same server, with local ids of its own)."""
         if self.server is None:
             return None  # an external server's ids cannot be mapped back to the truth
-        return {eid: e.local for eid, e in self.server.sb.entities.items()}
+        ours = {c.welcome.session for c in pubs if c.welcome is not None}
+        return {eid: e.local for eid, e in self.server.sb.entities.items() if e.owner.session in ours}
 
     async def _signals(self, stop: trio.Event) -> None:
         with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGUSR1) as signals:
