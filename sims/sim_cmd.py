@@ -20,7 +20,9 @@ def _hostport(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _clock(text: str) -> float:
+def service_time(text: str) -> float:
+    """argparse type of `--start`: "HH:MM[:SS]" (hours up to 47, GTFS's times past midnight) to service-day
+    seconds; a usage error otherwise. Shared by `entitynet sim` and `entitynet demo`."""
     parts = text.split(":")
     try:
         if len(parts) not in (2, 3):
@@ -45,7 +47,7 @@ def register(sub) -> None:
     p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
                                                   "extract); 'none' for no transit")
     p.add_argument("--date", metavar="YYYYMMDD", help="service day of the feed (default: its busiest)")
-    p.add_argument("--start", type=_clock, default=8 * 3600.0, metavar="HH:MM",
+    p.add_argument("--start", type=service_time, default=8 * 3600.0, metavar="HH:MM",
                    help="service-day time the run starts at (default 08:00)")
     p.add_argument("--duration", type=float, help="simulated seconds to run (default: until Ctrl-C)")
     p.add_argument("--speed", type=float, default=1.0, help="times real time (default 1; e.g. 10)")
