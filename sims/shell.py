@@ -78,13 +78,16 @@ class Shell:
         self.published = 0
         self.publishers: list[Connection] = []
         self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
+        self._frozen = sim.now  # the clock while paused
 
     def clock(self) -> float:
         """The simulation's time now, between ticks too (the in-process server's clock, see the module
         docstring): the last tick's time plus the wall time since, times the speed, at most one tick on. Wall
         time from `time.monotonic`, not trio's clock: parts call it from worker threads too (the proxy's polls)."""
         sim = self.sim
-        if self._tick_wall is None or self.paused:
+        if self.paused:
+            return self._frozen
+        if self._tick_wall is None:
             return sim.now
         return sim.now + min(max(time.monotonic() - self._tick_wall, 0.0) * self.config.speed, sim.dt)
 
@@ -226,8 +229,11 @@ class Shell:
                 self._toggle()
 
     def _toggle(self) -> None:
+        at = self.clock()  # the clock stands still while paused, and runs on from there (never backwards)
         self.paused = not self.paused
-        self._tick_wall = time.monotonic()  # the clock runs on from here, not from before the pause
+        self._frozen = at
+        if self._tick_wall is not None:
+            self._tick_wall = time.monotonic() - (at - self.sim.now) / self.config.speed
         self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
 
     # ---- output ----------------------------------------------------------------------------------------------

@@ -107,3 +107,21 @@ async def test_entities_another_part_publishes_are_not_mapped_to_the_truth(helsi
             assert len(theirs) == 1 and theirs[0] not in ids
             assert sorted(ids.values()) == sorted(sim.world.agents)
             nursery.cancel_scope.cancel()
+
+
+def test_the_shell_clock_runs_between_ticks_stops_while_paused_and_never_goes_back():
+    import time
+
+    sim = Sim(grid(), SimConfig(entities=0, viewers=0, tick_hz=2.0, transit=False, start=100.0))
+    shell = Shell(sim, ShellConfig(keys=False), lambda m: None)
+    assert shell.clock() == 100.0  # before the first tick: the simulation's time
+    shell._tick_wall = time.monotonic() - 0.3  # 0.3 s after a tick
+    before = shell.clock()
+    assert 100.29 <= before <= 100.5  # at most one tick on
+    shell._toggle()  # pause
+    at = shell.clock()
+    assert at >= before
+    time.sleep(0.05)
+    assert shell.clock() == at  # stands still while paused
+    shell._toggle()  # resume: on from where it stood
+    assert at <= shell.clock() <= 100.5
