@@ -128,7 +128,10 @@ class Population:
         if s >= route.length - 1.0:
             return None
         stops = [st for st in d.stops if (st.s > s if dwelling else st.s >= s)]
-        a = self.world.add(d.mode, list(d.edges), s=s, v=0.0 if s == 0.0 or dwelling else None, stops=stops,
+        # standing at a stop (its terminus on the map, or dwelling); otherwise under way at its own speed: a trip
+        # that enters at the map's edge drives in from outside (its spawn time counts on cruise speed there)
+        standing = dwelling or (s == 0.0 and bool(d.stops) and d.stops[0].s < 1.0)
+        a = self.world.add(d.mode, list(d.edges), s=s, v=0.0 if standing else None, stops=stops,
                            label=f"{d.ref} {d.trip_id}", timetable=d.time)
         self.transit[a.id] = d.trip_id
         return a

@@ -148,7 +148,8 @@ class World:
             if a.t0 is not None and st.arrive is not None:  # reach the stop at the timetable's time
                 p = a.params
                 a.v0 = timetable_speed(st.s - a.s, a.t0 + st.arrive - self.now, a.v, p.accel, p.decel, p.vmax)
-            obstacles.append(Obstacle(st.s + 1.0, 0.0, "stop", a.next_stop, s0=1.0))
+            # a stop is no leader: no time headway to it (with one, vehicles braked early and crept up to it)
+            obstacles.append(Obstacle(st.s + 1.0, 0.0, "stop", a.next_stop, s0=1.0, headway=0.0))
         if a.params.avoids:
             ahead = a.s + lookahead(a)
             leader = self._leader(a, index, ahead) if a.accept_until <= now else None

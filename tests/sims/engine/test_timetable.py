@@ -11,12 +11,13 @@ from __future__ import annotations
 import pytest
 
 from sims.engine.agents import Stop
-from sims.engine.behaviour import TIMETABLE_VMIN, timetable_speed
+from sims.engine.behaviour import APPROACH_BRAKING, TIMETABLE_VMIN, timetable_speed
 from sims.engine.population import timetable_position
 from sims.engine.schedule import parse_time, read_schedule
 from sims.engine.world import World
 from tests.entitynet.client_fixtures import make_topology
 from tests.sims.engine.test_schedule import line_map, write_feed
+from topology.raw import TRAM
 
 DT = 0.5  # the simulation's default tick (2 Hz)
 T0 = 8 * 3600.0
@@ -46,6 +47,15 @@ def test_an_unobstructed_bus_reaches_each_stop_on_time():
     # the first leg (200 m in 35 s) is driven well below the bus's own speed: the timetable sets it
     first_leg = [v for t, _s, v in track if t < T0 + 30.0]
     assert max(first_leg) < 0.75 * bus.params.vmax
+
+
+def test_an_unobstructed_tram_reaches_each_stop_on_time():
+    topo = make_topology({"A": (0.0, 0.0), "B": (1200.0, 0.0)}, [("A", "B", TRAM)])
+    w = World(topo, seed=1, start=T0)
+    stops = [Stop(300.0, 10.0, "a", 40.0), Stop(700.0, 10.0, "b", 100.0), Stop(1100.0, 10.0, "c", 160.0)]
+    tram = w.add("tram", [(0, 1)], s=0.0, v=9.0, stops=stops, timetable=T0)  # enters the map under way
+    drive(w, tram, T0 + 400.0)
+    assert w.stop_lateness == pytest.approx([0.0, 0.0, 0.0], abs=2 * DT)
 
 
 def test_a_blocked_bus_is_late_and_does_not_jump():
@@ -78,7 +88,8 @@ def test_timetable_speed_is_defined_everywhere():
     assert timetable_speed(0.0, 10.0, 0.0, 1.2, 1.5, 13.0) == TIMETABLE_VMIN  # there already
     assert timetable_speed(10.0, 1e6, 0.0, 1.2, 1.5, 13.0) == TIMETABLE_VMIN  # far ahead of time: crawl on
     c = timetable_speed(300.0, 40.0, 0.0, 1.2, 1.5, 13.0)  # accelerate to c, cruise, brake: 40 s in all
-    assert c / 1.2 + (300.0 - c * c / 2.4 - c * c / 3.0) / c + c / 1.5 == pytest.approx(40.0)
+    b = 1.5 * APPROACH_BRAKING
+    assert c / 1.2 + (300.0 - c * c / 2.4 - c * c / (2 * b)) / c + c / b == pytest.approx(40.0)
 
 
 def test_the_schedule_keeps_each_stops_arrival(tmp_path):
