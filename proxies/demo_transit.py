@@ -4,6 +4,7 @@ buses moved from one-minute ETAs exactly as a real agency's feed would move them
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import trio
@@ -18,8 +19,10 @@ from proxies.siri_xml import ServiceClock
 
 async def run_transit(topo, address: tuple[str, int], feed, say: Callable[[str], None], *, poll: float = 10.0,
                       start: float = 8 * 3600.0, book: RouteBook | None = None,
-                      task_status=trio.TASK_STATUS_IGNORED) -> None:
+                      clock: Callable[[], float] = time.time, task_status=trio.TASK_STATUS_IGNORED) -> None:
     """Start the replay (service time from `start`, with the wall clock) and the proxy; runs until cancelled.
+    `clock`: the proxy's clock, the one its vehicles' models are stamped with (the demo passes its server's,
+    the simulation's, so that a viewer extrapolates them in the same time as the simulated entities).
     `task_status.started(shell)` once both listen."""
     if book is None:
         book = await trio.to_thread.run_sync(lambda: cached_routes(topo, feed, say=say))
@@ -30,7 +33,7 @@ async def run_transit(topo, address: tuple[str, int], feed, say: Callable[[str],
         await n.start(service.serve)
         client = await trio.to_thread.run_sync(
             lambda: StopMonitoringClient(f"http://127.0.0.1:{service.port}/siri", timeout=10.0))
-        shell = ProxyShell(topo, book, ProxyConfig(address, poll=poll))
+        shell = ProxyShell(topo, book, ProxyConfig(address, poll=poll), clock=clock)
         await n.start(shell.run, shell.siri_poller(client))
         say(f"transit: replay of {len(world.runs)} departures on http://127.0.0.1:{service.port}/siri, "
             f"SIRI proxy polling {len(book.stops)} stops every {poll:.0f} s")

@@ -16,9 +16,14 @@ from entitynet.cli import CommandError
 
 # ---- entitynet demo ----------------------------------------------------------------------------------------
 def register_demo(sub) -> None:
-    """`entitynet demo`: the bundled Helsinki map, a shard server, a few hundred honest clients and viewers."""
-    p = sub.add_parser("demo", help="run a live city on loopback: server, honest clients, PVS viewers")
-    p.add_argument("--entities", type=int, default=300, help="simulated entities (default 300)")
+    """`entitynet demo`: a preset of `entitynet sim` on the bundled Helsinki map and schedule, in real time, with
+    the 3D browser viewer (sims/demo.py)."""
+    from sims.sim_cmd import service_time
+
+    p = sub.add_parser("demo", help="run a live city on loopback (a preset of `sim`): server, trams and buses on "
+                                    "the bundled schedule, pedestrians and cars, PVS viewers, the 3D viewer")
+    p.add_argument("--entities", type=int, default=300, help="pedestrians and cars (default 300; trams and buses "
+                                                             "come from the schedule on top)")
     p.add_argument("--viewers", type=int, default=24, help="viewers subscribing by PVS (default 24)")
     p.add_argument("--connections", type=int, default=4, help="connections carrying the entities (default 4)")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: run until Ctrl-C)")
@@ -28,8 +33,13 @@ def register_demo(sub) -> None:
     p.add_argument("--no-pvs", action="store_true", help="use an artifact without PVS (subscribe by distance)")
     p.add_argument("--http-port", type=int, default=8400, metavar="PORT",
                    help="serve the 3D browser viewer here (default 8400; 0 = any free port; -1 = no viewer)")
-    p.add_argument("--transit", metavar="GTFS", help="add trams and buses from this GTFS feed through the SIRI "
-                   "replay producer and the transit proxy (needs the proxies package)")
+    p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
+                                                  "extract); 'none' for no transit")
+    p.add_argument("--start", type=service_time, default=8 * 3600.0, metavar="HH:MM",
+                   help="service-day time the demo starts at (default 08:00)")
+    p.add_argument("--transit", metavar="GTFS", help="instead of the simulated schedule, trams and buses from this "
+                   "GTFS feed through the SIRI replay producer and the transit proxy (needs the proxies package)")
+    p.add_argument("--report", metavar="FILE.json", help="write the final JSON report here (default: stdout)")
     p.add_argument("--shards", type=int, metavar="K", help="run on a local cluster of K switchboard processes and "
                    "nats-server (`entitynet sim --shards K` with the demo's numbers; no 3D viewer)")
     p.add_argument("--nats-nodes", type=int, default=1, metavar="N", help="nats-server nodes with --shards (default 1)")
@@ -37,27 +47,35 @@ def register_demo(sub) -> None:
 
 
 def run_demo_command(args: argparse.Namespace) -> int:
-    """Check the numbers (a clear error, not a traceback from deep inside), then run the demo until done."""
+    """Check the numbers (a clear error, not a traceback from deep inside), load the map and the schedule, run
+    the preset until done and write its report."""
     import trio
 
     from entitynet.topology_cache import bundled_topology
     from sims.demo import DemoConfig, run_demo
+    from sims.sim_cmd import emit_report, load_feed
 
     for name in ("entities", "viewers", "connections"):
         if getattr(args, name) < (0 if name == "viewers" else 1):
             raise CommandError(f"--{name} must be at least {0 if name == 'viewers' else 1}")
     if args.transit is not None and not Path(args.transit).exists():
         raise CommandError(f"GTFS feed {args.transit} not found")
+    if args.gtfs not in (None, "none") and not Path(args.gtfs).is_file():
+        raise CommandError(f"{args.gtfs}: cannot read the feed (no such file)")
     if args.duration is not None and not args.duration > 0:
         raise CommandError("--duration must be a positive number of seconds")
+    if not args.summary_every > 0:
+        raise CommandError("--summary-every must be positive")
     if args.shards is not None:  # the demo as a preset of `entitynet sim`, on a local cluster (sims.cluster_run)
+        if args.transit is not None:
+            raise CommandError("--transit does not combine with --shards (the transit proxy publishes to one server)")
         from sims import sim_cmd
 
         return sim_cmd.run(argparse.Namespace(
-            entities=args.entities, car_share=0.3, viewers=args.viewers, gtfs=args.transit, date=None,
-            start=8 * 3600.0, duration=args.duration, speed=1.0, tick_hz=2.0, server=None, token="",
+            entities=args.entities, car_share=0.3, viewers=args.viewers, gtfs=args.gtfs, date=None,
+            start=args.start, duration=args.duration, speed=1.0, tick_hz=2.0, server=None, token="",
             connections=args.connections, radius=args.no_pvs, seed=args.seed, summary_every=args.summary_every,
-            report=None, shards=args.shards, nats_nodes=args.nats_nodes, topology=None))
+            report=args.report, shards=args.shards, nats_nodes=args.nats_nodes, topology=None))
     start = time.perf_counter()
 
     def say(msg: str) -> None:
@@ -65,23 +83,24 @@ def run_demo_command(args: argparse.Namespace) -> int:
 
     topo, path = bundled_topology(say, with_pvs=not args.no_pvs)
     c = topo.meta["counts"]
-    print(
-        f"Helsinki topology {path.name}: {c['edges']} edges, {topo.n_cells} cells, "
-        f"{'PVS for ' + str(topo.meta['pvs']['view_cells']) + ' view cells' if 'pvs' in topo.meta else 'no PVS'}",
-        flush=True,
-    )
+    say(f"Helsinki topology {path.name}: {c['edges']} edges, {topo.n_cells} cells, "
+        f"{'PVS for ' + str(topo.meta['pvs']['view_cells']) + ' view cells' if 'pvs' in topo.meta else 'no PVS'}")
+    schedule = None
+    if args.gtfs != "none" and args.transit is None:
+        schedule = load_feed(args.gtfs, topo, None, args.seed, args.start, say)
     config = DemoConfig(
         entities=args.entities, viewers=args.viewers, connections=args.connections, duration=args.duration,
         summary_every=args.summary_every, seed=args.seed, port=args.port, transit=args.transit,
-        http_port=None if args.http_port < 0 else args.http_port, bus_share=0.03, tram_share=0.03,
+        http_port=None if args.http_port < 0 else args.http_port, start=args.start,
     )  # fmt: skip
     try:
-        trio.run(run_demo, topo, path, config, lambda m: print(m, flush=True))
+        report = trio.run(run_demo, topo, path, config, say, schedule)
     except* OSError as group:
         first = group.exceptions[0]
         while isinstance(first, BaseExceptionGroup):
             first = first.exceptions[0]
         raise CommandError(f"cannot listen: {first} (choose another --http-port, or 0 for any free port)") from None
+    emit_report(report, args.report, say)
     return 0
 
 

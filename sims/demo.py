@@ -1,262 +1,87 @@
-"""`entitynet demo`: a live city on loopback.
+"""`entitynet demo`: a preset of `entitynet sim` that serves the 3D browser viewer.
 
-One shard server (in this process, real TCP), a few hundred honest clients (pedestrians and cars, each through
-the client core) multiplexed over a few connections the way a proxy carries a fleet, and viewers whose cameras
-move at street level and above the roofs, subscribing to the PVS of their view cell. A summary line is printed
-every few seconds; the run stops after `duration` seconds or on Ctrl-C.
+Why a preset and not a program of its own: the demo shows the system working, and the simulation is where the
+system's behaviour is modelled and measured; two movers, two viewers and two loops drifted apart before. The
+demo is now only a mapping of its options onto the simulation's configuration (`sim_config`, `shell_config`):
+the same engine (pedestrians and cars on OD trips, trams and buses on the bundled HSL schedule, collision
+avoidance), the same honest-client fleet and PVS viewers, the same trio shell, running in real time with the
+in-process server also serving the browser viewer over HTTP and its entity feed over WebSocket. The transit
+part (`--transit FEED`: trams and buses moved by the SIRI replay producer and the transit proxy) is found by
+entry point, so `sims` never imports `proxies`.
 """
 
 from __future__ import annotations
 
-import random
-import signal
-import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from pathlib import Path
 
-import numpy as np
 import trio
 
-from entitynet import protocol as P
-from entitynet.client import FixRejected, GhostStore, Subscriptions, netview
-from entitynet.connection import Connection
-from entitynet.server.app import Server, serve
-from entitynet.server.config import ServerConfig
-from sims.mobility import Mover, Trajectory, random_start
-from topology.raw import PEDESTRIAN
+from sims.engine.schedule import Schedule
+from sims.engine.sim import Sim, SimConfig
+from sims.shell import Shell, ShellConfig
 
 Say = Callable[[str], None]
 
 
 @dataclass
 class DemoConfig:
-    """The demo's knobs (population, viewers, connections, duration) with defaults a laptop runs live."""
-    entities: int = 300
+    """The demo's knobs (population, viewers, connections, duration, ports) with defaults a laptop runs live."""
+
+    entities: int = 300  # pedestrians and cars; the schedule's trams and buses come on top
     viewers: int = 24
     connections: int = 4
     car_share: float = 0.3
-    bus_share: float = 0.0  # the CLI's demo adds a few buses and trams (random routes, as the others)
-    tram_share: float = 0.0
     duration: float | None = None  # seconds; None = until Ctrl-C
     summary_every: float = 5.0
-    fix_interval: float = 1.0
-    roof_share: float = 0.25  # share of viewers flying above the roofs
     seed: int = 1
     host: str = "127.0.0.1"
-    port: int = 0
-    transit: str | None = None  # a GTFS feed: trams and buses through the replay producer and the SIRI proxy
+    port: int = 0  # the server's TCP port (0: any free port)
     http_port: int | None = None  # serve the browser viewer here (0: any free port; None: none)
+    start: float = 8 * 3600.0  # service-day time of the schedule the demo starts at
+    transit: str | None = None  # a GTFS feed: trams and buses through the replay producer and the SIRI proxy
+    tick_hz: float = 2.0
 
 
-@dataclass
-class Stats:
-    """Totals the demo prints and returns, so a run (and its test) can check that traffic flowed."""
-    published: int = 0
-    deliveries: int = 0
-    rejected_fixes: int = 0
-    subscribe_msgs: int = 0
+def sim_config(config: DemoConfig, *, scheduled: bool) -> SimConfig:
+    """The simulation the demo runs: its population and viewers; the engine's own trams and buses when it has a
+    schedule and no `--transit` part brings them instead."""
+    return SimConfig(entities=config.entities, viewers=config.viewers, connections=config.connections,
+                     car_share=config.car_share, tick_hz=config.tick_hz, seed=config.seed, start=config.start,
+                     transit=scheduled and config.transit is None)
 
 
-def distance_cells_at(topo, view_distance: float = 500.0) -> Callable[[float, float, float], np.ndarray]:
-    """Fallback when the artifact has no PVS: every cell whose footprint centre is within the view distance."""
-    b = topo.cell_footprints.bounds()
-    centres = np.column_stack([(b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2])
-
-    def cells_at(x: float, y: float, z: float) -> np.ndarray:
-        return np.flatnonzero(np.hypot(centres[:, 0] - x, centres[:, 1] - y) <= view_distance)
-
-    return cells_at
+def shell_config(config: DemoConfig, artifact: Path, parts=()) -> ShellConfig:
+    """The shell the demo runs in: real time, its own server on loopback serving the viewer, the given parts."""
+    return ShellConfig(duration=config.duration, speed=1.0, summary_every=config.summary_every,
+                       artifact=artifact, host=config.host, port=config.port, http_port=config.http_port,
+                       parts=tuple(parts))
 
 
-def pvs_lookup(topo, say: Say) -> Callable[[float, float, float], np.ndarray]:
-    """The viewers' `cells_at`: the artifact's PVS, or, without one, every cell within 500 m (said
-    once, so the demo still runs on a map built without PVS)."""
-    if "pvs" in topo.meta:
-        from topology.pvs_index import PvsIndex
+async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print, schedule: Schedule | None = None,
+                   task_status=trio.TASK_STATUS_IGNORED) -> dict:
+    """Run the demo on loopback until `duration` or Ctrl-C (the summary line through `say`) and return the
+    simulation's report. `schedule`: the trams' and buses' departures (None: no scheduled transit).
+    `task_status.started(server)` once everything is connected."""
+    sim = Sim(topo, sim_config(config, scheduled=schedule is not None), schedule)
+    shell: Shell | None = None
+    parts = []
+    if config.transit:
+        run_transit = demo_part("transit")  # optional part, from the proxies package
 
-        return PvsIndex.from_topology(topo).cells_at
-    say("the artifact has no PVS: viewers subscribe to every cell within 500 m instead")
-    return distance_cells_at(topo)
+        async def transit(address, task_status=trio.TASK_STATUS_IGNORED):
+            await run_transit(topo, address, config.transit, say, start=config.start, clock=shell.clock,
+                              task_status=task_status)
 
-
-class Viewer:
-    """A camera that moves and subscribes to the PVS of its view cell; it keeps ghosts of what it receives."""
-
-    def __init__(self, topo, net, index: int, high: bool, cells_at, rng: random.Random):
-        self.index = index
-        self.high = high
-        self.z = rng.uniform(40.0, 90.0) if high else 1.7
-        self.traj = Trajectory.starting_at(net, PEDESTRIAN, rng, random_start(net, PEDESTRIAN, rng))
-        self.speed = 6.0 if high else 1.4
-        self.subs = Subscriptions(cells_at)
-        self.ghosts = GhostStore(net)
-        self.conn: Connection | None = None
-        self.deliveries = 0
-
-    def on_message(self, msg: P.Message) -> None:
-        """Feed deliveries to the ghost store; on WELCOME forget old ghosts (entity ids are per server
-        session) and adopt the server's limits."""
-        if isinstance(msg, P.Update | P.Leave):
-            if isinstance(msg, P.Update):
-                self.deliveries += 1
-            self.ghosts.receive(msg, time.time())
-        elif isinstance(msg, P.Welcome):
-            self.ghosts.ghosts.clear()  # entity ids are per server session
-            self.subs.apply_limits(msg.limits)  # the next move subscribes within them (max_subscriptions, ...)
-
-    def move(self, dt: float) -> list[P.Subscribe]:
-        """Walk or fly the camera by dt and return the SUBSCRIBE difference for its new PVS."""
-        self.traj.advance(self.speed * dt)
-        x, y = self.traj.position()
-        msgs = self.subs.move_camera(x, y, self.z)
-        self.ghosts.set_visible(self.subs.cells)
-        return msgs
-
-
-def _plural(kind: str) -> str:
-    return kind + ("es" if kind.endswith("s") else "s")
-
-
-def _entity_kind(rng: random.Random, config: DemoConfig) -> str:
-    r = rng.random()
-    for kind, share in (("car", config.car_share), ("bus", config.bus_share), ("tram", config.tram_share)):
-        if r < share:
-            return kind
-        r -= share
-    return "pedestrian"
-
-
-async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print,
-                   task_status=trio.TASK_STATUS_IGNORED) -> Stats:
-    """Run the live demo on loopback (server, honest clients, viewers, optional transit) until `duration` or
-    Ctrl-C, printing summaries; returns the totals. `task_status.started(server)` once everything is connected."""
-    rng = random.Random(config.seed)
-    net = netview(topo)
-    cells_at = pvs_lookup(topo, say)
-    stats = Stats()
-    async with trio.open_nursery() as nursery:
-        server: Server = await nursery.start(
-            serve, ServerConfig(host=config.host, port=config.port, topology=str(artifact), open_mode=True,
-                                ws_port=None if config.http_port is None else 0, http_port=config.http_port)
-        )
-        address = (config.host, server.port)
-        say(f"shard server listening on {config.host}:{server.port} (open mode: no tokens, local use only)")
-        if server.http_port is not None:
-            from entitynet.viewer.routes import BUILD_HINT, BUNDLE, STATIC
-
-            say(f"open the 3D viewer: http://{config.host}:{server.http_port}/")
-            if not (STATIC / BUNDLE).exists():
-                say(BUILD_HINT)
-
-        async with trio.open_nursery() as clients:
-            movers = [
-                Mover(topo, net, i + 1, _entity_kind(rng, config), rng) for i in range(config.entities)
-            ]
-            kinds = Counter(m.etype.name for m in movers)
-            conns = [Connection(address, topo.digest, on_message=lambda m: None) for _ in range(config.connections)]
-            for c in conns:
-                await clients.start(c.run)
-            n_high = round(config.viewers * config.roof_share)
-            viewers = [Viewer(topo, net, i, i < n_high, cells_at, rng) for i in range(config.viewers)]
-            for v in viewers:
-                v.conn = Connection(address, topo.digest, on_message=v.on_message)
-                await clients.start(v.conn.run)
-            say(
-                f"{len(movers)} entities ({', '.join(f'{n} {_plural(k)}' for k, n in sorted(kinds.items()))}) over "
-                f"{len(conns)} connections; {len(viewers)} viewers ({n_high} above the roofs)"
-            )
-
-            if config.transit:
-                run_transit = demo_part("transit")  # optional part, from the proxies package
-                await clients.start(run_transit, topo, address, config.transit, say)
-
-            task_status.started(server)
-            stop = trio.Event()
-            clients.start_soon(_stop_on_signal, stop)
-            if config.duration is not None:
-                clients.start_soon(_stop_after, stop, config.duration)
-            start = time.time()
-            last_summary = start
-            window = Stats()
-            next_tick = trio.current_time()
-            while not stop.is_set():
-                now = time.time()
-                batches: list[list[P.Publish]] = [[] for _ in conns]
-                for k, m in enumerate(movers):
-                    m.step(config.fix_interval)
-                    try:
-                        msgs = m.fix(now) + m.tick(now)
-                    except FixRejected:
-                        stats.rejected_fixes += 1
-                        continue
-                    for msg in msgs:
-                        if isinstance(msg, P.Publish):
-                            batches[k % len(conns)].append(msg)
-                        else:
-                            await conns[k % len(conns)].unpublish(msg.entity)
-                for c, batch in zip(conns, batches, strict=True):
-                    if batch:
-                        await c.publish(*batch)
-                        window.published += len(batch)
-                for v in viewers:
-                    for sub in v.move(config.fix_interval):
-                        await v.conn.subscribe(sub.added, sub.removed)
-                        window.subscribe_msgs += 1
-                if now - last_summary >= config.summary_every:
-                    _summarise(say, now - start, now - last_summary, window, viewers, movers, server)
-                    stats.published += window.published
-                    stats.subscribe_msgs += window.subscribe_msgs
-                    window = Stats()
-                    for v in viewers:
-                        stats.deliveries += v.deliveries
-                        v.deliveries = 0
-                    last_summary = now
-                next_tick += config.fix_interval
-                with trio.move_on_at(next_tick):
-                    await stop.wait()
-            stats.published += window.published
-            stats.deliveries += sum(v.deliveries for v in viewers)
-            say(
-                f"stopping after {time.time() - start:.0f} s: {stats.published} updates published, "
-                f"{stats.deliveries} deliveries to viewers"
-            )
-            clients.cancel_scope.cancel()  # clients first, so that none of them sees the server go away
-        await server.stop()
-        nursery.cancel_scope.cancel()
-    return stats
-
-
-def _summarise(say: Say, elapsed: float, dt: float, window: Stats, viewers: list[Viewer], movers, server) -> None:
-    now = time.time()
-    street = [len(v.ghosts.positions(now)) for v in viewers if not v.high]
-    roof = [len(v.ghosts.positions(now)) for v in viewers if v.high]
-    deliveries = sum(v.deliveries for v in viewers)
-    subs = [len(v.subs.cells) for v in viewers]
-    say(
-        f"[{elapsed:5.0f}s] entities {len(movers)} | updates {window.published / dt:6.1f}/s | "
-        f"deliveries {deliveries / dt:7.1f}/s | viewers see: street level {_mean(street):5.1f}, "
-        f"above roofs {_mean(roof):5.1f} entities (subscribed to {_mean(subs):.0f} of "
-        f"{server.sb.config.n_cells} cells)"
-    )
-
-
-def _mean(xs: list[float]) -> float:
-    return float(np.mean(xs)) if xs else 0.0
-
-
-async def _stop_after(stop: trio.Event, seconds: float) -> None:
-    await trio.sleep(seconds)
-    stop.set()
-
-
-async def _stop_on_signal(stop: trio.Event) -> None:
-    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
-        async for _ in signals:
-            stop.set()
-            return
+        parts.append(transit)
+    shell = Shell(sim, shell_config(config, artifact, parts), say)
+    transit = ("the schedule's trams and buses" if sim.config.transit else
+               "trams and buses through the transit proxy" if config.transit else "no trams or buses")
+    say(f"{config.entities} pedestrians and cars and {transit} over {config.connections} connections; "
+        f"{len(sim.viewers)} viewers subscribing by {sim.subscribe_by}")
+    return await shell.run(task_status=task_status)
 
 
 #: entry-point group through which other packages add parts to the demo (`name = "module:function"`)

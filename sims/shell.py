@@ -6,6 +6,12 @@ records how late each tick starts (tick lateness) and how many ticks it ran behi
 are `entitynet.connection.Connection`s: when the server goes away they reconnect through the client session
 while the simulation keeps stepping, and the shell reports the gap (seconds with a connection down).
 Pause: SIGUSR1, or `p` + Enter on a terminal; the simulated clock stops while paused.
+
+The in-process server runs on the simulation's clock (`clock()`: the last tick's time, advanced with the wall
+clock times the speed until the next tick): the honest clients stamp their models with that clock, and the
+browser viewer (served with `http_port`, the way `entitynet demo` serves it) takes its clock offset from the
+server's WELCOME and PONG, so its ghosts move in the publishers' time. Other parts of a run (the demo's transit
+proxy) are started with the server's address through `parts`; `task_status.started(server)` once all connected.
 """
 
 from __future__ import annotations
@@ -13,7 +19,8 @@ from __future__ import annotations
 import math
 import signal
 import sys
-from collections.abc import Callable
+import time
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,6 +51,9 @@ class ShellConfig:
     keys: bool = True  # read `p` from a terminal
     warmup_ticks: int = 0  # ticks left out of the lateness figures (the start's burst of first publishes)
     cluster: Any = None  # a sims.cluster_run.ClusterRun: connect to its shards by where entities and cameras are
+    http_port: int | None = None  # the in-process server also serves the browser viewer here (0: any free port)
+    #: started with the server's address once the clients are connected (`await nursery.start(part, address)`)
+    parts: tuple[Callable[..., Awaitable[object]], ...] = ()
 
 
 class Shell:
@@ -53,6 +63,9 @@ class Shell:
     def __init__(self, sim: Sim, config: ShellConfig, say: Say = print):
         if not config.speed > 0 or not math.isfinite(config.speed):
             raise ValueError(f"speed must be a positive number, got {config.speed}")
+        if config.http_port is not None and config.server is not None:
+            raise ValueError("the browser viewer is served by the in-process server: an external server serves "
+                             "its own (entitynet serve --ws-port P --http-port Q)")
         self.sim = sim
         self.config = config
         self.say = say
@@ -66,11 +79,27 @@ class Shell:
         self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
         self._cameras: dict[int, tuple[float, float]] = {}  # viewer -> where its camera was last sent
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
+        self.published = 0
+        self.publishers: list[Connection] = []
+        self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
+        self._frozen = sim.now  # the clock while paused
+
+    def clock(self) -> float:
+        """The simulation's time now, between ticks too (the in-process server's clock, see the module
+        docstring): the last tick's time plus the wall time since, times the speed, at most one tick on. Wall
+        time from `time.monotonic`, not trio's clock: parts call it from worker threads too (the proxy's polls)."""
+        sim = self.sim
+        if self.paused:
+            return self._frozen
+        if self._tick_wall is None:
+            return sim.now
+        return sim.now + min(max(time.monotonic() - self._tick_wall, 0.0) * self.config.speed, sim.dt)
 
     # ---- the run ---------------------------------------------------------------------------------------------
-    async def run(self) -> dict:
-        """Start the in-process server when none is given, connect the publishers and viewers, run the tick loop
-        until the duration or a signal, and return the report."""
+    async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> dict:
+        """Start the in-process server when none is given, connect the publishers and viewers, start the parts,
+        run the tick loop until the duration or a signal, and return the report. `task_status.started(server)`
+        (None for an external one) once everything is connected."""
         cfg = self.config
         async with trio.open_nursery() as nursery:
             address = cfg.server
@@ -79,9 +108,16 @@ class Shell:
                 from entitynet.server.config import ServerConfig
 
                 self.server = await nursery.start(serve, ServerConfig(
-                    host=cfg.host, port=cfg.port, topology=str(cfg.artifact), open_mode=True))
+                    host=cfg.host, port=cfg.port, topology=str(cfg.artifact), open_mode=True, clock=self.clock,
+                    ws_port=None if cfg.http_port is None else 0, http_port=cfg.http_port))
                 address = (cfg.host, self.server.port)
                 self.say(f"shard server listening on {cfg.host}:{self.server.port} (in this process, open mode)")
+                if self.server.http_port is not None:
+                    from entitynet.viewer.routes import BUILD_HINT, BUNDLE, STATIC
+
+                    self.say(f"open the 3D viewer: http://{cfg.host}:{self.server.http_port}/")
+                    if not (STATIC / BUNDLE).exists():
+                        self.say(BUILD_HINT)
             digest = self.sim.topo.digest
             async with trio.open_nursery() as clients:
                 if cfg.cluster is not None:
@@ -91,14 +127,19 @@ class Shell:
                             for _ in range(self.sim.config.connections)]
                     views = [Connection(address, digest, cfg.token, on_message=self._on_view(i))
                              for i in range(len(self.sim.viewers))]
+                self.publishers = pubs
                 for c in pubs + views:
                     await clients.start(c.run)
+                for part in cfg.parts:
+                    await clients.start(part, address)
+                task_status.started(self.server)
                 stop = trio.Event()
                 clients.start_soon(self._signals, stop)
                 if cfg.keys and sys.stdin is not None and sys.stdin.isatty():
                     clients.start_soon(self._keys)
                 await self._loop(pubs, views, stop)
-                clients.cancel_scope.cancel()
+                self.say(self.final_line())
+                clients.cancel_scope.cancel()  # clients first, so that none of them sees the server go away
             if self.server is not None:
                 await self.server.stop()
             nursery.cancel_scope.cancel()
@@ -129,6 +170,7 @@ class Shell:
         sim, cfg = self.sim, self.config
         period = sim.dt / cfg.speed
         await self._send(pubs, views, *sim.start())
+        self._tick_wall = time.monotonic()
         wall0 = last_summary = trio.current_time()
         due = wall0 + period
         while not stop.is_set():
@@ -155,8 +197,10 @@ class Shell:
                     self.say(f"[{sim.ticks * sim.dt:6.0f}s] server unreachable: {down} connection(s) down, "
                              "stepping on and reconnecting")
             self._was_down = bool(down)
-            await self._send(pubs, views, *sim.step())
-            sim.maybe_sample(self._eid_map())
+            out = sim.step()
+            self._tick_wall = time.monotonic()
+            await self._send(pubs, views, *out)
+            sim.maybe_sample(self._eid_map(pubs))
             due += period
             if t - due > 10 * period:  # hopelessly behind: do not try to catch up in a burst
                 due = t + period
@@ -170,6 +214,7 @@ class Shell:
             if ps:
                 await c.publish(*ps)
                 self._window["published"] += len(ps)
+                self.published += len(ps)
             for m in msgs:
                 if isinstance(m, P.Unpublish):
                     await c.unpublish(m.entity)
@@ -185,10 +230,13 @@ class Shell:
                 await c.subscribe(m.added, m.removed)
                 self.subscribe_msgs += 1
 
-    def _eid_map(self) -> dict[int, int] | None:
+    def _eid_map(self, pubs: list[Connection]) -> dict[int, int] | None:
+        """Server entity id -> simulated entity, for the entities our publishers own (the demo's transit proxy
+        publishes others into the same server, with local ids of its own)."""
         if self.server is None:
             return None  # an external server's ids cannot be mapped back to the truth
-        return {eid: e.local for eid, e in self.server.sb.entities.items()}
+        ours = {c.welcome.session for c in pubs if c.welcome is not None}
+        return {eid: e.local for eid, e in self.server.sb.entities.items() if e.owner.session in ours}
 
     async def _signals(self, stop: trio.Event) -> None:
         with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGUSR1) as signals:
@@ -208,7 +256,11 @@ class Shell:
                 self._toggle()
 
     def _toggle(self) -> None:
+        at = self.clock()  # the clock stands still while paused, and runs on from there (never backwards)
         self.paused = not self.paused
+        self._frozen = at
+        if self._tick_wall is not None:
+            self._tick_wall = time.monotonic() - (at - self.sim.now) / self.config.speed
         self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
 
     # ---- output ----------------------------------------------------------------------------------------------
@@ -235,6 +287,13 @@ class Shell:
             frac = min(1.0, sim.ticks * sim.dt / self.config.duration)
             line += f" [{'#' * int(20 * frac):<20}] {100 * frac:3.0f}%"
         return line
+
+    def final_line(self) -> str:
+        """What the run did, in one line (before the JSON report)."""
+        sim = self.sim
+        return (f"[{sim.ticks * sim.dt:6.0f}s] stopped after {sim.ticks * sim.dt:.0f} simulated s: "
+                f"{self.published} updates published, {sum(v.deliveries for v in sim.viewers)} deliveries to "
+                f"viewers, {sim.world.counters['stops_served']} bus and tram stops served")
 
     def report(self) -> dict:
         """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps.

@@ -20,7 +20,9 @@ def _hostport(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _clock(text: str) -> float:
+def service_time(text: str) -> float:
+    """argparse type of `--start`: "HH:MM[:SS]" (hours up to 47, GTFS's times past midnight) to service-day
+    seconds; a usage error otherwise. Shared by `entitynet sim` and `entitynet demo`."""
     parts = text.split(":")
     try:
         if len(parts) not in (2, 3):
@@ -45,7 +47,7 @@ def register(sub) -> None:
     p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
                                                   "extract); 'none' for no transit")
     p.add_argument("--date", metavar="YYYYMMDD", help="service day of the feed (default: its busiest)")
-    p.add_argument("--start", type=_clock, default=8 * 3600.0, metavar="HH:MM",
+    p.add_argument("--start", type=service_time, default=8 * 3600.0, metavar="HH:MM",
                    help="service-day time the run starts at (default 08:00)")
     p.add_argument("--duration", type=float, help="simulated seconds to run (default: until Ctrl-C)")
     p.add_argument("--speed", type=float, default=1.0, help="times real time (default 1; e.g. 10)")
@@ -90,8 +92,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("; ".join(problems))
     import trio
 
-    from entitynet.topology_cache import bundled_topology, cache_dir
-    from sims.engine.schedule import BUNDLED_FEED, GtfsError, load_schedule
+    from entitynet.topology_cache import bundled_topology
     from sims.engine.sim import Sim, SimConfig
     from sims.shell import Shell, ShellConfig
 
@@ -116,16 +117,7 @@ def run(args: argparse.Namespace) -> int:
         topo, path = load_artifact(args.topology), Path(args.topology)
     else:
         topo, path = bundled_topology(lambda m: say(f"[{time.perf_counter() - t0:6.1f}s] {m}"), with_pvs=True)
-    schedule = None
-    if config.transit:
-        feed = Path(args.gtfs) if args.gtfs else BUNDLED_FEED
-        try:
-            schedule = load_schedule(feed, topo, date=args.date, cache=cache_dir(), seed=args.seed)
-        except (GtfsError, ValueError) as exc:
-            raise CommandError(str(exc)) from None
-        n_run = len(schedule.running_at(config.start))
-        say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
-            f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
+    schedule = load_feed(args.gtfs, topo, args.date, args.seed, config.start, say) if config.transit else None
     regions = shard_at = None
     if args.shards:
         from sims.cluster_run import shard_locator
@@ -149,12 +141,7 @@ def run(args: argparse.Namespace) -> int:
         if report is None:
             say("interrupted before the simulation began; the cluster is stopped")
             return 130
-    text = json.dumps(report, indent=2, default=float)
-    if args.report:
-        Path(args.report).write_text(text + "\n")
-        say(f"report written to {args.report}")
-    else:
-        print(text)
+    emit_report(report, args.report, say)
     return 0
 
 
@@ -187,3 +174,32 @@ async def _on_cluster(shell, topo, path: Path, regions, nats_nodes: int, say) ->
     except RuntimeError as exc:
         raise CommandError(str(exc)) from None
     return report
+
+
+def emit_report(report: dict, path: str | None, say) -> None:
+    """The final JSON report: to `path`, or to stdout (the live summary goes to stderr, so stdout pipes into
+    jq). Shared by `entitynet sim` and `entitynet demo`."""
+    text = json.dumps(report, indent=2, default=float)
+    if path:
+        Path(path).write_text(text + "\n")
+        say(f"report written to {path}")
+    else:
+        print(text, flush=True)
+
+
+def load_feed(gtfs: str | None, topo, date: str | None, seed: int, start: float, say):
+    """The schedule of `gtfs` (None: the bundled HSL extract) on the map, cached; a clear CommandError for a
+    feed that cannot be used. Shared by `entitynet sim` and `entitynet demo`."""
+    from entitynet.cli import CommandError
+    from entitynet.topology_cache import cache_dir
+    from sims.engine.schedule import BUNDLED_FEED, GtfsError, load_schedule
+
+    feed = Path(gtfs) if gtfs else BUNDLED_FEED
+    try:
+        schedule = load_schedule(feed, topo, date=date, cache=cache_dir(), seed=seed)
+    except (GtfsError, ValueError) as exc:
+        raise CommandError(str(exc)) from None
+    n_run = len(schedule.running_at(start))
+    say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
+        f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
+    return schedule

@@ -1,7 +1,8 @@
 """Measure the browser viewer in headless Chromium (SwiftShader WebGL): frame time with N live entities and the
 time from opening the page to the first entity. `python -m sims.viewer_bench --entities 500 2000 --out F.json`.
 
-Runs the demo in this process (bundled Helsinki with PVS, buses and trams included, no Python viewers), opens
+Runs the demo in this process (bundled Helsinki with PVS, the bundled schedule's trams and buses on top of the
+pedestrians and cars, no Python viewers), opens
 the page at its default camera (above the roofs), waits `--settle` seconds, then samples the page's
 requestAnimationFrame intervals for `--seconds`. Figures depend on the machine: SwiftShader renders on the CPU.
 """
@@ -21,13 +22,14 @@ from sims.browser import open_chromium
 from sims.demo import DemoConfig, run_demo
 
 
-async def measure(topo, path, entities: int, settle: float, seconds: float, screenshot: str | None) -> dict:
+async def measure(topo, path, entities: int, settle: float, seconds: float, screenshot: str | None,
+                  schedule=None) -> dict:
     """One live demo of `entities` and the page in headless Chromium: time to the first entity, then frame times
     over `seconds` once `settle` has passed (the page's own requestAnimationFrame clock)."""
     config = DemoConfig(entities=entities, viewers=0, connections=4, duration=settle + seconds + 120,
-                        summary_every=1e9, http_port=0, bus_share=0.03, tram_share=0.03)
+                        summary_every=1e9, http_port=0)
     async with trio.open_nursery() as nursery:
-        server = await nursery.start(run_demo, topo, path, config, lambda m: None)
+        server = await nursery.start(run_demo, topo, path, config, lambda m: None, schedule)
         async with open_chromium(width=1280, height=800) as page:
             opened = time.perf_counter()
             await page.goto(f"http://127.0.0.1:{server.http_port}/")
@@ -86,9 +88,11 @@ def main() -> None:
     ap.add_argument("--libraries", nargs="*", metavar="LIB",
                     help="instead: the library benchmark (bench.html) for these libraries (deck three)")
     args = ap.parse_args()
-    from entitynet.topology_cache import bundled_topology
+    from entitynet.topology_cache import bundled_topology, cache_dir
+    from sims.engine.schedule import BUNDLED_FEED, load_schedule
 
     topo, path = bundled_topology(print, with_pvs=True)
+    schedule = load_schedule(BUNDLED_FEED, topo, cache=cache_dir())
     results = []
     for lib in args.libraries or ():
         for n in args.entities:
@@ -96,7 +100,8 @@ def main() -> None:
             print(json.dumps(r), flush=True)
             results.append(r)
     for k, n in enumerate(args.entities if not args.libraries else ()):
-        r = trio.run(measure, topo, path, n, args.settle, args.seconds, args.screenshot if k == 0 else None)
+        r = trio.run(measure, topo, path, n, args.settle, args.seconds, args.screenshot if k == 0 else None,
+                     schedule)
         print(json.dumps(r), flush=True)
         results.append(r)
     report = {"suite": "viewer", "machine": {"cores": os.cpu_count(), "python": platform.python_version(),

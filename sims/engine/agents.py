@@ -16,11 +16,14 @@ from sims.engine.routes import Route
 
 @dataclass(frozen=True)
 class Stop:
-    """A scheduled halt: route distance `s` (where the front stops), dwell seconds, and the stop's name."""
+    """A scheduled halt: route distance `s` (where the front stops), dwell seconds, the stop's name, and
+    `arrive`: the timetable's arrival, in seconds after the trip's departure time (None: no timetable; the
+    vehicle then drives at its own desired speed)."""
 
     s: float
     dwell: float
     name: str = ""
+    arrive: float | None = None
 
 
 @dataclass(frozen=True)
@@ -51,7 +54,9 @@ class Agent:
 
     `s` is the route distance of the front; the body reaches back `params.length` metres along the route (a
     two-part tram's parts are its first `parts[0]` and next `parts[1]` metres behind the front, both on the
-    rails). `lateral` is its offset to the right of the direction of travel. `v0` its own desired speed.
+    rails). `lateral` is its offset to the right of the direction of travel. `v0` its desired speed now:
+    `v_free` (its own) on a free run, or, for a vehicle on a timetable (`t0`: the service-day time its stops'
+    `arrive` count from), the speed that reaches the next stop on time (`behaviour.timetable_speed`).
     """
 
     id: int
@@ -73,6 +78,8 @@ class Agent:
     accept_until: float = -1.0  # accepts collisions (ignores other entities) until then
     stalled_until: float = -1.0  # a breakdown: stands still until then
     label: str = ""
+    t0: float | None = None  # the timetable's origin (service-day seconds), None for no timetable
+    v_free: float = 0.0  # its own desired speed (set on spawn), used where no timetable applies
     distance: float = 0.0  # metres travelled since spawn
     area: AreaWalk | None = None  # a walk inside an area at the end of the route (pedestrians)
     in_area_since: float | None = None

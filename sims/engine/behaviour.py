@@ -36,13 +36,15 @@ def idm(v: float, v0: float, a: float, b: float, headway: float, s0: float,
 @dataclass(frozen=True, slots=True)
 class Obstacle:
     """Something ahead on the route: at route distance `at`, moving along it at `speed` (negative: towards
-    us); `kind` is "leader" (another entity), "crossing", "stop" or "end"; `who` the entity or node."""
+    us); `kind` is "leader" (another entity), "crossing", "stop" or "end"; `who` the entity or node; `s0` and
+    `headway` replace the type's minimum gap and time headway for this obstacle (a stop keeps no headway)."""
 
     at: float
     speed: float
     kind: str
     who: int | None = None
     s0: float | None = None
+    headway: float | None = None
 
 
 def accel_for(agent: Agent, obstacles: list[Obstacle]) -> tuple[float, Obstacle | None]:
@@ -52,7 +54,8 @@ def accel_for(agent: Agent, obstacles: list[Obstacle]) -> tuple[float, Obstacle 
     limit = None
     for ob in obstacles:
         s0 = p.gap if ob.s0 is None else ob.s0
-        acc = idm(agent.v, agent.v0, p.accel, p.decel, p.headway, s0, ob.at - agent.s, agent.v - ob.speed)
+        hw = p.headway if ob.headway is None else ob.headway
+        acc = idm(agent.v, agent.v0, p.accel, p.decel, hw, s0, ob.at - agent.s, agent.v - ob.speed)
         if acc < best - 1e-9:
             best, limit = acc, ob
     return best, limit
@@ -73,3 +76,33 @@ def lane_pos(agent: Agent, direction: int) -> float:
 def lanes_overlap(a: Agent, da: int, b: Agent, db: int) -> bool:
     """Whether two bodies on one edge (in directions da, db) overlap sideways (their lanes touch)."""
     return abs(lane_pos(a, da) - lane_pos(b, db)) < 0.5 * (a.params.width + b.params.width)
+
+
+#: a timetabled vehicle never crawls slower than this between stops (m/s): far ahead of its time it still moves
+TIMETABLE_VMIN = 1.0
+#: IDM comes to a stop without a time headway (see `world`), braking harder near the end than at `decel`: the
+#: approach takes about the time of constant braking at this multiple of it (measured on a straight street,
+#: buses and trams: on time within half a tick)
+APPROACH_BRAKING = 1.6
+
+
+def timetable_speed(d: float, T: float, v: float, accel: float, decel: float, vmax: float) -> float:
+    """The cruise speed that covers `d` metres to the next stop in `T` seconds, from speed `v`: accelerate at
+    `accel` to it, cruise, brake to a stand at `APPROACH_BRAKING * decel`, so that the stop is reached at the
+    timetable's time. Why this and not d / T: a vehicle that starts from a stop and halts at the next one
+    spends time accelerating and braking, and d / T would make it late at every stop. Recomputed every tick,
+    this closes the loop (a vehicle held up drives faster afterwards). Clamped to TIMETABLE_VMIN..vmax; a time
+    that cannot be made (T <= 0, or too short at any speed) gives vmax: late, never teleported.
+
+    Derivation: with cruise c >= v, T*c = (c - v)^2 / (2a) + d + c^2 / (2b); the smaller root in c."""
+    if not (d > 0.0 and T > 0.0):
+        return vmax if d > 0.0 else TIMETABLE_VMIN
+    a, b = max(accel, 1e-3), max(decel * APPROACH_BRAKING, 1e-3)
+    k = 1.0 / (2.0 * a) + 1.0 / (2.0 * b)
+    p = T + v / a
+    q = d + v * v / (2.0 * a)
+    disc = p * p - 4.0 * k * q
+    if disc < 0.0:
+        return vmax
+    c = (p - math.sqrt(disc)) / (2.0 * k)
+    return min(max(c, TIMETABLE_VMIN), vmax)

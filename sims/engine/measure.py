@@ -81,6 +81,8 @@ class Measure:
             claimed: dict[int, tuple[int, ...]] = {}
             for eid, xy in v.ghosts.positions(now).items():
                 aid = eid_to_agent.get(eid, -1)
+                if aid < 0:  # not a simulated entity (the demo's transit proxy publishes its own): no truth
+                    continue
                 shown[aid] = xy
                 claimed[aid] = v.ghosts.ghosts[eid].cells
             t.visible += len(inside)

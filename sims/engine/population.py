@@ -120,19 +120,37 @@ class Population:
         return a
 
     def _depart(self, d: Departure, late: float) -> Agent | None:
-        """A departure, `late` seconds after its time: placed where it would be at cruise speed (past its
-        passed stops), or None if it would already have left the map."""
+        """A departure, `late` seconds after its time: placed where its timetable puts it then (see
+        `timetable_position`), or None if it would already have left the map."""
         k = kind(d.mode)
         route = Route(self.world.net, list(d.edges))
-        dwell_before = 0.0
-        s = max(late, 0.0) * k.cruise
-        for st in d.stops:  # time spent at stops already passed
-            if st.s < s:
-                dwell_before += st.dwell
-        s = max(0.0, (max(late, 0.0) - dwell_before) * k.cruise)
+        s, dwelling = timetable_position(d.stops, max(late, 0.0), k.cruise)
         if s >= route.length - 1.0:
             return None
-        a = self.world.add(d.mode, list(d.edges), s=s, v=0.0 if s == 0.0 else None,
-                           stops=[st for st in d.stops if st.s >= s], label=f"{d.ref} {d.trip_id}")
+        stops = [st for st in d.stops if (st.s > s if dwelling else st.s >= s)]
+        # standing at a stop (its terminus on the map, or dwelling); otherwise under way at its own speed: a trip
+        # that enters at the map's edge drives in from outside (its spawn time counts on cruise speed there)
+        standing = dwelling or (s == 0.0 and bool(d.stops) and d.stops[0].s < 1.0)
+        a = self.world.add(d.mode, list(d.edges), s=s, v=0.0 if standing else None, stops=stops,
+                           label=f"{d.ref} {d.trip_id}", timetable=d.time)
         self.transit[a.id] = d.trip_id
         return a
+
+
+def timetable_position(stops, late: float, cruise: float) -> tuple[float, bool]:
+    """Route distance of a scheduled vehicle `late` seconds after its departure, and whether it is dwelling at a
+    stop then: linear between the timetable's stops (standing for each stop's dwell after its arrival), at
+    `cruise` after the last one. Stops without a timetable: at cruise speed, less the dwells already passed."""
+    if any(st.arrive is None for st in stops):
+        s = late * cruise
+        passed = sum(st.dwell for st in stops if st.s < s)
+        return max(0.0, (late - passed) * cruise), False
+    s0, t0 = 0.0, 0.0
+    for st in stops:
+        if late <= st.arrive:
+            span = st.arrive - t0
+            return s0 + (st.s - s0) * ((late - t0) / span if span > 0 else 1.0), False
+        if late <= st.arrive + st.dwell:
+            return st.s, True
+        s0, t0 = st.s, st.arrive + st.dwell
+    return s0 + (late - t0) * cruise, False

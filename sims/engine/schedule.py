@@ -8,8 +8,10 @@ project's one GTFS reader and map matcher (`topology.gtfs`).
 
 Times are seconds since the service day's midnight. A trip's spawn time is when it reaches the map: the time
 of its first stop on the map less the time to drive there at the kind's cruise speed (or, when it crosses
-without stopping, from the nearest stop of its own). Malformed rows, unknown route types, trips that never
-touch the map and trips outside the service day are skipped and counted in `Schedule.report`.
+without stopping, from the nearest stop of its own). Each stop keeps its timetable arrival (seconds after the
+spawn time), from which the world derives the speed between stops (`behaviour.timetable_speed`).
+Malformed rows, unknown route types, trips that never touch the map and trips outside the service day are
+skipped and counted in `Schedule.report`.
 """
 
 from __future__ import annotations
@@ -53,7 +55,8 @@ def parse_time(text: str) -> float:
 
 @dataclass(frozen=True)
 class Departure:
-    """One vehicle to spawn: at `time` (service-day seconds) at the start of `edges`, halting at `stops`."""
+    """One vehicle to spawn: at `time` (service-day seconds) at the start of `edges`, halting at `stops`
+    (their `arrive`: the timetable's arrival in seconds after `time`)."""
 
     time: float
     trip_id: str
@@ -236,7 +239,8 @@ def read_schedule(path: str | Path, topo, *, modes: tuple[str, ...] = ("tram", "
                 near = min(st, key=lambda x: _dist(stop_xy.get(x[1]), route.xy(0.0)))
                 t_enter = near[3] + _dist(stop_xy.get(near[1]), route.xy(0.0)) / k.cruise
             stops = tuple(Stop(s, max(dep - arr, rng.uniform(*k.halts.dwell)) if k.halts else dep - arr,
-                               feed.stops[stop][0]) for s, stop, arr, dep in on if s < route.length - 1.0)
+                               feed.stops[stop][0], arr - t_enter)
+                          for s, stop, arr, dep in on if s < route.length - 1.0)
             for t0 in starts:
                 out.append(Departure(t_enter + (t0 - st[0][3]), tid if len(starts) == 1 else f"{tid}@{int(t0)}",
                                      mode, ref, tuple(route.edges), stops))
@@ -297,7 +301,7 @@ def load_schedule(path: str | Path, topo, *, date: str | None = None, cache: Pat
         tmp = file.with_suffix(".tmp")
         tmp.write_text(json.dumps({
             "departures": [[d.time, d.trip_id, d.mode, d.ref, [list(e) for e in d.edges],
-                            [[st.s, st.dwell, st.name] for st in d.stops]] for d in sched.departures],
+                            [[st.s, st.dwell, st.name, st.arrive] for st in d.stops]] for d in sched.departures],
             "report": dict(sched.report), "service_date": sched.service_date}))
         tmp.replace(file)
     except OSError:

@@ -13,6 +13,8 @@ import random
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
+import numpy as np
+
 from entitynet import protocol as P
 from sims.engine.clients import Fleet
 from sims.engine.measure import Measure
@@ -149,4 +151,17 @@ class Sim:
                         "deliveries": sum(x.deliveries for x in v), "leaves": sum(x.leaves for x in v),
                         "bytes": sum(x.bytes for x in v)},
             "truth_vs_viewer": self.measure.summary(),
+            "timetable": timetable_summary(self.world.stop_lateness),
         }
+
+
+def timetable_summary(lateness: list[float]) -> dict:
+    """Schedule adherence of the buses and trams: seconds after the timetable's arrival at each stop served on a
+    timetable (negative: early), as median, p95 and max, and the share more than a minute late."""
+    if not lateness:
+        return {"stops": 0, "lateness_p50_s": None, "lateness_p95_s": None, "lateness_max_s": None,
+                "late_over_60s": None}
+    x = np.asarray(lateness)
+    return {"stops": int(x.size), "lateness_p50_s": float(np.percentile(x, 50)),
+            "lateness_p95_s": float(np.percentile(x, 95)), "lateness_max_s": float(x.max()),
+            "late_over_60s": float(np.mean(x > 60.0))}

@@ -86,8 +86,9 @@ class SimViewer:
         return msgs
 
     def receive(self, msg: P.Message, now: float, size: int = 0) -> None:
-        """Count and apply a message that arrived. A WELCOME clears the ghosts: entity ids are per server
-        session, so after a reconnect the old ones mean nothing."""
+        """Count and apply a message that arrived. A WELCOME clears the ghosts (entity ids are per server
+        session, so after a reconnect the old ones mean nothing) and adopts the server's limits (the next move
+        subscribes within its max_subscriptions: a SUBSCRIBE over the limit is refused whole)."""
         self.bytes += size
         if isinstance(msg, P.Update):
             self.deliveries += 1
@@ -97,3 +98,4 @@ class SimViewer:
             self.ghosts.receive(msg, now)
         elif isinstance(msg, P.Welcome):
             self.ghosts.ghosts.clear()  # entity ids are per server session
+            self.subs.apply_limits(msg.limits)

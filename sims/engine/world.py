@@ -19,7 +19,7 @@ import numpy as np
 from entitynet.client import netview
 from entitynet.client.network import DirEdge
 from sims.engine.agents import Agent, AreaWalk, Stop
-from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead
+from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead, timetable_speed
 from sims.engine.crossings import Crossings, Movement
 from sims.engine.params import TypeParams, params
 from sims.engine.routes import Route
@@ -43,6 +43,7 @@ class World:
         self.crossings = Crossings()
         self.counters: Counter = Counter()
         self.removed: list[tuple[int, str]] = []  # (id, why) since the last `take_removed`
+        self.stop_lateness: list[float] = []  # s after the timetable's arrival, per stop served on a timetable
         self._next_id = 1
         net = self.net
         self._junction = [sum(1 for e in net.node_edges[n] if net.edge_net[e] & (VEHICLE | TRAM)) >= 3
@@ -51,10 +52,11 @@ class World:
     # ---- spawning ---------------------------------------------------------------------------------------------
     def add(self, kind: str | TypeParams, edges: list[DirEdge], *, s: float = 0.0, v: float | None = None,
             v0: float | None = None, lateral: float | None = None, stops: Iterable[Stop] = (),
-            label: str = "", area_walk: float = 0.0) -> Agent:
+            label: str = "", area_walk: float = 0.0, timetable: float | None = None) -> Agent:
         """Spawn an entity on a connected route of directed edges, its front `s` metres along it. With
         `area_walk` > 0 and a route ending at an area node, the entity then walks inside the area for about that
-        many seconds (random waypoints) before it leaves the simulation."""
+        many seconds (random waypoints) before it leaves the simulation. `timetable`: the service-day time the
+        stops' `arrive` count from (a scheduled vehicle drives to reach each stop on time)."""
         p = kind if isinstance(kind, TypeParams) else params(kind)
         route = Route(self.net, edges)
         if not 0.0 <= s <= route.length:
@@ -65,7 +67,7 @@ class World:
         if lateral is None:
             lateral = p.lateral + (rng.uniform(-p.lateral_spread, p.lateral_spread) if p.lateral_spread else 0.0)
         a = Agent(self._next_id, p, route, s, v0 if v is None else v, v0, lateral, self.now,
-                  stops=sorted(stops, key=lambda st: st.s), label=label)
+                  stops=sorted(stops, key=lambda st: st.s), label=label, t0=timetable, v_free=v0)
         while a.next_stop < len(a.stops) and a.stops[a.next_stop].s < s - 1.0:
             a.next_stop += 1
         if p.avoids:
@@ -140,9 +142,14 @@ class World:
             a.dwell_until = None
             a.next_stop += 1
         obstacles: list[Obstacle] = []
+        a.v0 = a.v_free
         if a.next_stop < len(a.stops):
             st = a.stops[a.next_stop]
-            obstacles.append(Obstacle(st.s + 1.0, 0.0, "stop", a.next_stop, s0=1.0))
+            if a.t0 is not None and st.arrive is not None:  # reach the stop at the timetable's time
+                p = a.params
+                a.v0 = timetable_speed(st.s - a.s, a.t0 + st.arrive - self.now, a.v, p.accel, p.decel, p.vmax)
+            # a stop is no leader: no time headway to it (with one, vehicles braked early and crept up to it)
+            obstacles.append(Obstacle(st.s + 1.0, 0.0, "stop", a.next_stop, s0=1.0, headway=0.0))
         if a.params.avoids:
             ahead = a.s + lookahead(a)
             leader = self._leader(a, index, ahead) if a.accept_until <= now else None
@@ -168,6 +175,8 @@ class World:
             new_s, new_v = max(a.s, st.s), 0.0
             a.dwell_until = now + st.dwell
             self.counters["stops_served"] += 1
+            if a.t0 is not None and st.arrive is not None:
+                self.stop_lateness.append(now - (a.t0 + st.arrive))
         return a, new_s, new_v, limit
 
     def _after_move(self, a: Agent, limit: Obstacle | None, now: float) -> None:

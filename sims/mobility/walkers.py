@@ -1,10 +1,11 @@
 """Load walkers: many cheap entities at constant speed on the raw street graph, for switchboard load.
 
-Why not `Mover`: a switchboard benchmark needs thousands of publishers at a few hundred updates per second
-from one Python process, and measures the server, not dead reckoning. So these walkers skip the client core:
-each one sends an update when its cell-occupation validity runs out (the front reaches the next cell
-breakpoint) and otherwise every 5-15 s, the cadence an honest client produces; cars, longer than a
-breakpoint gap now and then, occupy two cells. Updates are due from a heap, so a tick costs only what is due.
+Why not the simulation's honest clients: a switchboard benchmark needs thousands of publishers at a few
+hundred updates per second from one Python process, and measures the server, not dead reckoning. So these
+walkers skip the client core: each one sends an update when its cell-occupation validity runs out (the front
+reaches the next cell breakpoint) and otherwise every 5-15 s, the cadence an honest client produces; cars,
+longer than a breakpoint gap now and then, occupy two cells. Updates are due from a heap, so a tick costs only
+what is due.
 """
 
 from __future__ import annotations

@@ -29,3 +29,11 @@ def test_bench_rejects_an_unknown_suite(capsys):
 def test_demo_checks_its_numbers(capsys):
     assert main(["demo", "--entities", "0"]) == 2
     assert "--entities must be at least 1" in capsys.readouterr().err
+
+
+def test_demo_refuses_a_missing_schedule_and_a_bad_start(capsys, tmp_path):
+    assert main(["demo", "--gtfs", str(tmp_path / "nope.zip"), "--duration", "1"]) == 2
+    assert "cannot read the feed" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["demo", "--start", "8h"])
+    assert "service-day time" in capsys.readouterr().err

@@ -76,3 +76,52 @@ def test_cli_refuses_bad_options(capsys):
 def test_cli_refuses_a_missing_feed(capsys, tmp_path):
     assert main(["sim", "--gtfs", str(tmp_path / "nope.zip"), "--duration", "1"]) == 2
     assert "cannot read the feed" in capsys.readouterr().err
+
+
+async def test_entities_another_part_publishes_are_not_mapped_to_the_truth(helsinki, helsinki_path):
+    """The demo's transit proxy publishes into the same server with local ids of its own (1, 2, ...): they
+    must not be taken for the simulated entities of the same local id when truth is compared with viewers."""
+    from entitynet import protocol as P
+    from entitynet.connection import Connection
+
+    owner: dict = {}
+
+    async def other_publisher(address, task_status=trio.TASK_STATUS_IGNORED):
+        async with trio.open_nursery() as n:
+            conn = Connection(address, helsinki.digest, on_message=lambda m: None)
+            await n.start(conn.run)
+            await conn.publish(P.Publish(1, 1, (0,), 5000, b"\x00"))  # local id 1, as the sim's first entity
+            owner["session"] = conn.welcome.session
+            task_status.started()
+
+    sim = Sim(helsinki, SimConfig(entities=3, viewers=0, connections=1, transit=False, seed=2))
+    shell = Shell(sim, ShellConfig(duration=30.0, summary_every=100.0, artifact=helsinki_path, keys=False,
+                                   parts=(other_publisher,)), lambda m: None)
+    with trio.fail_after(30):
+        async with trio.open_nursery() as nursery:
+            server = await nursery.start(shell.run)
+            while len(server.sb.entities) < 4:  # the other's entity and the sim's three
+                await trio.sleep(0.05)
+            ids = shell._eid_map(shell.publishers)
+            theirs = [eid for eid, e in server.sb.entities.items() if e.owner.session == owner["session"]]
+            assert len(theirs) == 1 and theirs[0] not in ids
+            assert sorted(ids.values()) == sorted(sim.world.agents)
+            nursery.cancel_scope.cancel()
+
+
+def test_the_shell_clock_runs_between_ticks_stops_while_paused_and_never_goes_back():
+    import time
+
+    sim = Sim(grid(), SimConfig(entities=0, viewers=0, tick_hz=2.0, transit=False, start=100.0))
+    shell = Shell(sim, ShellConfig(keys=False), lambda m: None)
+    assert shell.clock() == 100.0  # before the first tick: the simulation's time
+    shell._tick_wall = time.monotonic() - 0.3  # 0.3 s after a tick
+    before = shell.clock()
+    assert 100.29 <= before <= 100.5  # at most one tick on
+    shell._toggle()  # pause
+    at = shell.clock()
+    assert at >= before
+    time.sleep(0.05)
+    assert shell.clock() == at  # stands still while paused
+    shell._toggle()  # resume: on from where it stood
+    assert at <= shell.clock() <= 100.5

@@ -21,7 +21,7 @@ def test_no_sims_module_is_over_500_lines():
     assert long == {}
 
 
-@pytest.mark.parametrize("gone", ["sims.movers", "sims.behaviours"])
+@pytest.mark.parametrize("gone", ["sims.movers", "sims.behaviours", "sims.mobility.movers"])
 def test_the_old_mover_models_are_gone(gone):
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module(gone)
@@ -32,7 +32,8 @@ def test_demo_and_benchmarks_use_the_one_model():
     from sims.bench import dr_bench, dr_data, switch_bench, switch_replay
     from sims.engine import clients, params, viewers
 
-    assert demo.Mover is sims.mobility.Mover and demo.Trajectory is sims.mobility.Trajectory
+    # the demo is a preset of the simulation: its engine, shell and viewers, no mover or viewer of its own
+    assert demo.Sim is sims.engine.sim.Sim and not hasattr(demo, "Viewer") and not hasattr(sims.mobility, "Mover")
     # the simulation engine moves and measures with the one model
     assert viewers.Trajectory is sims.mobility.Trajectory and clients.gps is sims.mobility.gps
     assert params.kind is sims.mobility.kind

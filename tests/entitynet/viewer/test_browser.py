@@ -1,4 +1,4 @@
-"""The browser viewer in a real headless Chromium against a live demo server on loopback.
+"""The browser viewer in a real headless Chromium against a live demo (the sim preset) on loopback.
 
 Skips when no Chromium is installed or the page's bundle was not built (`npm ci && npm run build`); `.ci/run`
 installs both, so in CI it runs. Checks: the WebGL canvas has drawn (non-background pixels, entity colours),
@@ -19,7 +19,9 @@ import trio
 from entitynet import protocol as P
 from entitynet.viewer.routes import BUNDLE, STATIC
 from sims.browser import find_chromium, open_chromium
-from sims.demo import DemoConfig, distance_cells_at, run_demo
+from sims.demo import DemoConfig, run_demo
+from sims.engine.viewers import radius_cells_at
+from tests.sims.test_demo import _one_tram
 
 pytestmark = [
     pytest.mark.skipif(find_chromium() is None, reason="no Chromium installed (apt-get install chromium)"),
@@ -42,10 +44,10 @@ def _png(data: bytes) -> np.ndarray:
 
 async def test_viewer_in_headless_chromium(helsinki, helsinki_path, tmp_path):
     config = DemoConfig(entities=120, viewers=0, connections=2, duration=60.0, summary_every=1000.0, seed=5,
-                        http_port=0, bus_share=0.05, tram_share=0.05)
+                        http_port=0)
     subscribes: list[P.Subscribe] = []
     async with trio.open_nursery() as nursery:
-        server = await nursery.start(run_demo, helsinki, helsinki_path, config, lambda m: None)
+        server = await nursery.start(run_demo, helsinki, helsinki_path, config, lambda m: None, _one_tram(helsinki))
         receive = server.sb.receive
 
         def counting_receive(cid, msgs, now, frame_end=True):  # count the page's SUBSCRIBEs as the core sees them
@@ -63,6 +65,10 @@ async def test_viewer_in_headless_chromium(helsinki, helsinki_path, tmp_path):
             first_entity_s = time.perf_counter() - opened
             stats = await page.evaluate("window.entitynet.stats()")
             assert stats["error"] is None and stats["badPayloads"] == 0, stats
+            # the page extrapolates in the publishers' time: the simulation's clock, which the in-process server
+            # runs on and reports in WELCOME / PONG (a page on another clock would extrapolate by hours)
+            for p in await page.evaluate("window.entitynet.positions(20)"):
+                assert 0.0 <= p["t"] - p["t0"] < 30.0, p
             ws = [c for c in server.conns.values() if c.kind == "ws"]
             assert len(ws) == 1
             cid = ws[0].cid
@@ -77,7 +83,7 @@ async def test_viewer_in_headless_chromium(helsinki, helsinki_path, tmp_path):
             assert ids == _server_view(server, cid) and len(ids) > 0, (len(ids), len(_server_view(server, cid)))
 
             # the subscription is the Python lookup's for the camera (no PVS in this artifact: 500 m cut)
-            cells_at = distance_cells_at(helsinki)
+            cells_at = radius_cells_at(helsinki)
             x, y, z = await page.evaluate("window.entitynet.camera()")
             assert await page.evaluate("window.entitynet.subscribedCells()") == sorted(map(int, cells_at(x, y, z)))
             assert server.sb.clients[cid].subs == set(map(int, cells_at(x, y, z)))
