@@ -1,0 +1,387 @@
+"""The fleet core: many entities' client cores stepped together, the usual fix and the timers over arrays.
+
+Why: a simulation or a proxy runs thousands of honest clients, and per entity and tick a `Player` costs tens of
+microseconds of Python even when it decides nothing. The fleet core runs the same decisions for all of them at
+once and calls an entity's own `Player` only where something happens:
+
+1. **Timers.** Per entity the earliest time at which `Player.tick` could return anything (the publish's
+   validity or heartbeat running out, `max_gap` and `lost_after` after the last fix) is kept in `deadline`,
+   made earlier by 1e-6 s plus 1e-12 of its size, more than the rounding of the scalar tests (`now - last_t >=
+   lost_after` and the like are a subtraction and a compare: one rounding). Before its deadline an entity's
+   `tick` provably returns nothing and changes nothing, so only entities whose deadline has come call it.
+2. **The steady-state fix.** An entity placed on an edge whose fix takes `NetworkTracker._track_on` (within the
+   switch margin of the current edge, away from its ends, no area at either end, the edge not repeated nearby,
+   no re-acquisition), with a network ghost, and whose fix leads to no publish and no path change (no reversal,
+   no trimming or extension), is done entirely in arrays (fleet_kernels.py): prediction, projection, the
+   along-path filter, the recent-fix bookkeeping and `UpdateRules.decide`'s stop / start / drift / expiry
+   tests. Every other fix (first placement, near an edge end, an area, off the network, any fix that publishes)
+   goes to the entity's `Player` (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
+
+One source of truth: for an entity the arrays hold (`fast[i]`), its array state is the newer one after a
+vectorised fix (`dirty[i]`), and it is written back into the `Player` (`_store`) before any scalar call; after
+the call the arrays are read again from the `Player` (`_load`), which is then the truth. `player(slot)` returns
+an entity's `Player` with its state written back. Doppler velocities are not taken (the fleet feeds positions).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from entitynet.client.fixes import FixRejected
+from entitynet.client.fleet_kernels import Geometry, ghost_s_speed, hypot_py, kf_update
+from entitynet.client.modes import EDGE
+from entitynet.client.motion import NetworkModel
+from entitynet.client.placement import Fix, _new_fix
+from entitynet.client.player import Player
+from entitynet.client.rules import OWN_ESTIMATE
+from entitynet.client.tracker import MAX_PATH_EDGES
+from entitynet.protocol import Publish, Unpublish
+
+W = MAX_PATH_EDGES  # the widest path a row holds (the tracker never keeps more edges)
+RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent`
+_F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt", "kq",
+      "dist_ema", "vpeak", "vpeak_t", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "pub_t",
+      "validity", "heartbeat", "max_gap", "lost_after", "lf_off", "lf_x", "lf_y", "lf_d", "g_t0", "g_s0", "g_v",
+      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
+_I = ("pn", "gn", "rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d")
+_B = ("alive", "fast", "dirty", "kacc", "has_route")
+
+
+def _deadline(p: Player) -> float:
+    """The time before which `p.tick` returns nothing (see the module docstring), or inf."""
+    if not p.published or p.ghost is None:
+        return math.inf
+    r = p.rules
+    d = min(p.pub_t + r.validity(p.occupation), p.pub_t + r.heartbeat)
+    if p.last_t is not None:
+        d = min(d, p.last_t + r.lost_after)
+        if not r.halted:
+            d = min(d, p.last_t + r.max_gap)
+    return d - (1e-6 + abs(d) * 1e-12)
+
+
+class FleetCore:
+    """Players in slots (in the order they were added; a removed slot stays empty), stepped together."""
+
+    def __init__(self, capacity: int = 64) -> None:
+        self.players: list[Player | None] = []
+        self.geo: Geometry | None = None
+        self.net = None
+        self.last_now = -math.inf
+        self.counters = {"vector_fixes": 0, "scalar_fixes": 0, "scalar_ticks": 0}
+        self._cap = 0
+        self._grow(max(int(capacity), 1))
+
+    def _grow(self, cap: int) -> None:
+        old = self._cap
+
+        def grown(a: np.ndarray | None, fill, dtype, shape=()) -> np.ndarray:
+            b = np.full((cap, *shape), fill, dtype=dtype)
+            if a is not None:
+                b[:old] = a
+            return b
+
+        for f in _F:
+            setattr(self, f, grown(getattr(self, f, None), math.inf if f == "deadline" else 0.0, float))
+        for f in _I:
+            setattr(self, f, grown(getattr(self, f, None), 0, np.int64))
+        for f in _B:
+            setattr(self, f, grown(getattr(self, f, None), False, bool))
+        self.pe = grown(getattr(self, "pe", None), 0, np.int64, (W,))
+        self.pd = grown(getattr(self, "pd", None), 1, np.int64, (W,))
+        self.pc = grown(getattr(self, "pc", None), math.inf, float, (W + 1,))
+        self.ge = grown(getattr(self, "ge", None), 0, np.int64, (W,))
+        self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
+        self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
+        self.rs = grown(getattr(self, "rs", None), 0.0, float, (RECENT,))
+        self.rx = grown(getattr(self, "rx", None), 0.0, float, (RECENT,))
+        self.ry = grown(getattr(self, "ry", None), 0.0, float, (RECENT,))
+        self._paths: list = [None] * cap if old == 0 else self._paths + [None] * (cap - old)
+        self._cap = cap
+
+    # ---- slots ---------------------------------------------------------------------------------------------
+    def add(self, player: Player) -> int:
+        """Take a player (its state as it is); returns its slot."""
+        slot = len(self.players)
+        if slot >= self._cap:
+            self._grow(2 * self._cap)
+        self.players.append(player)
+        self.alive[slot] = True
+        self._load(slot)
+        return slot
+
+    def remove(self, slot: int) -> list[Unpublish]:
+        """Drop a slot's player: `Player.leave()`'s messages."""
+        p = self.player(slot)
+        self.players[slot] = None
+        self.alive[slot] = self.fast[slot] = self.dirty[slot] = False
+        self.deadline[slot] = math.inf
+        return p.leave()
+
+    def player(self, slot: int) -> Player:
+        """The slot's `Player`, its state written back from the arrays (the one truth from here on)."""
+        p = self.players[slot]
+        if p is None:
+            raise KeyError(f"slot {slot} holds no player")
+        if self.dirty[slot]:
+            self._store(slot, p)
+        return p
+
+    # ---- one tick ------------------------------------------------------------------------------------------
+    def step(self, now: float, due: Sequence[int] | np.ndarray, x: np.ndarray, y: np.ndarray, accuracy: float,
+             idle: Sequence[int] = ()) -> tuple[list[tuple[int, list[Publish | Unpublish]]], int]:
+        """Time `now` for every live slot: the slots in `due` take the fix (x[i], y[i]) (`feed` then `tick`),
+        the others `tick` (except those in `idle`). Returns ([(slot, messages)] in slot order, rejected fixes)."""
+        if not math.isfinite(now):
+            raise ValueError(f"now must be finite, got {now!r}")
+        if now < self.last_now:
+            raise ValueError(f"now {now!r} is before the last step at {self.last_now!r}")
+        self.last_now = now
+        n = len(self.players)
+        due = np.asarray(due, dtype=np.int64)
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        done = np.zeros(len(due), dtype=bool)
+        acc = float(accuracy)
+        if len(due) and math.isfinite(acc) and acc > 0.0:
+            cand = self.fast[due] & self.alive[due] & np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
+            rows = np.flatnonzero(cand)
+            if len(rows):
+                done[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+        self.counters["vector_fixes"] += int(done.sum())
+        work: dict[int, int] = {int(s): k for k, s in enumerate(due.tolist()) if not done[k]}
+        timers = self.alive[:n] & (self.deadline[:n] <= now)
+        timers[due[due < n]] = False
+        for s in idle:
+            timers[s] = False
+        for s in np.flatnonzero(timers).tolist():
+            work.setdefault(s, -1)
+        out: list[tuple[int, list[Publish | Unpublish]]] = []
+        rejected = 0
+        for s in sorted(work):
+            k = work[s]
+            p = self.players[s]
+            if p is None:
+                continue
+            if self.dirty[s]:
+                self._store(s, p)
+            if k < 0:
+                self.counters["scalar_ticks"] += 1
+                msgs = p.tick(now)
+                if not msgs:
+                    continue  # nothing changed: the deadline stays (it fires again until the exact test does)
+            else:
+                self.counters["scalar_fixes"] += 1
+                try:
+                    msgs = p.feed(float(x[k]), float(y[k]), now, acc) + p.tick(now)
+                except FixRejected:
+                    rejected += 1
+                    msgs = []
+            self._load(s)
+            if msgs:
+                out.append((s, msgs))
+        return out, rejected
+
+    # ---- the vectorised fix --------------------------------------------------------------------------------
+    def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float) -> np.ndarray:
+        """`Player.feed` + `tick` at `t` for slots `sl` where it is `_track_on`'s fix with no publish and no path
+        change: commits those rows and returns which they were (the rest is left untouched for the scalar)."""
+        geo = self.geo
+        pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
+        rows = np.arange(len(sl))
+        ks, kv, ka, kt = self.ks[sl], self.kv[sl], self.ka[sl], self.kt[sl]
+        dt = np.where(t > kt, t - kt, 0.0)
+        s_pred = ks + kv * dt + 0.5 * ka * dt * dt
+        k = (pc <= s_pred[:, None]).sum(axis=1) - 1
+        k = np.where(k < 0, 0, np.where(k >= pn, pn - 1, k))
+        e = pe[rows, k]
+        ok = geo.nseg[e] > 0
+        off = px = py = dist = np.zeros(len(sl))
+        if ok.any():
+            off, px, py, dist = (np.zeros(len(sl)) for _ in range(4))
+            w = np.flatnonzero(ok)
+            off[w], px[w], py[w], dist[w] = geo.project(x[w], y[w], e[w])
+        elen = geo.edge_len[e]
+        ok &= (dist <= self.swm[sl]) & (off > 0.0) & (off < elen) & geo.inner[e] & (dist <= self.reacq[sl])
+        # `_s_of`'s first case: the edge does not recur within three edges either side
+        j = k[:, None] + np.arange(-3, 4)[None, :]
+        inside = (j >= 0) & (j < pn[:, None])
+        same = (pe[rows[:, None], np.clip(j, 0, W - 1)] == e[:, None]) & inside
+        ok &= same.sum(axis=1) == 1
+        s_meas = pc[rows, k] + np.where(pd[rows, k] > 0, off, elen - off)
+        ok &= ~(np.abs(s_meas - s_pred) > self.reacq[sl])
+        dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
+        kup = kt < t
+        *new, sden = kf_update(s_meas, t, r, ks, kv, ka, self.p00[sl], self.p01[sl], self.p02[sl], self.p11[sl],
+                        self.p12[sl], self.p22[sl], kt, self.kq[sl], self.kacc[sl])
+        ns, nv, na, n00, n01, n02, n11, n12, n22 = new
+        ok &= kup & (sden > 0.0) & np.isfinite(ns)
+        vpeak_set = (nv > self.vpeak[sl]) | (t - self.vpeak_t[sl] > 120.0)
+        has_route = self.has_route[sl]
+        backwards = (nv < -self.v_start[sl]) & (nv + np.sqrt(np.maximum(n11, 0.0)) < 0.0)
+        rev = np.where(has_route | ~backwards, 0, self.rev[sl] + 1)
+        ok &= rev < 3
+        # `_maintain_path` would change the path: trimming behind or extending ahead
+        trim = (pn + 1 > 2) & (ns - self.behind[sl] > pc[:, 1])
+        vpos = np.where(nv > 0.0, nv, 0.0)
+        last = pe[rows, pn - 1], pd[rows, pn - 1]
+        extend = ((pc[rows, pn] < ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos) & (pn < W)
+                  & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl])))
+        ok &= ~(trim | extend)
+        # the recent fixes: path coordinates (tracker) and projected points (rules)
+        rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
+        rx = np.concatenate([self.rx[sl][:, 1:], px[:, None]], axis=1)
+        ry = np.concatenate([self.ry[sl][:, 1:], py[:, None]], axis=1)
+        rr_n = np.minimum(self.rr_n[sl] + 1, RECENT)
+        # `UpdateRules.decide` against the ghost
+        gs, gv, _beyond = ghost_s_speed(np.full(len(sl), t), self.g_t0[sl], self.g_s0[sl], self.g_v[sl],
+                                        self.g_a[sl], self.g_vmax[sl], self.g_tb[sl], self.g_sb[sl], self.g_vb[sl],
+                                        self.g_b[sl], self.g_stop[sl])
+        gv = np.where(_beyond, 0.0, gv)
+        gn = self.gn[sl]
+        glen = self.gc[sl][rows, gn]
+        gx, gy = geo.path_xy(np.where(glen < gs, glen, gs), self.ge[sl], self.gd[sl], self.gc[sl], gn)
+        v_stop = self.v_stop[sl]
+        thr = self.thr[sl]
+        stop = (gv > v_stop) & (nv < v_stop)
+        standing = gv <= v_stop
+        moved = np.zeros(len(sl), dtype=bool)
+        for m_n, limit in ((5, thr), (2, 1.6 * thr)):
+            m = np.minimum(rr_n, m_n)
+            mx = np.zeros(len(sl))
+            my = np.zeros(len(sl))
+            for c in range(RECENT - m_n, RECENT):
+                use = c >= RECENT - m
+                mx = np.where(use, mx + rx[:, c], mx)
+                my = np.where(use, my + ry[:, c], my)
+            moved |= hypot_py(mx / m - gx, my / m - gy) > limit
+        ex, ey = geo.path_xy(ns, pe, pd, pc, pn)
+        drift = hypot_py(gx - ex, gy - ey)
+        over = np.where(drift > thr, self.over[sl] + 1, 0)
+        drifted = (over >= self.confirm[sl]) | (drift > 1.5 * thr)
+        pub_t = self.pub_t[sl]
+        due = (t >= pub_t + self.validity[sl]) | (t - pub_t >= self.heartbeat[sl])
+        publish = stop | (standing & moved) | (~standing & drifted) | due
+        ok &= ~publish
+        # commit the rows that stay in arrays
+        w = np.flatnonzero(ok)
+        c = sl[w]
+        self.last_t[c] = t
+        self.mx[c], self.my[c] = x[w], y[w]
+        self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
+        self.dist_ema[c] = dist_ema[w]
+        for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), new, strict=True):
+            getattr(self, f)[c] = v[w]
+        self.kt[c] = t
+        vs = w[vpeak_set[w]]
+        self.vpeak[sl[vs]] = nv[vs]
+        self.vpeak_t[sl[vs]] = t
+        self.rev[c] = rev[w]
+        self.rs[c] = rs[w]
+        self.rs_n[c] = np.minimum(self.rs_n[c] + 1, RECENT)
+        self.rx[c], self.ry[c], self.rr_n[c] = rx[w], ry[w], rr_n[w]
+        self.over[c] = np.where(standing[w], self.over[c], over[w])
+        d = np.minimum(np.minimum(pub_t[w] + self.validity[c], pub_t[w] + self.heartbeat[c]),
+                       np.minimum(t + self.lost_after[c], t + self.max_gap[c]))
+        self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
+        self.dirty[c] = True
+        return ok
+
+    # ---- arrays <-> Player ---------------------------------------------------------------------------------
+    def _store(self, s: int, p: Player) -> None:
+        """Write slot s's array state (newer after vectorised fixes) back into its Player."""
+        trk, rules, kf = p.tracker, p.rules, p.tracker.kf
+        t = float(self.last_t[s])
+        p.last_t = t
+        p.measured = (float(self.mx[s]), float(self.my[s]), t)
+        p.off_since = None
+        rules.halted = False
+        trk.pending = (-1, 0)
+        trk.last_fix = _new_fix(Fix, ("edge", int(self.lf_e[s]), float(self.lf_off[s]), float(self.lf_x[s]),
+                                      float(self.lf_y[s]), float(self.lf_d[s])))
+        trk.dist_ema = float(self.dist_ema[s])
+        n = int(self.rs_n[s])
+        trk.recent_s = self.rs[s, RECENT - n:].tolist()
+        kf.s, kf.v, kf.a = float(self.ks[s]), float(self.kv[s]), float(self.ka[s])
+        kf.p00, kf.p01, kf.p02 = float(self.p00[s]), float(self.p01[s]), float(self.p02[s])
+        kf.p11, kf.p12, kf.p22 = float(self.p11[s]), float(self.p12[s]), float(self.p22[s])
+        kf.t = float(self.kt[s])
+        trk.vpeak, trk.vpeak_t = float(self.vpeak[s]), float(self.vpeak_t[s])
+        trk.reverse_count = int(self.rev[s])
+        n = int(self.rr_n[s])
+        rules.recent = list(zip(self.rx[s, RECENT - n:].tolist(), self.ry[s, RECENT - n:].tolist(), strict=True))
+        rules.over = int(self.over[s])
+        self.dirty[s] = False
+
+    def _load(self, s: int) -> None:
+        """Read slot s's state from its Player (the truth after a scalar call): the deadline, and the arrays
+        when its next fix may take the vectorised path."""
+        p = self.players[s]
+        self.dirty[s] = False
+        self.deadline[s] = _deadline(p)
+        trk = p.tracker
+        ghost = p.ghost
+        ok = (trk is not None and p.world is None and trk.place is EDGE and trk.written_out and p.published
+              and isinstance(ghost, NetworkModel) and p.estimate is OWN_ESTIMATE and not p.rules.periodic
+              and p.last_t is not None and trk.kf is not None and len(trk.path.edges) <= W
+              and len(ghost.path.edges) <= W and len(trk.recent_s) <= RECENT and 0 < len(p.rules.recent) <= RECENT)
+        if ok:
+            if self.net is None:
+                self.net, self.geo = p.net, Geometry(p.net)
+            ok = p.net is self.net and trk.path.net is self.net and ghost.path.net is self.net
+        self.fast[s] = ok
+        if not ok:
+            return
+        rules, kf = p.rules, trk.kf
+        self.last_t[s] = p.last_t
+        lf = trk.last_fix
+        self.mx[s], self.my[s] = p.measured[0], p.measured[1]
+        self.lf_e[s], self.lf_off[s], self.lf_x[s], self.lf_y[s], self.lf_d[s] = lf[1], lf[2], lf[3], lf[4], lf[5]
+        paths = self._paths[s]
+        if paths is None or paths[0] is not trk.path:
+            self._put_path(s, trk.path, self.pe, self.pd, self.pc, self.pn)
+        if paths is None or paths[1] is not ghost.path:
+            self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
+        self._paths[s] = (trk.path, ghost.path)
+        self.ks[s], self.kv[s], self.ka[s], self.kt[s] = kf.s, kf.v, kf.a, kf.t
+        self.p00[s], self.p01[s], self.p02[s] = kf.p00, kf.p01, kf.p02
+        self.p11[s], self.p12[s], self.p22[s] = kf.p11, kf.p12, kf.p22
+        self.kq[s], self.kacc[s] = kf.q, kf.accel
+        self.dist_ema[s], self.vpeak[s], self.vpeak_t[s] = trk.dist_ema, trk.vpeak, trk.vpeak_t
+        self.rev[s] = trk.reverse_count
+        n = len(trk.recent_s)
+        self.rs_n[s] = n
+        self.rs[s, RECENT - n:] = trk.recent_s
+        n = len(rules.recent)
+        self.rr_n[s] = n
+        self.rx[s, RECENT - n:] = [pt[0] for pt in rules.recent]
+        self.ry[s, RECENT - n:] = [pt[1] for pt in rules.recent]
+        self.over[s], self.confirm[s], self.thr[s] = rules.over, rules.confirm, rules.threshold
+        placer = trk.placer
+        self.swm[s] = placer.switch_margin if trk.switch_margin is None else trk.switch_margin
+        self.reacq[s] = placer.reacquire
+        self.has_route[s] = trk.has_route
+        et = trk.etype
+        self.v_start[s], self.v_stop[s] = et.v_start, et.v_stop
+        self.behind[s] = trk.body + trk.margin + 50.0
+        self.la[s], self.mg[s] = trk.lookahead, trk.margin
+        self.dead_e[s], self.dead_d[s] = trk.dead_end if trk.dead_end is not None else (-1, 0)
+        self.pub_t[s] = p.pub_t
+        self.validity[s] = rules.validity(p.occupation)
+        self.heartbeat[s], self.max_gap[s], self.lost_after[s] = rules.heartbeat, rules.max_gap, rules.lost_after
+        tb, sb, vb, b = ghost.plan
+        self.g_t0[s], self.g_s0[s], self.g_v[s], self.g_a[s], self.g_vmax[s] = ghost.t0, ghost.s0, ghost.v, ghost.a, \
+            ghost.vmax
+        self.g_tb[s], self.g_sb[s], self.g_vb[s], self.g_b[s], self.g_stop[s] = tb, sb, vb, b, ghost.stop_s
+
+    @staticmethod
+    def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:
+        n = len(path.edges)
+        pn[s] = n
+        pe[s, :n] = [de[0] for de in path.edges]
+        pd[s, :n] = [de[1] for de in path.edges]
+        pc[s, : n + 1] = path.cum
+        pc[s, n + 1:] = math.inf
