@@ -5,7 +5,11 @@ Figures (keys of `results`):
   real time with the shard server in the same process on this machine, over real loopback sockets: tick
   lateness p99 under one tick and no tick more than one tick behind (no backlog). Populations double until one
   fails; `realtime_trials` lists every trial.
-- `fleet_fixes_per_s`: honest-client fixes per second on one core (GPS fix, client-core decision, message).
+- `fleet_fixes_per_s`: honest-client fixes per second on one core (GPS fix, client-core decision, message)
+  through the fleet core (`Fleet(core="fleet")`, entitynet/client/fleet.py); `fleet_fixes_per_s_player`: the same
+  population and seed through per-entity Players (`core="player"`), measured in the same run, alternating
+  rounds, the median of each; `fleet_core_speedup` their ratio and `fleet_vector_share` the fraction of fixes the
+  fleet core's arrays decided.
 - `deliveries_per_viewer_s`: UPDATEs per street-level viewer-second, subscribing by PVS and by a 500 m radius,
   from the same seeded run against the in-process switchboard core; `radius_vs_pvs_deliveries_ratio` their
   ratio; `messages_per_viewer_s` and `bytes_per_viewer_s` likewise (PVS).
@@ -61,9 +65,10 @@ def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: flo
             "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"], "ticks_behind": rt["ticks_behind"], "ok": ok}
 
 
-def _fleet_rate(topo, n: int, seconds: float) -> float:
-    """Fixes per second of the honest-client fleet alone (the world's stepping is timed apart and excluded)."""
-    sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5))
+def _fleet_rate(topo, n: int, seconds: float, core: str = "fleet") -> tuple[float, float]:
+    """Fixes per second of the honest-client fleet alone, CPU time of this process (the world's stepping is timed
+    apart and excluded), and the share of fixes the fleet core's arrays decided (0 for `core="player"`)."""
+    sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5, core=core))
     sim.start()
     fixes, spent = 0, 0.0
     for _ in range(int(seconds)):
@@ -75,7 +80,24 @@ def _fleet_rate(topo, n: int, seconds: float) -> float:
         sim.fleet.step(sim.now)
         spent += time.process_time() - t
         fixes += sim.fleet.counters["fixes"] - before
-    return fixes / spent if spent > 0 else 0.0
+    share = 0.0
+    if sim.fleet.fleet_core is not None:
+        c = sim.fleet.fleet_core.counters
+        share = c["vector_fixes"] / max(c["vector_fixes"] + c["scalar_fixes"], 1)
+    return (fixes / spent if spent > 0 else 0.0), share
+
+
+def _fleet_rates(topo, n: int, seconds: float, rounds: int) -> dict[str, float]:
+    """Both cores on the same population, alternating rounds (the machine's load drifts): medians and ratio."""
+    import statistics
+
+    fleet, player, share = [], [], 0.0
+    for _ in range(rounds):
+        rate, share = _fleet_rate(topo, n, seconds, "fleet")
+        fleet.append(rate)
+        player.append(_fleet_rate(topo, n, seconds, "player")[0])
+    f, p = statistics.median(fleet), statistics.median(player)
+    return {"fleet": f, "player": p, "ratio": f / p if p > 0 else None, "share": share}
 
 
 def run(args, progress) -> dict[str, Any]:
@@ -114,7 +136,7 @@ def run(args, progress) -> dict[str, Any]:
                       "missed_visibility": tv["missed_visibility"]})
 
     progress("fleet core: fixes per second on one core")
-    fleet_rate = _fleet_rate(topo, 300 if quick else 1000, 3 if quick else 10)
+    fleet = _fleet_rates(topo, 300 if quick else 1000, 3 if quick else 10, 1 if quick else 3)
 
     progress("real time with the server in this process")
     trials = []
@@ -135,7 +157,10 @@ def run(args, progress) -> dict[str, Any]:
     all_pvs = pvs["truth_vs_viewer"]["all"]
     results = {
         "entities_realtime_max": best,
-        "fleet_fixes_per_s": fleet_rate,
+        "fleet_fixes_per_s": fleet["fleet"],
+        "fleet_fixes_per_s_player": fleet["player"],
+        "fleet_core_speedup": fleet["ratio"],
+        "fleet_vector_share": fleet["share"],
         "deliveries_per_viewer_s": {"pvs": street_pvs["deliveries"], "radius": street_rad["deliveries"]},
         "radius_vs_pvs_deliveries_ratio": street_rad["deliveries"] / street_pvs["deliveries"]
         if street_pvs["deliveries"] else None,
@@ -156,12 +181,13 @@ def run(args, progress) -> dict[str, Any]:
     return {
         "params": {"quick": quick, "sim_seconds": seconds, "entities": entities, "viewers": viewers,
                    "realtime_seconds": rt_seconds, "tick_hz": 2.0, "gps_sigma_m": 5.0, "fix_hz": 1.0,
-                   "schedule": BUNDLED_FEED.name, "start": "08:00", "fleet_core": "per-entity Player (no vectorised "
-                   "fleet core yet)"},
+                   "schedule": BUNDLED_FEED.name, "start": "08:00",
+                   "fleet_core": "FleetCore (entitynet/client/fleet.py); baseline: per-entity Player, same run"},
         "results": results,
         "peer": {"radius_500m": {"deliveries_per_viewer_s": street_rad["deliveries"],
                                  "missed_visibility": rad["truth_vs_viewer"]["all"]["missed_visibility"]}},
-        "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"]},
+        "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"],
+                  "fleet_core_vs_player": fleet["ratio"]},
     }
 
 
