@@ -46,7 +46,7 @@ _F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "
       "dist_ema", "vpeak", "vpeak_t", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "pub_t",
       "validity", "heartbeat", "max_gap", "lost_after", "lf_off", "lf_x", "lf_y", "lf_d", "g_t0", "g_s0", "g_v",
       "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
-_I = ("pn", "gn", "rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d")
+_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
 _B = ("alive", "fast", "dirty", "kacc", "has_route")
 
 
@@ -84,10 +84,14 @@ class FleetCore:
                 b[:old] = a
             return b
 
-        for f in _F:
-            setattr(self, f, grown(getattr(self, f, None), math.inf if f == "deadline" else 0.0, float))
-        for f in _I:
-            setattr(self, f, grown(getattr(self, f, None), 0, np.int64))
+        # the scalar fields are columns of one matrix per dtype: `_load` writes a slot's row in one assignment
+        self.fm = grown(getattr(self, "fm", None), 0.0, float, (len(_F),))
+        self.im = grown(getattr(self, "im", None), 0, np.int64, (len(_I),))
+        self.fm[old:, _F.index("deadline")] = math.inf
+        for j, f in enumerate(_F):
+            setattr(self, f, self.fm[:, j])
+        for j, f in enumerate(_I):
+            setattr(self, f, self.im[:, j])
         for f in _B:
             setattr(self, f, grown(getattr(self, f, None), False, bool))
         self.pe = grown(getattr(self, "pe", None), 0, np.int64, (W,))
@@ -336,46 +340,36 @@ class FleetCore:
         if not ok:
             return
         rules, kf = p.rules, trk.kf
-        self.last_t[s] = p.last_t
         lf = trk.last_fix
-        self.mx[s], self.my[s] = p.measured[0], p.measured[1]
-        self.lf_e[s], self.lf_off[s], self.lf_x[s], self.lf_y[s], self.lf_d[s] = lf[1], lf[2], lf[3], lf[4], lf[5]
         paths = self._paths[s]
         if paths is None or paths[0] is not trk.path:
             self._put_path(s, trk.path, self.pe, self.pd, self.pc, self.pn)
         if paths is None or paths[1] is not ghost.path:
             self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
         self._paths[s] = (trk.path, ghost.path)
-        self.ks[s], self.kv[s], self.ka[s], self.kt[s] = kf.s, kf.v, kf.a, kf.t
-        self.p00[s], self.p01[s], self.p02[s] = kf.p00, kf.p01, kf.p02
-        self.p11[s], self.p12[s], self.p22[s] = kf.p11, kf.p12, kf.p22
-        self.kq[s], self.kacc[s] = kf.q, kf.accel
-        self.dist_ema[s], self.vpeak[s], self.vpeak_t[s] = trk.dist_ema, trk.vpeak, trk.vpeak_t
-        self.rev[s] = trk.reverse_count
-        n = len(trk.recent_s)
-        self.rs_n[s] = n
-        self.rs[s, RECENT - n:] = trk.recent_s
-        n = len(rules.recent)
-        self.rr_n[s] = n
-        self.rx[s, RECENT - n:] = [pt[0] for pt in rules.recent]
-        self.ry[s, RECENT - n:] = [pt[1] for pt in rules.recent]
-        self.over[s], self.confirm[s], self.thr[s] = rules.over, rules.confirm, rules.threshold
-        placer = trk.placer
-        self.swm[s] = placer.switch_margin if trk.switch_margin is None else trk.switch_margin
-        self.reacq[s] = placer.reacquire
-        self.has_route[s] = trk.has_route
-        et = trk.etype
-        self.v_start[s], self.v_stop[s] = et.v_start, et.v_stop
-        self.behind[s] = trk.body + trk.margin + 50.0
-        self.la[s], self.mg[s] = trk.lookahead, trk.margin
-        self.dead_e[s], self.dead_d[s] = trk.dead_end if trk.dead_end is not None else (-1, 0)
-        self.pub_t[s] = p.pub_t
-        self.validity[s] = rules.validity(p.occupation)
-        self.heartbeat[s], self.max_gap[s], self.lost_after[s] = rules.heartbeat, rules.max_gap, rules.lost_after
+        placer, et = trk.placer, trk.etype
         tb, sb, vb, b = ghost.plan
-        self.g_t0[s], self.g_s0[s], self.g_v[s], self.g_a[s], self.g_vmax[s] = ghost.t0, ghost.s0, ghost.v, ghost.a, \
-            ghost.vmax
-        self.g_tb[s], self.g_sb[s], self.g_vb[s], self.g_b[s], self.g_stop[s] = tb, sb, vb, b, ghost.stop_s
+        row = {
+            "last_t": p.last_t, "mx": p.measured[0], "my": p.measured[1], "deadline": self.deadline[s],
+            "ks": kf.s, "kv": kf.v, "ka": kf.a, "p00": kf.p00, "p01": kf.p01, "p02": kf.p02, "p11": kf.p11,
+            "p12": kf.p12, "p22": kf.p22, "kt": kf.t, "kq": kf.q, "dist_ema": trk.dist_ema, "vpeak": trk.vpeak,
+            "vpeak_t": trk.vpeak_t,
+            "swm": placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
+            "reacq": placer.reacquire, "v_start": et.v_start, "v_stop": et.v_stop,
+            "behind": trk.body + trk.margin + 50.0, "la": trk.lookahead, "mg": trk.margin, "thr": rules.threshold,
+            "pub_t": p.pub_t, "validity": rules.validity(p.occupation), "heartbeat": rules.heartbeat,
+            "max_gap": rules.max_gap, "lost_after": rules.lost_after, "lf_off": lf[2], "lf_x": lf[3], "lf_y": lf[4],
+            "lf_d": lf[5], "g_t0": ghost.t0, "g_s0": ghost.s0, "g_v": ghost.v, "g_a": ghost.a, "g_vmax": ghost.vmax,
+            "g_tb": tb, "g_sb": sb, "g_vb": vb, "g_b": b, "g_stop": ghost.stop_s,
+        }
+        self.fm[s] = [row[f] for f in _F]
+        dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
+        n_s, n_r = len(trk.recent_s), len(rules.recent)
+        self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
+        self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
+        self.rs[s, RECENT - n_s:] = trk.recent_s
+        self.rx[s, RECENT - n_r:] = [pt[0] for pt in rules.recent]
+        self.ry[s, RECENT - n_r:] = [pt[1] for pt in rules.recent]
 
     @staticmethod
     def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:
