@@ -45,7 +45,9 @@ RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent`
 _F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt", "kq",
       "dist_ema", "vpeak", "vpeak_t", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "pub_t",
       "validity", "heartbeat", "max_gap", "lost_after", "lf_off", "lf_x", "lf_y", "lf_d", "g_t0", "g_s0", "g_v",
-      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
+      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop",
+      *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)))  # rings: oldest first, last RECENT
+_RINGS = _F.index("rs0")
 _I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
 _B = ("alive", "fast", "dirty", "kacc", "has_route")
 
@@ -92,6 +94,9 @@ class FleetCore:
             setattr(self, f, self.fm[:, j])
         for j, f in enumerate(_I):
             setattr(self, f, self.im[:, j])
+        for ring in ("rs", "rx", "ry"):
+            j = _F.index(f"{ring}0")
+            setattr(self, ring, self.fm[:, j : j + RECENT])
         for f in _B:
             setattr(self, f, grown(getattr(self, f, None), False, bool))
         self.pe = grown(getattr(self, "pe", None), 0, np.int64, (W,))
@@ -100,9 +105,6 @@ class FleetCore:
         self.ge = grown(getattr(self, "ge", None), 0, np.int64, (W,))
         self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
         self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
-        self.rs = grown(getattr(self, "rs", None), 0.0, float, (RECENT,))
-        self.rx = grown(getattr(self, "rx", None), 0.0, float, (RECENT,))
-        self.ry = grown(getattr(self, "ry", None), 0.0, float, (RECENT,))
         self._paths: list = [None] * cap if old == 0 else self._paths + [None] * (cap - old)
         self._cap = cap
 
@@ -362,14 +364,13 @@ class FleetCore:
             "lf_d": lf[5], "g_t0": ghost.t0, "g_s0": ghost.s0, "g_v": ghost.v, "g_a": ghost.a, "g_vmax": ghost.vmax,
             "g_tb": tb, "g_sb": sb, "g_vb": vb, "g_b": b, "g_stop": ghost.stop_s,
         }
-        self.fm[s] = [row[f] for f in _F]
-        dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
         n_s, n_r = len(trk.recent_s), len(rules.recent)
+        pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
+        self.fm[s] = ([row[f] for f in _F[:_RINGS]] + pad_s + trk.recent_s + pad_r + [pt[0] for pt in rules.recent]
+                      + pad_r + [pt[1] for pt in rules.recent])
+        dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
         self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
         self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
-        self.rs[s, RECENT - n_s:] = trk.recent_s
-        self.rx[s, RECENT - n_r:] = [pt[0] for pt in rules.recent]
-        self.ry[s, RECENT - n_r:] = [pt[1] for pt in rules.recent]
 
     @staticmethod
     def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:
