@@ -32,6 +32,7 @@ import numpy as np
 
 from entitynet.client.fixes import FixRejected
 from entitynet.client.fleet_kernels import Geometry, ghost_s_speed, hypot_py, kf_update
+from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
 from entitynet.client.placement import Fix, _new_fix
@@ -45,7 +46,7 @@ RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent`
 _F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt", "kq",
       "dist_ema", "vpeak", "vpeak_t", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "pub_t",
       "validity", "heartbeat", "max_gap", "lost_after", "lf_off", "lf_x", "lf_y", "lf_d", "g_t0", "g_s0", "g_v",
-      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop",
+      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop", "body",
       *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)))  # rings: oldest first, last RECENT
 _RINGS = _F.index("rs0")
 _I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
@@ -71,6 +72,7 @@ class FleetCore:
     def __init__(self, capacity: int = 64) -> None:
         self.players: list[Player | None] = []
         self.geo: Geometry | None = None
+        self._near = NearTables()
         self.net = None
         self.last_now = -math.inf
         self.counters = {"vector_fixes": 0, "scalar_fixes": 0, "scalar_ticks": 0}
@@ -211,14 +213,24 @@ class FleetCore:
             w = np.flatnonzero(ok)
             off[w], px[w], py[w], dist[w] = geo.project(x[w], y[w], e[w])
         elen = geo.edge_len[e]
-        ok &= (dist <= self.swm[sl]) & (off > 0.0) & (off < elen) & geo.inner[e] & (dist <= self.reacq[sl])
+        swm, reacq = self.swm[sl], self.reacq[sl]
+        written_out = (dist <= swm) & (off > 0.0) & (off < elen) & geo.inner[e]  # `track`'s test for `_track_on`
+        gen = ok & ~written_out  # the neighbourhood search (`Placer.near`)
+        ok &= written_out & (dist <= reacq)
         # `_s_of`'s first case: the edge does not recur within three edges either side
         j = k[:, None] + np.arange(-3, 4)[None, :]
         inside = (j >= 0) & (j < pn[:, None])
         same = (pe[rows[:, None], np.clip(j, 0, W - 1)] == e[:, None]) & inside
         ok &= same.sum(axis=1) == 1
         s_meas = pc[rows, k] + np.where(pd[rows, k] > 0, off, elen - off)
-        ok &= ~(np.abs(s_meas - s_pred) > self.reacq[sl])
+        if gen.any():
+            g = np.flatnonzero(gen)
+            good, ge_, goff, gpx, gpy, gd, gs = self._near_fixes(sl[g], x[g], y[g], e[g], s_pred[g], pe[g], pd[g],
+                                                                 pc[g], pn[g], r)
+            ok[g] = good
+            e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
+            e[g], off[g], px[g], py[g], dist[g], s_meas[g] = ge_, goff, gpx, gpy, gd, gs
+        ok &= ~(np.abs(s_meas - s_pred) > reacq)
         dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
         kup = kt < t
         *new, sden = kf_update(s_meas, t, r, ks, kv, ka, self.p00[sl], self.p01[sl], self.p02[sl], self.p11[sl],
@@ -296,6 +308,39 @@ class FleetCore:
         self.dirty[c] = True
         return ok
 
+    def _near_fixes(self, sl, x, y, e, s_pred, pe, pd, pc, pn, r: float) -> tuple[np.ndarray, ...]:
+        """`track`'s general branch for fixes beyond the switch margin (or near an edge's end), where it ends in
+        the usual update: the fix on an edge of the path window [s_pred - body - 30, s_pred + 60], that edge once
+        in the path, no `_best_on` retry, within `reacquire`, and no consistency query of the placement index.
+        Returns (which rows qualify, edge, offset, px, py, distance, path coordinate)."""
+        rows = np.arange(len(sl))
+        start, count, usable = np.zeros(len(sl), np.int64), np.ones(len(sl), np.int64), np.zeros(len(sl), bool)
+        near = self._near
+        for i, (slot, edge) in enumerate(zip(sl.tolist(), e.tolist(), strict=True)):
+            start[i], count[i], usable[i] = near.rows_of(self.players[slot].tracker.placer, edge)
+        start = np.where(usable, start, 0)  # (a table not taken: any one row, searched and dropped)
+        count = np.where(usable, count, 1)
+        lo = (pc <= (s_pred - self.body[sl] - 30.0)[:, None]).sum(axis=1) - 1
+        lo = np.where(lo < 0, 0, np.where(lo >= pn, pn - 1, lo))
+        hi = (pc <= (s_pred + 60.0)[:, None]).sum(axis=1) - 1
+        hi = np.where(hi < 0, 0, np.where(hi >= pn, pn - 1, hi))
+        fe, off, px, py, d, pref = near.near(x, y, start, count, self.swm[sl], pe, lo, hi)
+        ok = usable & pref
+        # `_s_of(fix, s_pred, k_cur)` where the edge occurs once in the path: its one occurrence
+        occ = (pe == fe[:, None]) & (np.arange(W)[None, :] < pn[:, None])
+        ok &= occ.sum(axis=1) == 1
+        kf = np.argmax(occ, axis=1)
+        elen = self.geo.edge_len[fe]
+        s_fix = pc[rows, kf] + np.where(pd[rows, kf] > 0, off, elen - off)
+        sig = math.sqrt(r)
+        several = (pe[rows[:, None], np.arange(W)[None, :]] != pe[rows, lo][:, None])
+        several &= (np.arange(W)[None, :] >= lo[:, None]) & (np.arange(W)[None, :] <= hi[:, None])
+        ok &= ~(several.any(axis=1) & (np.abs(s_fix - s_pred) > 2.0 * sig))  # else `_best_on`
+        ok &= ~(d > self.reacq[sl])
+        ema = 0.7 * self.dist_ema[sl] + 0.3 * d
+        ok &= ~((ema > 1.5 * sig) & (d > self.swm[sl]))  # else the placement index is asked
+        return ok, fe, off, px, py, d, s_fix
+
     # ---- arrays <-> Player ---------------------------------------------------------------------------------
     def _store(self, s: int, p: Player) -> None:
         """Write slot s's array state (newer after vectorised fixes) back into its Player."""
@@ -362,7 +407,7 @@ class FleetCore:
             "pub_t": p.pub_t, "validity": rules.validity(p.occupation), "heartbeat": rules.heartbeat,
             "max_gap": rules.max_gap, "lost_after": rules.lost_after, "lf_off": lf[2], "lf_x": lf[3], "lf_y": lf[4],
             "lf_d": lf[5], "g_t0": ghost.t0, "g_s0": ghost.s0, "g_v": ghost.v, "g_a": ghost.a, "g_vmax": ghost.vmax,
-            "g_tb": tb, "g_sb": sb, "g_vb": vb, "g_b": b, "g_stop": ghost.stop_s,
+            "g_tb": tb, "g_sb": sb, "g_vb": vb, "g_b": b, "g_stop": ghost.stop_s, "body": trk.body,
         }
         n_s, n_r = len(trk.recent_s), len(rules.recent)
         pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
