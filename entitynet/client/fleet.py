@@ -75,7 +75,7 @@ class FleetCore:
         self._near = NearTables()
         self.net = None
         self.last_now = -math.inf
-        self.counters = {"vector_fixes": 0, "scalar_fixes": 0, "scalar_ticks": 0}
+        self.counters = {"vector_fixes": 0, "vector_near": 0, "scalar_fixes": 0, "scalar_ticks": 0}
         self._cap = 0
         self._grow(max(int(capacity), 1))
 
@@ -231,6 +231,7 @@ class FleetCore:
             e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
             e[g], off[g], px[g], py[g], dist[g], s_meas[g] = ge_, goff, gpx, gpy, gd, gs
         ok &= ~(np.abs(s_meas - s_pred) > reacq)
+        near_rows = gen
         dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
         kup = kt < t
         *new, sden = kf_update(s_meas, t, r, ks, kv, ka, self.p00[sl], self.p01[sl], self.p02[sl], self.p11[sl],
@@ -285,6 +286,7 @@ class FleetCore:
         publish = stop | (standing & moved) | (~standing & drifted) | due
         ok &= ~publish
         # commit the rows that stay in arrays
+        self.counters["vector_near"] += int((ok & near_rows).sum())
         w = np.flatnonzero(ok)
         c = sl[w]
         self.last_t[c] = t

@@ -67,9 +67,9 @@ class NearTables:
         d = np.sqrt(ex * ex + ey * ey)
         edge = self.edge[k]
         pref = np.zeros(len(k), dtype=bool)
-        lo_r, hi_r = lo[rep], hi[rep]
-        for j in range(int(lo.min()), int(hi.max()) + 1):
-            pref |= (pe[rep, j] == edge) & (lo_r <= j) & (j <= hi_r)
+        lo_r, span = lo[rep], (hi - lo)[rep]
+        for jj in range(int((hi - lo).max()) + 1):  # the window's columns, relative to its start
+            pref |= (pe[rep, np.minimum(lo_r + jj, pe.shape[1] - 1)] == edge) & (jj <= span)
         cost = d + np.where(pref, 0.0, margin[rep])
         cmin = np.minimum.reduceat(cost, gstart)
         hit = np.flatnonzero(cost == cmin[rep])

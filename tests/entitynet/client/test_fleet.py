@@ -121,6 +121,7 @@ def test_fleet_core_publishes_what_each_player_publishes(topo, share):
     c = core.counters
     assert c["vector_fixes"] >= share * (c["vector_fixes"] + c["scalar_fixes"]), c  # the arrays did the work
     assert c["scalar_ticks"] > 0
+    assert c["vector_near"] > 0 or share == 0.0  # fixes beyond the switch margin too (`Placer.near` in arrays)
     stats: dict[str, int] = {}
     for e in ents:  # (stats change only in scalar calls: the fleet's players hold them)
         for key, v in e[1].stats.items():
