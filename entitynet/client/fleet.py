@@ -35,6 +35,7 @@ from entitynet.client.fleet_kernels import Geometry, ghost_s_speed, hypot_py, kf
 from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
+from entitynet.client.path import Path
 from entitynet.client.placement import Fix, _new_fix
 from entitynet.client.player import Player
 from entitynet.client.rules import OWN_ESTIMATE
@@ -50,7 +51,7 @@ _F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "
       *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)))  # rings: oldest first, last RECENT
 _RINGS = _F.index("rs0")
 _I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
-_B = ("alive", "fast", "dirty", "kacc", "has_route")
+_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty")  # path_dirty: trimmed in the arrays
 
 
 def _deadline(p: Player) -> float:
@@ -75,7 +76,7 @@ class FleetCore:
         self._near = NearTables()
         self.net = None
         self.last_now = -math.inf
-        self.counters = {"vector_fixes": 0, "vector_near": 0, "scalar_fixes": 0, "scalar_ticks": 0}
+        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "scalar_fixes": 0, "scalar_ticks": 0}
         self._cap = 0
         self._grow(max(int(capacity), 1))
 
@@ -243,15 +244,31 @@ class FleetCore:
         backwards = (nv < -self.v_start[sl]) & (nv + np.sqrt(np.maximum(n11, 0.0)) < 0.0)
         rev = np.where(has_route | ~backwards, 0, self.rev[sl] + 1)
         ok &= rev < 3
-        # `_maintain_path` would change the path: trimming behind or extending ahead
-        trim = (pn + 1 > 2) & (ns - self.behind[sl] > pc[:, 1])
+        # the recent fixes: path coordinates (tracker) and projected points (rules)
+        rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
+        # `_maintain_path`: the edges behind the body and margin are trimmed here (`Path.trimmed`, `kf.shift`,
+        # `recent_s` shifted: the same subtractions); a path to extend ahead goes to the scalar code
+        keep = ns - self.behind[sl]
+        trim = (pn + 1 > 2) & (keep > pc[:, 1])
+        if trim.any():
+            kk = (pc <= keep[:, None]).sum(axis=1) - 1
+            kk = np.where(trim, np.where(kk < 0, 0, np.where(kk >= pn, pn - 1, kk)), 0)
+            c0 = pc[rows, kk]
+            trim &= (kk > 0) & (c0 > 0.0)  # (`trimmed` gives shift 0.0 there: nothing changes)
+            kk = np.where(trim, kk, 0)
+            jj = np.minimum(np.arange(W)[None, :] + kk[:, None], W - 1)
+            jc = np.arange(W + 1)[None, :] + kk[:, None]
+            pe, pd = pe[rows[:, None], jj], pd[rows[:, None], jj]
+            pc = np.where(trim[:, None], np.where(jc <= pn[:, None], pc[rows[:, None], np.minimum(jc, W)]
+                                                  - c0[:, None], np.inf), pc)
+            pn = pn - kk
+            ns = np.where(trim, ns - c0, ns)
+            rs = np.where(trim[:, None], rs - c0[:, None], rs)
         vpos = np.where(nv > 0.0, nv, 0.0)
         last = pe[rows, pn - 1], pd[rows, pn - 1]
         extend = ((pc[rows, pn] < ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos) & (pn < W)
                   & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl])))
-        ok &= ~(trim | extend)
-        # the recent fixes: path coordinates (tracker) and projected points (rules)
-        rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
+        ok &= ~extend
         rx = np.concatenate([self.rx[sl][:, 1:], px[:, None]], axis=1)
         ry = np.concatenate([self.ry[sl][:, 1:], py[:, None]], axis=1)
         rr_n = np.minimum(self.rr_n[sl] + 1, RECENT)
@@ -293,8 +310,14 @@ class FleetCore:
         self.mx[c], self.my[c] = x[w], y[w]
         self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
         self.dist_ema[c] = dist_ema[w]
-        for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), new, strict=True):
+        for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), [ns, *new[1:]], strict=True):
             getattr(self, f)[c] = v[w]
+        tw = w[trim[w]]
+        if len(tw):
+            self.counters["vector_trims"] += len(tw)
+            ct = sl[tw]
+            self.pe[ct], self.pd[ct], self.pc[ct], self.pn[ct] = pe[tw], pd[tw], pc[tw], pn[tw]
+            self.path_dirty[ct] = True
         self.kt[c] = t
         vs = w[vpeak_set[w]]
         self.vpeak[sl[vs]] = nv[vs]
@@ -358,6 +381,12 @@ class FleetCore:
         trk.dist_ema = float(self.dist_ema[s])
         n = int(self.rs_n[s])
         trk.recent_s = self.rs[s, RECENT - n:].tolist()
+        if self.path_dirty[s]:  # trimmed in the arrays: the same edges and cumulative lengths as `Path.suffix`
+            n = int(self.pn[s])
+            trk.path = Path(p.net, list(zip(self.pe[s, :n].tolist(), self.pd[s, :n].tolist(), strict=True)),
+                            _cum=self.pc[s, : n + 1].tolist())
+            self._paths[s] = (trk.path, self._paths[s][1])
+            self.path_dirty[s] = False
         kf.s, kf.v, kf.a = float(self.ks[s]), float(self.kv[s]), float(self.ka[s])
         kf.p00, kf.p01, kf.p02 = float(self.p00[s]), float(self.p01[s]), float(self.p02[s])
         kf.p11, kf.p12, kf.p22 = float(self.p11[s]), float(self.p12[s]), float(self.p22[s])

@@ -30,6 +30,7 @@ def test_grid_fleet_core_sends_what_the_players_send():
     _p, f = _both(grid(), 120, entities=30, tick_hz=2.0, transit=False, start=0.0)
     c = f.fleet.fleet_core.counters
     assert c["vector_fixes"] > 0.3 * (c["vector_fixes"] + c["scalar_fixes"])
+    assert c["vector_near"] > 0 and c["vector_trims"] > 0  # the neighbourhood search and path trims in arrays
     assert f.fleet.counters["published"] > 30
 
 
