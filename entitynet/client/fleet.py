@@ -9,17 +9,20 @@ once and calls an entity's own `Player` only where something happens:
    made earlier by 1e-6 s plus 1e-12 of its size, more than the rounding of the scalar tests (`now - last_t >=
    lost_after` and the like are a subtraction and a compare: one rounding). Before its deadline an entity's
    `tick` provably returns nothing and changes nothing, so only entities whose deadline has come call it.
-2. **The steady-state fix.** An entity placed on an edge whose fix takes `NetworkTracker._track_on` (within the
-   switch margin of the current edge, away from its ends, no area at either end, the edge not repeated nearby,
-   no re-acquisition), with a network ghost, and whose fix leads to no publish and no path change (no reversal,
-   no trimming or extension), is done entirely in arrays (fleet_kernels.py): prediction, projection, the
-   along-path filter, the recent-fix bookkeeping and `UpdateRules.decide`'s stop / start / drift / expiry
-   tests. Every other fix (first placement, near an edge end, an area, off the network, any fix that publishes)
-   goes to the entity's `Player` (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
+2. **The steady-state fix.** An entity placed on an edge, with a network ghost, whose fix ends in `track`'s
+   usual update is done entirely in arrays: either `NetworkTracker._track_on` (within the switch margin of the
+   current edge, away from its ends, no area at either end, the edge not repeated nearby) or, beyond the
+   margin, `Placer.near`'s neighbourhood search (fleet_near.py) choosing an edge of the path window that occurs
+   once in the path; then the along-path filter, the recent-fix bookkeeping, the path trimmed behind the body,
+   and `UpdateRules.decide`'s stop / start / drift / expiry tests (fleet_kernels.py). Every other fix (first
+   placement, an area or a neighbourhood holding one, a fix nearest another way, a reversal, a path to extend,
+   re-acquisition, any fix that publishes) goes to the entity's `Player` (`feed` then `tick`, as
+   `sims.engine.clients.Fleet` calls them).
 
 One source of truth: for an entity the arrays hold (`fast[i]`), its array state is the newer one after a
 vectorised fix (`dirty[i]`), and it is written back into the `Player` (`_store`) before any scalar call; after
-the call the arrays are read again from the `Player` (`_load`), which is then the truth. `player(slot)` returns
+the call the arrays are read again from the `Player` (`_load`), which is then the truth (a path trimmed in the
+arrays is rebuilt as the `Path` that `Path.suffix` would have made). `player(slot)` returns
 an entity's `Player` with its state written back. Doppler velocities are not taken (the fleet feeds positions).
 """
 
@@ -196,8 +199,8 @@ class FleetCore:
 
     # ---- the vectorised fix --------------------------------------------------------------------------------
     def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float) -> np.ndarray:
-        """`Player.feed` + `tick` at `t` for slots `sl` where it is `_track_on`'s fix with no publish and no path
-        change: commits those rows and returns which they were (the rest is left untouched for the scalar)."""
+        """`Player.feed` + `tick` at `t` for slots `sl` where the fix ends in the usual update with no publish
+        (module docstring): commits those rows and returns which they were (the rest is left to the scalar)."""
         geo = self.geo
         pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
         rows = np.arange(len(sl))
