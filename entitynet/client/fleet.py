@@ -253,20 +253,22 @@ class FleetCore:
         # `recent_s` shifted: the same subtractions); a path to extend ahead goes to the scalar code
         keep = ns - self.behind[sl]
         trim = (pn + 1 > 2) & (keep > pc[:, 1])
-        if trim.any():
-            kk = (pc <= keep[:, None]).sum(axis=1) - 1
-            kk = np.where(trim, np.where(kk < 0, 0, np.where(kk >= pn, pn - 1, kk)), 0)
-            c0 = pc[rows, kk]
-            trim &= (kk > 0) & (c0 > 0.0)  # (`trimmed` gives shift 0.0 there: nothing changes)
-            kk = np.where(trim, kk, 0)
+        if trim.any():  # (the trimmed rows only: shifting every row's 49 columns costs more than the rest)
+            tr = np.flatnonzero(trim)
+            kk = (pc[tr] <= keep[tr, None]).sum(axis=1) - 1
+            kk = np.where(kk < 0, 0, np.where(kk >= pn[tr], pn[tr] - 1, kk))
+            c0 = pc[tr, kk]
+            real = (kk > 0) & (c0 > 0.0)  # (`trimmed` gives shift 0.0 otherwise: nothing changes)
+            trim[tr] = real
+            tr, kk, c0 = tr[real], kk[real], c0[real]
             jj = np.minimum(np.arange(W)[None, :] + kk[:, None], W - 1)
             jc = np.arange(W + 1)[None, :] + kk[:, None]
-            pe, pd = pe[rows[:, None], jj], pd[rows[:, None], jj]
-            pc = np.where(trim[:, None], np.where(jc <= pn[:, None], pc[rows[:, None], np.minimum(jc, W)]
-                                                  - c0[:, None], np.inf), pc)
-            pn = pn - kk
-            ns = np.where(trim, ns - c0, ns)
-            rs = np.where(trim[:, None], rs - c0[:, None], rs)
+            pe, pd, pc, pn, ns, rs = pe.copy(), pd.copy(), pc.copy(), pn.copy(), ns.copy(), rs.copy()
+            pe[tr], pd[tr] = pe[tr[:, None], jj], pd[tr[:, None], jj]
+            pc[tr] = np.where(jc <= pn[tr, None], pc[tr[:, None], np.minimum(jc, W)] - c0[:, None], np.inf)
+            pn[tr] = pn[tr] - kk
+            ns[tr] = ns[tr] - c0
+            rs[tr] = rs[tr] - c0[:, None]
         vpos = np.where(nv > 0.0, nv, 0.0)
         last = pe[rows, pn - 1], pd[rows, pn - 1]
         extend = ((pc[rows, pn] < ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos) & (pn < W)

@@ -66,10 +66,15 @@ class NearTables:
         ey = ry - u * dy
         d = np.sqrt(ex * ex + ey * ey)
         edge = self.edge[k]
-        pref = np.zeros(len(k), dtype=bool)
-        lo_r, span = lo[rep], (hi - lo)[rep]
-        for jj in range(int((hi - lo).max()) + 1):  # the window's columns, relative to its start
-            pref |= (pe[rep, np.minimum(lo_r + jj, pe.shape[1] - 1)] == edge) & (jj <= span)
+        # preferred: (fix, edge) among the (fix, window edge) pairs, as one sorted search of int64 keys
+        span = hi - lo + 1
+        wrep = np.repeat(np.arange(n), span)
+        wcol = np.arange(int(span.sum())) - np.repeat(np.cumsum(span) - span, span) + lo[wrep]
+        big = int(max(int(pe.max()), int(edge.max()))) + 1
+        keys = np.sort(wrep * big + pe[wrep, wcol])
+        want = rep * big + edge
+        at = np.minimum(np.searchsorted(keys, want), len(keys) - 1)
+        pref = keys[at] == want
         cost = d + np.where(pref, 0.0, margin[rep])
         cmin = np.minimum.reduceat(cost, gstart)
         hit = np.flatnonzero(cost == cmin[rep])
