@@ -5,7 +5,13 @@ Figures (keys of `results`):
   real time with the shard server in the same process on this machine, over real loopback sockets: tick
   lateness p99 under one tick and no tick more than one tick behind (no backlog). Populations double until one
   fails; `realtime_trials` lists every trial.
-- `fleet_fixes_per_s`: honest-client fixes per second on one core (GPS fix, client-core decision, message).
+- `fleet_fixes_per_s`: honest-client fixes per second on one core (GPS fix, client-core decision, message)
+  through the fleet core (`Fleet(core="fleet")`, entitynet/client/fleet.py); `fleet_fixes_per_s_player`: the same
+  population, truth and seed through per-entity Players (`core="player"`), a second fleet stepped every tick
+  beside the first in alternating order (their messages are asserted equal); `fleet_core_speedup` their ratio
+  and `fleet_vector_share` the fraction of fixes the fleet core's arrays decided. Timed after 20 simulated s
+  (3 with `--quick`) that are not: the start's burst of
+  first placements and publishes is not the steady state.
 - `deliveries_per_viewer_s`: UPDATEs per street-level viewer-second, subscribing by PVS and by a 500 m radius,
   from the same seeded run against the in-process switchboard core; `radius_vs_pvs_deliveries_ratio` their
   ratio; `messages_per_viewer_s` and `bytes_per_viewer_s` likewise (PVS).
@@ -61,21 +67,65 @@ def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: flo
             "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"], "ticks_behind": rt["ticks_behind"], "ok": ok}
 
 
-def _fleet_rate(topo, n: int, seconds: float) -> float:
-    """Fixes per second of the honest-client fleet alone (the world's stepping is timed apart and excluded)."""
-    sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5))
-    sim.start()
-    fixes, spent = 0, 0.0
-    for _ in range(int(seconds)):
-        sim.world.step(1.0)
-        for a in sim.population.step():
-            sim.fleet.add(a)
-        before = sim.fleet.counters["fixes"]
-        t = time.process_time()
-        sim.fleet.step(sim.now)
-        spent += time.process_time() - t
-        fixes += sim.fleet.counters["fixes"] - before
-    return fixes / spent if spent > 0 else 0.0
+class _Removals:
+    """The world as one of two fleets sees it: the same truth, and the removals taken once for both."""
+
+    def __init__(self, world) -> None:
+        self._world = world
+        self.removed: list = []
+
+    def __getattr__(self, name: str):
+        return getattr(self._world, name)
+
+    def take_removed(self) -> list:
+        """The removals of this tick (taken from the world once, handed to each fleet)."""
+        out, self.removed = self.removed, []
+        return out
+
+
+def _fleet_rates(topo, n: int, seconds: float, warmup: float = 0.0) -> dict[str, float]:
+    """Fixes per second of the honest-client fleet alone, CPU time of this process, through the fleet core and
+    through per-entity Players: two fleets with the same seed fed the same truth, both stepped every tick in
+    alternating order (so the machine's drifting load falls on both alike), timed after `warmup` untimed
+    simulated seconds (the start's burst of first placements and publishes). Their messages are the same
+    (asserted); `share`: the fraction of fixes the fleet core's arrays decided."""
+    from sims.engine.clients import Fleet
+
+    sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5, core="fleet"))
+    views = {"fleet": _Removals(sim.world), "player": _Removals(sim.world)}
+    fleets = {core: Fleet(views[core], sim.config.connections, fix_interval=sim.config.fix_interval,
+                          gps_sigma=sim.config.gps_sigma, seed=sim.config.seed, core=core) for core in views}
+    for a in sim.population.start():
+        for f in fleets.values():
+            f.add(a)
+    spent = dict.fromkeys(fleets, 0.0)
+    fixes = 0
+    for k in range(int(warmup) + int(seconds) + 1):
+        if k:
+            sim.world.step(1.0)
+            for a in sim.population.step():
+                for f in fleets.values():
+                    f.add(a)
+        removed = sim.world.take_removed()
+        if k == int(warmup) + 1:
+            core = fleets["fleet"].fleet_core
+            core.counters.update(dict.fromkeys(core.counters, 0))
+        before = fleets["fleet"].counters["fixes"]
+        out = {}
+        for name in (("fleet", "player") if k % 2 else ("player", "fleet")):
+            views[name].removed = list(removed)
+            t = time.process_time()
+            out[name] = fleets[name].step(sim.now)
+            if k > int(warmup):
+                spent[name] += time.process_time() - t
+        assert out["fleet"] == out["player"], "the fleet core's messages differ from the per-entity Players'"
+        if k > int(warmup):
+            fixes += fleets["fleet"].counters["fixes"] - before
+    c = fleets["fleet"].fleet_core.counters
+    rate = {name: fixes / spent[name] if spent[name] > 0 else 0.0 for name in fleets}
+    return {"fleet": rate["fleet"], "player": rate["player"],
+            "ratio": rate["fleet"] / rate["player"] if rate["player"] > 0 else None,
+            "share": c["vector_fixes"] / max(c["vector_fixes"] + c["scalar_fixes"], 1)}
 
 
 def run(args, progress) -> dict[str, Any]:
@@ -114,7 +164,7 @@ def run(args, progress) -> dict[str, Any]:
                       "missed_visibility": tv["missed_visibility"]})
 
     progress("fleet core: fixes per second on one core")
-    fleet_rate = _fleet_rate(topo, 300 if quick else 1000, 3 if quick else 10)
+    fleet = _fleet_rates(topo, 300 if quick else 1000, 3 if quick else 10, 3 if quick else 20)
 
     progress("real time with the server in this process")
     trials = []
@@ -135,7 +185,10 @@ def run(args, progress) -> dict[str, Any]:
     all_pvs = pvs["truth_vs_viewer"]["all"]
     results = {
         "entities_realtime_max": best,
-        "fleet_fixes_per_s": fleet_rate,
+        "fleet_fixes_per_s": fleet["fleet"],
+        "fleet_fixes_per_s_player": fleet["player"],
+        "fleet_core_speedup": fleet["ratio"],
+        "fleet_vector_share": fleet["share"],
         "deliveries_per_viewer_s": {"pvs": street_pvs["deliveries"], "radius": street_rad["deliveries"]},
         "radius_vs_pvs_deliveries_ratio": street_rad["deliveries"] / street_pvs["deliveries"]
         if street_pvs["deliveries"] else None,
@@ -155,13 +208,15 @@ def run(args, progress) -> dict[str, Any]:
         _plot(sweep, Path(out).with_name("sim-error-vs-updates.png"), progress)
     return {
         "params": {"quick": quick, "sim_seconds": seconds, "entities": entities, "viewers": viewers,
-                   "realtime_seconds": rt_seconds, "tick_hz": 2.0, "gps_sigma_m": 5.0, "fix_hz": 1.0,
-                   "schedule": BUNDLED_FEED.name, "start": "08:00", "fleet_core": "per-entity Player (no vectorised "
-                   "fleet core yet)"},
+                   "realtime_seconds": rt_seconds, "fleet_warmup_s": 3 if quick else 20, "tick_hz": 2.0,
+                   "gps_sigma_m": 5.0, "fix_hz": 1.0,
+                   "schedule": BUNDLED_FEED.name, "start": "08:00",
+                   "fleet_core": "FleetCore (entitynet/client/fleet.py); baseline: per-entity Player, same run"},
         "results": results,
         "peer": {"radius_500m": {"deliveries_per_viewer_s": street_rad["deliveries"],
                                  "missed_visibility": rad["truth_vs_viewer"]["all"]["missed_visibility"]}},
-        "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"]},
+        "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"],
+                  "fleet_core_vs_player": fleet["ratio"]},
     }
 
 

@@ -6,6 +6,12 @@ a phone or a proxy would. Entities are multiplexed over a few connections as a p
 modulo the connection count); the wire id of an entity is its simulation id (local ids on a connection).
 Fixes are staggered over the fix interval by entity id so that a tick does not carry every fix at once; the
 client cores' timers (validity expiry, heartbeat) run every tick.
+
+`core="fleet"` (the default) steps every entity's client core through `entitynet.client.fleet.FleetCore`: the
+usual fix and the timers over arrays, the entity's own `Player` only where something happens; the messages are
+the same as `core="player"`'s (one `Player.feed` / `tick` per entity and tick), message for message
+(tests/sims/engine/test_fleet_core.py). The GPS noise of a tick's due fixes is drawn in one call, which gives the
+same numbers in the same order as one draw per fix.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import numpy as np
 
 from entitynet import protocol as P
 from entitynet.client import FixRejected, Player
+from entitynet.client.fleet import FleetCore
 from sims.engine.agents import Agent
 from sims.engine.world import World
 from sims.mobility.gps import GPS_SIGMA, gps
@@ -27,7 +34,9 @@ class Fleet:
 
     def __init__(self, world: World, connections: int = 4, *, fix_interval: float = 1.0,
                  gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None,
-                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None):
+                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None, core: str = "fleet"):
+        if core not in ("fleet", "player"):
+            raise ValueError(f"core must be 'fleet' or 'player', got {core!r}")
         if connections < 1:
             raise ValueError(f"at least one connection, got {connections}")
         if not fix_interval > 0.0:
@@ -46,6 +55,11 @@ class Fleet:
         self.players: dict[int, Player] = {}
         self.next_fix: dict[int, float] = {}
         self.counters = {"fixes": 0, "rejected_fixes": 0, "published": 0, "unpublished": 0}
+        self.core = core
+        self.fleet_core = FleetCore() if core == "fleet" else None
+        self._slot: dict[int, int] = {}  # fleet core: entity -> slot
+        self._aid: list[int] = []  # fleet core: slot -> entity
+        self._due = np.zeros(0)  # fleet core: next fix time per slot (inf: removed)
 
     def conn_of(self, entity: int) -> int:
         """The publisher connection carrying `entity`: id modulo the connection count (as a proxy splits a
@@ -67,10 +81,18 @@ class Fleet:
             self.home[a.id] = self.shard_at(float(x), float(y)) * self.per_shard + a.id % self.per_shard
         phase = (a.id * 0.618033988749895) % 1.0
         self.next_fix[a.id] = self.world.now + phase * self.fix_interval
+        if self.fleet_core is not None:
+            slot = self._slot[a.id] = self.fleet_core.add(self.players[a.id])
+            self._aid.append(a.id)
+            if slot >= len(self._due):
+                self._due = np.concatenate([self._due, np.full(max(64, len(self._due)), np.inf)])
+            self._due[slot] = self.next_fix[a.id]
 
     def step(self, now: float) -> list[list[P.Publish | P.Unpublish]]:
         """One tick: UNPUBLISH the removed entities, take the due GPS fixes through each client core and run the
         others' timers (so validity renewals are not held back to the next fix); messages per connection."""
+        if self.fleet_core is not None:
+            return self._step_fleet(now)
         out: list[list[P.Publish | P.Unpublish]] = [[] for _ in range(self.connections)]
         for aid, _why in self.world.take_removed():
             p = self.players.pop(aid, None)
@@ -104,6 +126,52 @@ class Fleet:
                 self.counters["rejected_fixes"] += 1
                 continue
             box = out[self.conn_of(aid)]
+            for m in msgs:
+                box.append(m)
+                self.counters["published" if isinstance(m, P.Publish) else "unpublished"] += 1
+        return out
+
+    def _step_fleet(self, now: float) -> list[list[P.Publish | P.Unpublish]]:
+        """`step` through the fleet core: the same fixes (same draws, same order), the same messages."""
+        out: list[list[P.Publish | P.Unpublish]] = [[] for _ in range(self.connections)]
+        core = self.fleet_core
+        for aid, _why in self.world.take_removed():
+            self.players.pop(aid, None)
+            self.next_fix.pop(aid, None)
+            slot = self._slot.pop(aid, None)
+            if slot is not None:
+                self._due[slot] = np.inf
+                msgs = core.remove(slot)
+                self.counters["unpublished"] += len(msgs)
+                out[self.conn_of(aid)].extend(msgs)
+        n = len(self._aid)
+        due = self._due[:n]
+        slots = np.flatnonzero(due <= now)
+        agents = self.world.agents
+        have, idle, xy = [], [], []
+        for s in slots.tolist():
+            a = agents.get(self._aid[s])
+            if a is None:
+                idle.append(s)  # as `step`: no fix and no timers for an entity whose truth is gone
+            else:
+                have.append(s)
+                xy.append(a.xy())
+        fix_slots = np.array(have, dtype=np.int64)
+        if len(fix_slots):
+            d = due[fix_slots]
+            fi = self.fix_interval
+            due[fix_slots] = d + fi * np.maximum(1.0, np.floor((now - d) / fi) + 1.0)
+            for s in have:
+                self.next_fix[self._aid[s]] = float(due[s])
+            fixes = gps(np.array(xy), self.rng, self.gps_sigma)
+        else:
+            fixes = np.zeros((0, 2))
+        self.counters["fixes"] += len(have)
+        results, rejected = core.step(now, fix_slots, fixes[:, 0], fixes[:, 1], self.gps_sigma, idle)
+        self.counters["rejected_fixes"] += rejected
+        aids = self._aid
+        for s, msgs in results:
+            box = out[self.conn_of(aids[s])]
             for m in msgs:
                 box.append(m)
                 self.counters["published" if isinstance(m, P.Publish) else "unpublished"] += 1

@@ -45,6 +45,7 @@ class SimConfig:
     sample_every: float = 1.0
     measure_after: float = 2.0  # s: the start, when every entity appears at once before its first fix, is not sampled
     threshold: float | None = None  # the client core's drift threshold (None: its default)
+    core: str = "fleet"  # the honest clients' core: "fleet" (vectorised, the same messages) or "player"
 
     def __post_init__(self) -> None:
         problems = []
@@ -64,6 +65,8 @@ class SimConfig:
             problems.append(f"subscribe by 'pvs' or 'radius', got {self.subscribe!r}")
         if not self.radius > 0:
             problems.append(f"radius must be > 0, got {self.radius}")
+        if self.core not in ("fleet", "player"):
+            problems.append(f"core must be 'fleet' or 'player', got {self.core!r}")
         if problems:
             raise ValueError("; ".join(problems))
 
@@ -81,7 +84,8 @@ class Sim:
                                                                   transit=config.transit), schedule)
         self.fleet = Fleet(self.world, config.connections, fix_interval=config.fix_interval,
                            gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold,
-                           shards=shards, shard_at=shard_at)  # shards: `connections` to each, by where entities are
+                           shards=shards, shard_at=shard_at,  # shards: `connections` to each, by where entities are
+                           core=config.core)
         if cells_at is None:
             cells_at = pvs_cells_at(topo) if config.subscribe == "pvs" else None
             if cells_at is None:

@@ -17,3 +17,11 @@ def test_per_viewer_rates_split_street_and_roof():
     total = sum(v.deliveries for v in sim.viewers)
     assert street["deliveries"] * 2 * 10.0 + roof["deliveries"] * 2 * 10.0 == total
     assert street["bytes"] > 0 and street["messages"] >= street["deliveries"]
+
+
+def test_fleet_rates_measure_both_cores_in_one_run():
+    from sims.bench.sim_bench import _fleet_rates
+
+    r = _fleet_rates(grid(), 20, 3, 2)  # (asserts the two fleets' messages equal every tick)
+    assert r["fleet"] > 0 and r["player"] > 0 and r["ratio"] == r["fleet"] / r["player"]
+    assert 0.0 < r["share"] <= 1.0  # the fleet run's arrays decided some fixes (the baseline's none)

@@ -1,0 +1,463 @@
+"""The fleet core: many entities' client cores stepped together, the usual fix and the timers over arrays.
+
+Why: a simulation or a proxy runs thousands of honest clients, and per entity and tick a `Player` costs tens of
+microseconds of Python even when it decides nothing. The fleet core runs the same decisions for all of them at
+once and calls an entity's own `Player` only where something happens:
+
+1. **Timers.** Per entity the earliest time at which `Player.tick` could return anything (the publish's
+   validity or heartbeat running out, `max_gap` and `lost_after` after the last fix) is kept in `deadline`,
+   made earlier by 1e-6 s plus 1e-12 of its size, more than the rounding of the scalar tests (`now - last_t >=
+   lost_after` and the like are a subtraction and a compare: one rounding). Before its deadline an entity's
+   `tick` provably returns nothing and changes nothing, so only entities whose deadline has come call it.
+2. **The steady-state fix.** An entity placed on an edge, with a network ghost, whose fix ends in `track`'s
+   usual update is done entirely in arrays: either `NetworkTracker._track_on` (within the switch margin of the
+   current edge, away from its ends, no area at either end, the edge not repeated nearby) or, beyond the
+   margin, `Placer.near`'s neighbourhood search (fleet_near.py) choosing an edge of the path window that occurs
+   once in the path; then the along-path filter, the recent-fix bookkeeping, the path trimmed behind the body,
+   and `UpdateRules.decide`'s stop / start / drift / expiry tests (fleet_kernels.py). Every other fix (first
+   placement, an area or a neighbourhood holding one, a fix nearest another way, a reversal, a path to extend,
+   re-acquisition, any fix that publishes) goes to the entity's `Player` (`feed` then `tick`, as
+   `sims.engine.clients.Fleet` calls them).
+
+One source of truth: for an entity the arrays hold (`fast[i]`), its array state is the newer one after a
+vectorised fix (`dirty[i]`), and it is written back into the `Player` (`_store`) before any scalar call; after
+the call the arrays are read again from the `Player` (`_load`), which is then the truth (a path trimmed in the
+arrays is rebuilt as the `Path` that `Path.suffix` would have made). `player(slot)` returns
+an entity's `Player` with its state written back. Doppler velocities are not taken (the fleet feeds positions).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from entitynet.client.fixes import FixRejected
+from entitynet.client.fleet_kernels import Geometry, ghost_s_speed, hypot_py, kf_update
+from entitynet.client.fleet_near import NearTables
+from entitynet.client.modes import EDGE
+from entitynet.client.motion import NetworkModel
+from entitynet.client.path import Path
+from entitynet.client.placement import Fix, _new_fix
+from entitynet.client.player import Player
+from entitynet.client.rules import OWN_ESTIMATE
+from entitynet.client.tracker import MAX_PATH_EDGES
+from entitynet.protocol import Publish, Unpublish
+
+W = MAX_PATH_EDGES  # the widest path a row holds (the tracker never keeps more edges)
+RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent`
+_F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt", "kq",
+      "dist_ema", "vpeak", "vpeak_t", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "pub_t",
+      "validity", "heartbeat", "max_gap", "lost_after", "lf_off", "lf_x", "lf_y", "lf_d", "g_t0", "g_s0", "g_v",
+      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop", "body",
+      *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)))  # rings: oldest first, last RECENT
+_RINGS = _F.index("rs0")
+_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
+_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty")  # path_dirty: trimmed in the arrays
+
+
+def _deadline(p: Player) -> float:
+    """The time before which `p.tick` returns nothing (see the module docstring), or inf."""
+    if not p.published or p.ghost is None:
+        return math.inf
+    r = p.rules
+    d = min(p.pub_t + r.validity(p.occupation), p.pub_t + r.heartbeat)
+    if p.last_t is not None:
+        d = min(d, p.last_t + r.lost_after)
+        if not r.halted:
+            d = min(d, p.last_t + r.max_gap)
+    return d - (1e-6 + abs(d) * 1e-12)
+
+
+class FleetCore:
+    """Players in slots (in the order they were added; a removed slot stays empty), stepped together."""
+
+    def __init__(self, capacity: int = 64) -> None:
+        self.players: list[Player | None] = []
+        self.geo: Geometry | None = None
+        self._near = NearTables()
+        self.net = None
+        self.last_now = -math.inf
+        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "scalar_fixes": 0, "scalar_ticks": 0}
+        self._cap = 0
+        self._grow(max(int(capacity), 1))
+
+    def _grow(self, cap: int) -> None:
+        old = self._cap
+
+        def grown(a: np.ndarray | None, fill, dtype, shape=()) -> np.ndarray:
+            b = np.full((cap, *shape), fill, dtype=dtype)
+            if a is not None:
+                b[:old] = a
+            return b
+
+        # the scalar fields are columns of one matrix per dtype: `_load` writes a slot's row in one assignment
+        self.fm = grown(getattr(self, "fm", None), 0.0, float, (len(_F),))
+        self.im = grown(getattr(self, "im", None), 0, np.int64, (len(_I),))
+        self.fm[old:, _F.index("deadline")] = math.inf
+        for j, f in enumerate(_F):
+            setattr(self, f, self.fm[:, j])
+        for j, f in enumerate(_I):
+            setattr(self, f, self.im[:, j])
+        for ring in ("rs", "rx", "ry"):
+            j = _F.index(f"{ring}0")
+            setattr(self, ring, self.fm[:, j : j + RECENT])
+        for f in _B:
+            setattr(self, f, grown(getattr(self, f, None), False, bool))
+        self.pe = grown(getattr(self, "pe", None), 0, np.int64, (W,))
+        self.pd = grown(getattr(self, "pd", None), 1, np.int64, (W,))
+        self.pc = grown(getattr(self, "pc", None), math.inf, float, (W + 1,))
+        self.ge = grown(getattr(self, "ge", None), 0, np.int64, (W,))
+        self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
+        self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
+        self._paths: list = [None] * cap if old == 0 else self._paths + [None] * (cap - old)
+        self._cap = cap
+
+    # ---- slots ---------------------------------------------------------------------------------------------
+    def add(self, player: Player) -> int:
+        """Take a player (its state as it is); returns its slot."""
+        slot = len(self.players)
+        if slot >= self._cap:
+            self._grow(2 * self._cap)
+        self.players.append(player)
+        self.alive[slot] = True
+        self._load(slot)
+        return slot
+
+    def remove(self, slot: int) -> list[Unpublish]:
+        """Drop a slot's player: `Player.leave()`'s messages."""
+        p = self.player(slot)
+        self.players[slot] = None
+        self.alive[slot] = self.fast[slot] = self.dirty[slot] = False
+        self.deadline[slot] = math.inf
+        return p.leave()
+
+    def player(self, slot: int) -> Player:
+        """The slot's `Player`, its state written back from the arrays (the one truth from here on)."""
+        p = self.players[slot]
+        if p is None:
+            raise KeyError(f"slot {slot} holds no player")
+        if self.dirty[slot]:
+            self._store(slot, p)
+        return p
+
+    # ---- one tick ------------------------------------------------------------------------------------------
+    def step(self, now: float, due: Sequence[int] | np.ndarray, x: np.ndarray, y: np.ndarray, accuracy: float,
+             idle: Sequence[int] = ()) -> tuple[list[tuple[int, list[Publish | Unpublish]]], int]:
+        """Time `now` for every live slot: the slots in `due` take the fix (x[i], y[i]) (`feed` then `tick`),
+        the others `tick` (except those in `idle`). Returns ([(slot, messages)] in slot order, rejected fixes)."""
+        if not math.isfinite(now):
+            raise ValueError(f"now must be finite, got {now!r}")
+        if now < self.last_now:
+            raise ValueError(f"now {now!r} is before the last step at {self.last_now!r}")
+        self.last_now = now
+        n = len(self.players)
+        due = np.asarray(due, dtype=np.int64)
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        done = np.zeros(len(due), dtype=bool)
+        acc = float(accuracy)
+        if len(due) and math.isfinite(acc) and acc > 0.0:
+            cand = self.fast[due] & self.alive[due] & np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
+            rows = np.flatnonzero(cand)
+            if len(rows):
+                done[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+        self.counters["vector_fixes"] += int(done.sum())
+        work: dict[int, int] = {int(s): k for k, s in enumerate(due.tolist()) if not done[k]}
+        timers = self.alive[:n] & (self.deadline[:n] <= now)
+        timers[due[due < n]] = False
+        for s in idle:
+            timers[s] = False
+        for s in np.flatnonzero(timers).tolist():
+            work.setdefault(s, -1)
+        out: list[tuple[int, list[Publish | Unpublish]]] = []
+        rejected = 0
+        for s in sorted(work):
+            k = work[s]
+            p = self.players[s]
+            if p is None:
+                continue
+            if self.dirty[s]:
+                self._store(s, p)
+            if k < 0:
+                self.counters["scalar_ticks"] += 1
+                msgs = p.tick(now)
+                if not msgs:
+                    continue  # nothing changed: the deadline stays (it fires again until the exact test does)
+            else:
+                self.counters["scalar_fixes"] += 1
+                try:
+                    msgs = p.feed(float(x[k]), float(y[k]), now, acc) + p.tick(now)
+                except FixRejected:
+                    rejected += 1
+                    msgs = []
+            self._load(s)
+            if msgs:
+                out.append((s, msgs))
+        return out, rejected
+
+    # ---- the vectorised fix --------------------------------------------------------------------------------
+    def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float) -> np.ndarray:
+        """`Player.feed` + `tick` at `t` for slots `sl` where the fix ends in the usual update with no publish
+        (module docstring): commits those rows and returns which they were (the rest is left to the scalar)."""
+        geo = self.geo
+        pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
+        rows = np.arange(len(sl))
+        ks, kv, ka, kt = self.ks[sl], self.kv[sl], self.ka[sl], self.kt[sl]
+        dt = np.where(t > kt, t - kt, 0.0)
+        s_pred = ks + kv * dt + 0.5 * ka * dt * dt
+        k = (pc <= s_pred[:, None]).sum(axis=1) - 1
+        k = np.where(k < 0, 0, np.where(k >= pn, pn - 1, k))
+        e = pe[rows, k]
+        ok = geo.nseg[e] > 0
+        off = px = py = dist = np.zeros(len(sl))
+        if ok.any():
+            off, px, py, dist = (np.zeros(len(sl)) for _ in range(4))
+            w = np.flatnonzero(ok)
+            off[w], px[w], py[w], dist[w] = geo.project(x[w], y[w], e[w])
+        elen = geo.edge_len[e]
+        swm, reacq = self.swm[sl], self.reacq[sl]
+        written_out = (dist <= swm) & (off > 0.0) & (off < elen) & geo.inner[e]  # `track`'s test for `_track_on`
+        gen = ok & ~written_out  # the neighbourhood search (`Placer.near`)
+        ok &= written_out & (dist <= reacq)
+        # `_s_of`'s first case: the edge does not recur within three edges either side
+        j = k[:, None] + np.arange(-3, 4)[None, :]
+        inside = (j >= 0) & (j < pn[:, None])
+        same = (pe[rows[:, None], np.clip(j, 0, W - 1)] == e[:, None]) & inside
+        ok &= same.sum(axis=1) == 1
+        s_meas = pc[rows, k] + np.where(pd[rows, k] > 0, off, elen - off)
+        if gen.any():
+            g = np.flatnonzero(gen)
+            good, ge_, goff, gpx, gpy, gd, gs = self._near_fixes(sl[g], x[g], y[g], e[g], s_pred[g], pe[g], pd[g],
+                                                                 pc[g], pn[g], r)
+            ok[g] = good
+            e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
+            e[g], off[g], px[g], py[g], dist[g], s_meas[g] = ge_, goff, gpx, gpy, gd, gs
+        ok &= ~(np.abs(s_meas - s_pred) > reacq)
+        near_rows = gen
+        dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
+        kup = kt < t
+        *new, sden = kf_update(s_meas, t, r, ks, kv, ka, self.p00[sl], self.p01[sl], self.p02[sl], self.p11[sl],
+                        self.p12[sl], self.p22[sl], kt, self.kq[sl], self.kacc[sl])
+        ns, nv, na, n00, n01, n02, n11, n12, n22 = new
+        ok &= kup & (sden > 0.0) & np.isfinite(ns)
+        vpeak_set = (nv > self.vpeak[sl]) | (t - self.vpeak_t[sl] > 120.0)
+        has_route = self.has_route[sl]
+        backwards = (nv < -self.v_start[sl]) & (nv + np.sqrt(np.maximum(n11, 0.0)) < 0.0)
+        rev = np.where(has_route | ~backwards, 0, self.rev[sl] + 1)
+        ok &= rev < 3
+        # the recent fixes: path coordinates (tracker) and projected points (rules)
+        rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
+        # `_maintain_path`: the edges behind the body and margin are trimmed here (`Path.trimmed`, `kf.shift`,
+        # `recent_s` shifted: the same subtractions); a path to extend ahead goes to the scalar code
+        keep = ns - self.behind[sl]
+        trim = (pn + 1 > 2) & (keep > pc[:, 1])
+        if trim.any():  # (the trimmed rows only: shifting every row's 49 columns costs more than the rest)
+            tr = np.flatnonzero(trim)
+            kk = (pc[tr] <= keep[tr, None]).sum(axis=1) - 1
+            kk = np.where(kk < 0, 0, np.where(kk >= pn[tr], pn[tr] - 1, kk))
+            c0 = pc[tr, kk]
+            real = (kk > 0) & (c0 > 0.0)  # (`trimmed` gives shift 0.0 otherwise: nothing changes)
+            trim[tr] = real
+            tr, kk, c0 = tr[real], kk[real], c0[real]
+            jj = np.minimum(np.arange(W)[None, :] + kk[:, None], W - 1)
+            jc = np.arange(W + 1)[None, :] + kk[:, None]
+            pe, pd, pc, pn, ns, rs = pe.copy(), pd.copy(), pc.copy(), pn.copy(), ns.copy(), rs.copy()
+            pe[tr], pd[tr] = pe[tr[:, None], jj], pd[tr[:, None], jj]
+            pc[tr] = np.where(jc <= pn[tr, None], pc[tr[:, None], np.minimum(jc, W)] - c0[:, None], np.inf)
+            pn[tr] = pn[tr] - kk
+            ns[tr] = ns[tr] - c0
+            rs[tr] = rs[tr] - c0[:, None]
+        vpos = np.where(nv > 0.0, nv, 0.0)
+        last = pe[rows, pn - 1], pd[rows, pn - 1]
+        extend = ((pc[rows, pn] < ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos) & (pn < W)
+                  & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl])))
+        ok &= ~extend
+        rx = np.concatenate([self.rx[sl][:, 1:], px[:, None]], axis=1)
+        ry = np.concatenate([self.ry[sl][:, 1:], py[:, None]], axis=1)
+        rr_n = np.minimum(self.rr_n[sl] + 1, RECENT)
+        # `UpdateRules.decide` against the ghost
+        gs, gv, _beyond = ghost_s_speed(np.full(len(sl), t), self.g_t0[sl], self.g_s0[sl], self.g_v[sl],
+                                        self.g_a[sl], self.g_vmax[sl], self.g_tb[sl], self.g_sb[sl], self.g_vb[sl],
+                                        self.g_b[sl], self.g_stop[sl])
+        gv = np.where(_beyond, 0.0, gv)
+        gn = self.gn[sl]
+        glen = self.gc[sl][rows, gn]
+        gx, gy = geo.path_xy(np.where(glen < gs, glen, gs), self.ge[sl], self.gd[sl], self.gc[sl], gn)
+        v_stop = self.v_stop[sl]
+        thr = self.thr[sl]
+        stop = (gv > v_stop) & (nv < v_stop)
+        standing = gv <= v_stop
+        moved = np.zeros(len(sl), dtype=bool)
+        for m_n, limit in ((5, thr), (2, 1.6 * thr)):
+            m = np.minimum(rr_n, m_n)
+            mx = np.zeros(len(sl))
+            my = np.zeros(len(sl))
+            for c in range(RECENT - m_n, RECENT):
+                use = c >= RECENT - m
+                mx = np.where(use, mx + rx[:, c], mx)
+                my = np.where(use, my + ry[:, c], my)
+            moved |= hypot_py(mx / m - gx, my / m - gy) > limit
+        ex, ey = geo.path_xy(ns, pe, pd, pc, pn)
+        drift = hypot_py(gx - ex, gy - ey)
+        over = np.where(drift > thr, self.over[sl] + 1, 0)
+        drifted = (over >= self.confirm[sl]) | (drift > 1.5 * thr)
+        pub_t = self.pub_t[sl]
+        due = (t >= pub_t + self.validity[sl]) | (t - pub_t >= self.heartbeat[sl])
+        publish = stop | (standing & moved) | (~standing & drifted) | due
+        ok &= ~publish
+        # commit the rows that stay in arrays
+        self.counters["vector_near"] += int((ok & near_rows).sum())
+        w = np.flatnonzero(ok)
+        c = sl[w]
+        self.last_t[c] = t
+        self.mx[c], self.my[c] = x[w], y[w]
+        self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
+        self.dist_ema[c] = dist_ema[w]
+        for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), [ns, *new[1:]], strict=True):
+            getattr(self, f)[c] = v[w]
+        tw = w[trim[w]]
+        if len(tw):
+            self.counters["vector_trims"] += len(tw)
+            ct = sl[tw]
+            self.pe[ct], self.pd[ct], self.pc[ct], self.pn[ct] = pe[tw], pd[tw], pc[tw], pn[tw]
+            self.path_dirty[ct] = True
+        self.kt[c] = t
+        vs = w[vpeak_set[w]]
+        self.vpeak[sl[vs]] = nv[vs]
+        self.vpeak_t[sl[vs]] = t
+        self.rev[c] = rev[w]
+        self.rs[c] = rs[w]
+        self.rs_n[c] = np.minimum(self.rs_n[c] + 1, RECENT)
+        self.rx[c], self.ry[c], self.rr_n[c] = rx[w], ry[w], rr_n[w]
+        self.over[c] = np.where(standing[w], self.over[c], over[w])
+        d = np.minimum(np.minimum(pub_t[w] + self.validity[c], pub_t[w] + self.heartbeat[c]),
+                       np.minimum(t + self.lost_after[c], t + self.max_gap[c]))
+        self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
+        self.dirty[c] = True
+        return ok
+
+    def _near_fixes(self, sl, x, y, e, s_pred, pe, pd, pc, pn, r: float) -> tuple[np.ndarray, ...]:
+        """`track`'s general branch for fixes beyond the switch margin (or near an edge's end), where it ends in
+        the usual update: the fix on an edge of the path window [s_pred - body - 30, s_pred + 60], that edge once
+        in the path, no `_best_on` retry, within `reacquire`, and no consistency query of the placement index.
+        Returns (which rows qualify, edge, offset, px, py, distance, path coordinate)."""
+        rows = np.arange(len(sl))
+        start, count, usable = np.zeros(len(sl), np.int64), np.ones(len(sl), np.int64), np.zeros(len(sl), bool)
+        near = self._near
+        for i, (slot, edge) in enumerate(zip(sl.tolist(), e.tolist(), strict=True)):
+            start[i], count[i], usable[i] = near.rows_of(self.players[slot].tracker.placer, edge)
+        start = np.where(usable, start, 0)  # (a table not taken: any one row, searched and dropped)
+        count = np.where(usable, count, 1)
+        lo = (pc <= (s_pred - self.body[sl] - 30.0)[:, None]).sum(axis=1) - 1
+        lo = np.where(lo < 0, 0, np.where(lo >= pn, pn - 1, lo))
+        hi = (pc <= (s_pred + 60.0)[:, None]).sum(axis=1) - 1
+        hi = np.where(hi < 0, 0, np.where(hi >= pn, pn - 1, hi))
+        fe, off, px, py, d, pref = near.near(x, y, start, count, self.swm[sl], pe, lo, hi)
+        ok = usable & pref
+        # `_s_of(fix, s_pred, k_cur)` where the edge occurs once in the path: its one occurrence
+        occ = (pe == fe[:, None]) & (np.arange(W)[None, :] < pn[:, None])
+        ok &= occ.sum(axis=1) == 1
+        kf = np.argmax(occ, axis=1)
+        elen = self.geo.edge_len[fe]
+        s_fix = pc[rows, kf] + np.where(pd[rows, kf] > 0, off, elen - off)
+        sig = math.sqrt(r)
+        several = (pe[rows[:, None], np.arange(W)[None, :]] != pe[rows, lo][:, None])
+        several &= (np.arange(W)[None, :] >= lo[:, None]) & (np.arange(W)[None, :] <= hi[:, None])
+        ok &= ~(several.any(axis=1) & (np.abs(s_fix - s_pred) > 2.0 * sig))  # else `_best_on`
+        ok &= ~(d > self.reacq[sl])
+        ema = 0.7 * self.dist_ema[sl] + 0.3 * d
+        ok &= ~((ema > 1.5 * sig) & (d > self.swm[sl]))  # else the placement index is asked
+        return ok, fe, off, px, py, d, s_fix
+
+    # ---- arrays <-> Player ---------------------------------------------------------------------------------
+    def _store(self, s: int, p: Player) -> None:
+        """Write slot s's array state (newer after vectorised fixes) back into its Player."""
+        trk, rules, kf = p.tracker, p.rules, p.tracker.kf
+        t = float(self.last_t[s])
+        p.last_t = t
+        p.measured = (float(self.mx[s]), float(self.my[s]), t)
+        p.off_since = None
+        rules.halted = False
+        trk.pending = (-1, 0)
+        trk.last_fix = _new_fix(Fix, ("edge", int(self.lf_e[s]), float(self.lf_off[s]), float(self.lf_x[s]),
+                                      float(self.lf_y[s]), float(self.lf_d[s])))
+        trk.dist_ema = float(self.dist_ema[s])
+        n = int(self.rs_n[s])
+        trk.recent_s = self.rs[s, RECENT - n:].tolist()
+        if self.path_dirty[s]:  # trimmed in the arrays: the same edges and cumulative lengths as `Path.suffix`
+            n = int(self.pn[s])
+            trk.path = Path(p.net, list(zip(self.pe[s, :n].tolist(), self.pd[s, :n].tolist(), strict=True)),
+                            _cum=self.pc[s, : n + 1].tolist())
+            self._paths[s] = (trk.path, self._paths[s][1])
+            self.path_dirty[s] = False
+        kf.s, kf.v, kf.a = float(self.ks[s]), float(self.kv[s]), float(self.ka[s])
+        kf.p00, kf.p01, kf.p02 = float(self.p00[s]), float(self.p01[s]), float(self.p02[s])
+        kf.p11, kf.p12, kf.p22 = float(self.p11[s]), float(self.p12[s]), float(self.p22[s])
+        kf.t = float(self.kt[s])
+        trk.vpeak, trk.vpeak_t = float(self.vpeak[s]), float(self.vpeak_t[s])
+        trk.reverse_count = int(self.rev[s])
+        n = int(self.rr_n[s])
+        rules.recent = list(zip(self.rx[s, RECENT - n:].tolist(), self.ry[s, RECENT - n:].tolist(), strict=True))
+        rules.over = int(self.over[s])
+        self.dirty[s] = False
+
+    def _load(self, s: int) -> None:
+        """Read slot s's state from its Player (the truth after a scalar call): the deadline, and the arrays
+        when its next fix may take the vectorised path."""
+        p = self.players[s]
+        self.dirty[s] = False
+        self.deadline[s] = _deadline(p)
+        trk = p.tracker
+        ghost = p.ghost
+        ok = (trk is not None and p.world is None and trk.place is EDGE and trk.written_out and p.published
+              and isinstance(ghost, NetworkModel) and p.estimate is OWN_ESTIMATE and not p.rules.periodic
+              and p.last_t is not None and trk.kf is not None and len(trk.path.edges) <= W
+              and len(ghost.path.edges) <= W and len(trk.recent_s) <= RECENT and 0 < len(p.rules.recent) <= RECENT)
+        if ok:
+            if self.net is None:
+                self.net, self.geo = p.net, Geometry(p.net)
+            ok = p.net is self.net and trk.path.net is self.net and ghost.path.net is self.net
+        self.fast[s] = ok
+        if not ok:
+            return
+        rules, kf = p.rules, trk.kf
+        lf = trk.last_fix
+        paths = self._paths[s]
+        if paths is None or paths[0] is not trk.path:
+            self._put_path(s, trk.path, self.pe, self.pd, self.pc, self.pn)
+        if paths is None or paths[1] is not ghost.path:
+            self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
+        self._paths[s] = (trk.path, ghost.path)
+        placer, et = trk.placer, trk.etype
+        tb, sb, vb, b = ghost.plan
+        row = {
+            "last_t": p.last_t, "mx": p.measured[0], "my": p.measured[1], "deadline": self.deadline[s],
+            "ks": kf.s, "kv": kf.v, "ka": kf.a, "p00": kf.p00, "p01": kf.p01, "p02": kf.p02, "p11": kf.p11,
+            "p12": kf.p12, "p22": kf.p22, "kt": kf.t, "kq": kf.q, "dist_ema": trk.dist_ema, "vpeak": trk.vpeak,
+            "vpeak_t": trk.vpeak_t,
+            "swm": placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
+            "reacq": placer.reacquire, "v_start": et.v_start, "v_stop": et.v_stop,
+            "behind": trk.body + trk.margin + 50.0, "la": trk.lookahead, "mg": trk.margin, "thr": rules.threshold,
+            "pub_t": p.pub_t, "validity": rules.validity(p.occupation), "heartbeat": rules.heartbeat,
+            "max_gap": rules.max_gap, "lost_after": rules.lost_after, "lf_off": lf[2], "lf_x": lf[3], "lf_y": lf[4],
+            "lf_d": lf[5], "g_t0": ghost.t0, "g_s0": ghost.s0, "g_v": ghost.v, "g_a": ghost.a, "g_vmax": ghost.vmax,
+            "g_tb": tb, "g_sb": sb, "g_vb": vb, "g_b": b, "g_stop": ghost.stop_s, "body": trk.body,
+        }
+        n_s, n_r = len(trk.recent_s), len(rules.recent)
+        pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
+        self.fm[s] = ([row[f] for f in _F[:_RINGS]] + pad_s + trk.recent_s + pad_r + [pt[0] for pt in rules.recent]
+                      + pad_r + [pt[1] for pt in rules.recent])
+        dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
+        self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
+        self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
+
+    @staticmethod
+    def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:
+        n = len(path.edges)
+        pn[s] = n
+        pe[s, :n] = [de[0] for de in path.edges]
+        pd[s, :n] = [de[1] for de in path.edges]
+        pc[s, : n + 1] = path.cum
+        pc[s, n + 1:] = math.inf
