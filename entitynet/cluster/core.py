@@ -34,17 +34,17 @@ from __future__ import annotations
 import itertools
 import logging
 from collections import Counter
-from dataclasses import dataclass, field
 from typing import Any
 
 import msgpack
 
 from entitynet import protocol as P
+from entitynet.cluster.failover import HEARTBEAT, ClusterFailoverMixin, Peer
 from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
 
 log = logging.getLogger("entitynet.cluster")
 
-STATE, LEAVE, SNAP_REQ, SNAP_REP, HEARTBEAT, FOLLOW_REQ = range(1, 7)
+STATE, LEAVE, SNAP_REQ, SNAP_REP, FOLLOW_REQ = 1, 2, 3, 4, 6  # (5: HEARTBEAT, in failover.py)
 INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py)
 MAX_REDIRECT_ENTITIES = 8  # a connection carrying more (a proxy's fleet) is not redirected: mirrors carry it
 
@@ -55,19 +55,7 @@ def _unpack(data: bytes) -> Any:
     return msgpack.unpackb(data, raw=False, strict_map_key=False, use_list=True)
 
 
-@dataclass
-class Peer:
-    """What this shard knows of another from its heartbeats; `alive` turns False after `dead_after_s` of
-    silence, which hands its regions to the survivors."""
-
-    shard: int
-    address: str = ""
-    last_seen: float = 0.0
-    alive: bool = True
-    counts: dict = field(default_factory=dict)
-
-
-class ClusterCore(ClusterQueriesMixin):
+class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
     """Cluster logic of one shard; installs itself as the switchboard's `cluster` hook (queries by identity
     across shards in `queries.py`)."""
 
@@ -110,41 +98,12 @@ class ClusterCore(ClusterQueriesMixin):
         self._next_hb = now
         self._next_follow_refresh = now
         self._owners_cache: tuple[frozenset[int], list[int]] | None = None
-
-    # ------------------------------------------------------------------------------------------ ownership
-    def live_shards(self, now: float) -> list[int]:
-        """Shards counted alive now, sorted (the failover rule indexes into it); a shard not heard from yet is
-        presumed alive for `dead_after_s` after start, so a cluster starting together does not reassign regions."""
-        live = {self.shard}
-        for s in range(self.regions.shards):
-            p = self.peers.get(s)
-            if p is not None and p.alive:
-                live.add(s)
-            elif p is None and now - self.started < self.dead_after_s:
-                live.add(s)  # not heard from yet: presumed alive while we start
-        return sorted(live)
-
-    def owner_of(self, region: int, live: list[int]) -> int:
-        """The failover rule: a region's own shard while it lives, else `live[region % len(live)]`."""
-        return region if region in live else live[region % len(live)]
-
-    def _owners(self, now: float) -> list[int]:
-        live = self.live_shards(now)
-        key = frozenset(live)
-        if self._owners_cache is None or self._owners_cache[0] != key:
-            self._owners_cache = (key, [self.owner_of(r, live) for r in range(self.regions.shards)])
-        return self._owners_cache[1]
-
-    def owned_regions(self, now: float) -> list[int]:
-        """The regions this shard serves now: its own, plus those of dead shards that the failover rule gives it."""
-        return [r for r, s in enumerate(self._owners(now)) if s == self.shard]
-
-    def address_of(self, shard: int) -> str | None:
-        """Where to REDIRECT a client for `shard`; None when that shard is dead or has not told us its address."""
-        if shard == self.shard:
-            return self.address
-        p = self.peers.get(shard)
-        return p.address if p is not None and p.alive and p.address else None
+        # a peer unheard for this long is "quiet": dying, not yet dead. No REDIRECT goes to it, a first PUBLISH
+        # for its regions is held (not refused), and another shard's word that it is dead is believed
+        self.quiet_s = min(2 * heartbeat_s, dead_after_s / 2)
+        # first PUBLISHes held while their region's owner is quiet: cid -> local id -> (message, when it came);
+        # judged again as soon as the owner is decided (declared dead, or heard again)
+        self.held: dict[int, dict[int, tuple[Any, float]]] = {}
 
     # ------------------------------------------------------------------------------------------ switchboard hooks
     def _pub(self, subject: str, payload: bytes, reply: str | None = None) -> None:
@@ -212,7 +171,7 @@ class ClusterCore(ClusterQueriesMixin):
 
     _now_hint = 0.0  # the latest `now` the core saw (hooks without a `now` use it)
 
-    def admit(self, c: Any, cells: tuple[int, ...], now: float) -> bool:
+    def admit(self, c: Any, cells: tuple[int, ...], now: float, msg: Any = None) -> bool:
         """A connection's first entity, wholly in other shards' regions: REDIRECT it before it is published here,
         so no viewer sees it under an id that is about to vanish (after a failover, while this shard still
         counts the old owner alive, that would be a second copy beside the old owner's)."""
@@ -225,11 +184,13 @@ class ClusterCore(ClusterQueriesMixin):
         target = owners[self.region_of[cells[0]]]
         if self.address_of(target) is None:
             return True  # nowhere to send it: serve it here
-        peer = self.peers.get(target)
-        if peer is not None and now - peer.last_seen > 2 * self.heartbeat_s:
+        if self._quiet(target, now):
             # its owner has gone quiet (dying?): sending the client there would cost it a failover, serving it
-            # here might show it twice; ignore this PUBLISH, the next one is judged once the owner is decided
+            # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
+            # moment the owner is decided (`_retry_held`): a client failing over early loses no time to it
             self.stats["admissions_deferred"] += 1
+            if msg is not None:
+                self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
             return False
         self._redirect(c, target)
         return False
@@ -251,8 +212,8 @@ class ClusterCore(ClusterQueriesMixin):
         handed those LEAVEs to NATS and NATS has confirmed them (`release_redirects`): only then can the client
         re-publish elsewhere, so the new shard's first UPDATE never overtakes our LEAVE."""
         address = self.address_of(shard)
-        if address is None or shard == self.shard:
-            return
+        if address is None or shard == self.shard or self._quiet(shard, self._now_hint):
+            return  # not to a shard that is gone or going quiet: the client would only fail over again
         self.redirected.add(c.cid)
         self.sb.redirect(c.cid, shard, address, send=False)
         self.redirects.append((c.cid, shard, address))
@@ -411,42 +372,16 @@ class ClusterCore(ClusterQueriesMixin):
         else:
             self.interest.pop(shard, None)
 
-    def _heartbeat(self, shard: int, m: list, now: float) -> None:
-        if not 0 <= shard < self.regions.shards:
-            self.stats["bad_messages"] += 1
-            return
-        if str(m[3]) != self.regions.digest:
-            self.stats["peer_map_mismatch"] += 1  # another cluster map: not one of ours
-            return
-        p = self.peers.get(shard)
-        if p is None:
-            p = self.peers[shard] = Peer(shard)
-        if not p.alive:
-            log.info("shard %d is back", shard)
-        p.address, p.last_seen, p.alive = str(m[2]), now, True
-        p.counts = dict(m[4]) if isinstance(m[4], dict) else {}
-
     # ------------------------------------------------------------------------------------------ time
     def tick(self, now: float) -> None:
         """Heartbeats, dead peers, follow interest, queries and follows that ran out of time."""
         self._now_hint = now
-        if now >= self._next_hb:
-            self._next_hb = now + self.heartbeat_s
-            counts = self.sb.counts()
-            counts["owned_regions"] = len(self.owned_regions(now))
-            counts["mirrored"] = sum(len(c.entities) for c in self.sb.mirrors.values())
-            counts["updates_in"] = self.sb.stats["updates_in"]
-            counts["deliveries"] = self.sb.stats["deliveries"]
-            counts.update(self.extra_counts())
-            self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT, self.shard, self.address, self.regions.digest,
-                                                   counts]))
         for p in self.peers.values():
-            if p.alive and now - p.last_seen > self.dead_after_s:
-                p.alive = False
-                n = self.sb.drop_shard(p.shard)
-                self._set_interest(p.shard, set())
-                self.stats["peers_lost"] += 1
-                log.warning("shard %d is gone: dropped its %d mirrored entities", p.shard, n)
+            if p.alive and now - p.last_seen >= self.dead_after_s:
+                self._declare_dead(p, now)
+        if now >= self._next_hb:
+            self._heartbeat_out(now)
+        self._retry_held(now)
         if now >= self._next_interest:  # the whole set now and then: a shard that started late learns it
             self._next_interest = now + 2.0
             self._pub(f"{self.prefix}.i", _packb([INTEREST, self.shard, sorted(self.nats_cells), [], True]))
@@ -472,8 +407,13 @@ class ClusterCore(ClusterQueriesMixin):
                 self.wake()
 
     def next_deadline(self) -> float:
-        """When `tick` must next run: the next heartbeat, interest or follow refresh, or query or follow timeout."""
+        """When `tick` must next run: the next heartbeat, interest or follow refresh, query or follow timeout, or
+        the moment a silent peer is due to be declared dead (not the next heartbeat after it: every survivor
+        then decides within a moment of the others)."""
         t = min(self._next_hb, self._next_follow_refresh, self._next_interest)
+        for p in self.peers.values():
+            if p.alive:
+                t = min(t, p.last_seen + self.dead_after_s)
         for q in self.queries.values():
             t = min(t, q.deadline)
         for waiting in self.pending_follows.values():
