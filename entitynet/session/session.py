@@ -63,18 +63,23 @@ class ClientSession:
 
     def __init__(self, address: Address, digest: str, token: str = "", *,
                  policy: ReconnectPolicy | None = None, ping_interval: float = 5.0,
-                 handshake_timeout: float = 10.0, alternates: tuple[Address, ...] = (), failover_s: float = 3.0):
+                 handshake_timeout: float = 10.0, alternates: tuple[Address, ...] = (), failover_s: float = 3.0,
+                 failover_attempts: int = 2):
         for name, v in (("ping_interval", ping_interval), ("handshake_timeout", handshake_timeout)):
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
         self.home: Address = address
-        # other shards of the cluster (given, or learned from REDIRECTs): once a shard has failed every attempt
-        # for `failover_s`, what it carried moves to the next of these (a dead switchboard's clients find a
-        # survivor, which REDIRECTs them on if their region went elsewhere). Keep it above the cluster's
-        # dead_after_s: the survivors have then dropped the dead shard's copies before we re-publish, so no
-        # viewer shows an entity twice
+        # other shards of the cluster (given, or learned from REDIRECTs): once a shard has failed
+        # `failover_attempts` attempts in a row (the lost link and one redial: a SIGKILLed shard refuses at once),
+        # or every attempt for `failover_s` (a shard that does not answer at all), what it carried moves to the
+        # next of these at once. A survivor holds a first PUBLISH for a dying shard's region until that shard is
+        # declared dead, then serves it or REDIRECTs it to the region's new owner (entitynet.cluster.failover),
+        # so moving early costs no duplicate and no second wait
         self.alternates: list[Address] = [a for a in alternates if a != address]
         self.failover_s = float(failover_s)
+        if failover_attempts < 0:
+            raise ValueError(f"failover_attempts must be >= 0 (0: by time only), got {failover_attempts!r}")
+        self.failover_attempts = int(failover_attempts)
         self._failover_turn = 0
         self.digest = digest
         self.token = token
@@ -178,7 +183,8 @@ class ClientSession:
         throttled, lk.throttle = lk.throttle > 0, 0.0
         if lk.failures == 1:
             lk.failing_since = now
-        if self.alternates and not throttled and now - lk.failing_since >= self.failover_s:
+        if self.alternates and not throttled and (now - lk.failing_since >= self.failover_s
+                                                  or 0 < self.failover_attempts <= lk.failures):
             self._fail_over(lk, now, out)
         return out
 
