@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import itertools
 import logging
-from collections import Counter
+from collections import Counter, deque
 from typing import Any
 
 import msgpack
@@ -46,6 +46,7 @@ log = logging.getLogger("entitynet.cluster")
 
 STATE, LEAVE, SNAP_REQ, SNAP_REP, FOLLOW_REQ = 1, 2, 3, 4, 6  # (5: HEARTBEAT, in failover.py)
 INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py)
+RESEND_LEAVES_S = 3.0  # LEAVEs published again after a NATS reconnect if they went out this recently
 MAX_REDIRECT_ENTITIES = 8  # a connection carrying more (a proxy's fleet) is not redirected: mirrors carry it
 
 _packb = msgpack.Packer(use_bin_type=True).pack
@@ -90,6 +91,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
         self.queries: dict = {}  # key -> queries._Query
         self.redirected: set[int] = set()
         self.redirects: list[tuple[int, int, str]] = []  # REDIRECTs waiting for NATS to have our LEAVEs
+        self.recent_leaves: deque[tuple[float, int, tuple[int, ...]]] = deque()  # (when, entity, its cells)
         self.interest: dict[int, set[int]] = {}  # other shard -> the cells it subscribes to
         self.wanted: Counter[int] = Counter()  # cell -> how many other shards want it
         self._next_interest = now
@@ -147,9 +149,15 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
             self._roam_publisher(c, e, now)
 
     def on_leave(self, e: Any) -> None:
-        """A local entity left: its LEAVE goes to the cells other shards want, and to its `P.e.<eid>` if followed."""
+        """A local entity left: its LEAVE goes to the cells other shards want, and to its `P.e.<eid>` if followed.
+        Recent LEAVEs are kept for `RESEND_LEAVES_S`: a NATS node that dies takes what was written to it."""
         self.sent_at.pop(e.eid, None)
         msg = _packb([LEAVE, self.shard, e.eid])
+        now = self._now_hint
+        recent = self.recent_leaves
+        while recent and recent[0][0] < now - RESEND_LEAVES_S:
+            recent.popleft()
+        recent.append((now, e.eid, tuple(e.cells)))
         for cell in e.cells:
             if self.wanted[cell]:
                 self._pub(f"{self.prefix}.c.{cell}", msg)
@@ -267,7 +275,17 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
         return subs, unsubs
 
     def resync(self) -> None:
-        """After a NATS reconnect: every subscribed cell needs a fresh snapshot (states may have been missed)."""
+        """After a NATS reconnect: the LEAVEs of the last `RESEND_LEAVES_S` go out again (those written to the
+        node that died never reached anyone, and a mirror left behind would show its entity twice once it
+        re-appears elsewhere under a new id: a LEAVE twice is harmless), and every subscribed cell needs a fresh
+        snapshot (states may have been missed)."""
+        for _t, eid, cells_left in self.recent_leaves:
+            if eid not in self.sb.entities:
+                msg = _packb([LEAVE, self.shard, eid])
+                for cell in cells_left:
+                    if self.wanted[cell]:
+                        self._pub(f"{self.prefix}.c.{cell}", msg)
+                self.stats["leaves_resent"] += 1
         cells = sorted(self.nats_cells)
         for i in range(0, len(cells), 2000):
             self._pub(f"{self.prefix}.snap", _packb([SNAP_REQ, self.shard, cells[i : i + 2000]]), self.inbox)

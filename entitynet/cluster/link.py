@@ -17,7 +17,7 @@ from typing import Any
 import trio
 
 from entitynet.cluster.core import ClusterCore
-from entitynet.cluster.nats_client import NatsClient
+from entitynet.cluster.nats_client import NatsClient, NatsConnectionLost
 
 log = logging.getLogger("entitynet.cluster")
 
@@ -115,10 +115,18 @@ class ClusterLink:
 
     async def _release(self) -> None:
         """Held REDIRECTs go out once NATS has confirmed everything published before them (a PING round trip):
-        the client's LEAVEs are then ahead of anything it can publish on its new shard."""
+        the client's LEAVEs are then ahead of anything it can publish on its new shard. A flush that loses its
+        connection proves nothing (the LEAVEs may have died with the node): wait for the reconnect, whose
+        resync publishes recent LEAVEs again, and flush there."""
         try:
             with trio.move_on_after(1.0):  # NATS unreachable: redirect anyway, a duplicate beats a stuck client
-                await self.nc.flush()
+                while True:
+                    try:
+                        await self.nc.flush()
+                        break
+                    except NatsConnectionLost:
+                        while not self.nc.connected:
+                            await trio.sleep(0.01)
         except trio.TooSlowError:
             pass
         finally:

@@ -114,3 +114,27 @@ def test_death_is_declared_at_its_deadline_not_at_the_next_heartbeat():
     assert core.next_deadline() == 2.5  # the deadline itself, not the heartbeat after it (2.6)
     core.tick(2.5)
     assert not core.peers[1].alive and core.owned_regions(2.5) == [0, 1]
+
+
+def test_leaves_written_to_a_nats_node_that_died_are_published_again_after_the_reconnect():
+    """A LEAVE that died with a NATS node would leave its mirror on the other shards until its validity ran out,
+    beside the entity's new copy once its client re-published elsewhere (a duplicate): after a reconnect the
+    recent LEAVEs go out again, and the other shard drops the mirror."""
+    bus = Bus(2)
+    bus.run(0.0)
+    a, b = bus.sbs
+    v = join(b)
+    b.receive(v, [P.Subscribe((10,), ())], 0.0)
+    bus.run(0.0)
+    p = join(a)
+    a.receive(p, [pub(1, 1, (10,), validity_ms=60_000)], 0.1)
+    bus.run(0.1)
+    (u,) = of(recv(b, v), P.Update)
+    a.disconnect(p, 0.2)  # its entity leaves
+    bus.cores[0].take_out()  # the LEAVE was written to the node that died: nobody got it
+    bus.run(0.3)
+    assert u.entity in b.entities  # the mirror stays (until its 60 s validity)
+    bus.cores[0].resync()  # NATS reconnected
+    bus.run(0.4)
+    assert u.entity not in b.entities and of(recv(b, v), P.Leave)
+    assert bus.cores[0].stats["leaves_resent"] == 1

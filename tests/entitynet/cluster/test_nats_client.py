@@ -91,3 +91,16 @@ async def test_a_killed_node_is_replaced_by_another_node_of_the_cluster(nats_clu
         assert reconnected == [1]
         await sub.flush()
         await _publish_until_heard(pub, "en.c.3", b"after", got)  # the re-sent SUB crosses to node 1's route
+
+
+async def test_a_flush_whose_connection_dies_fails_instead_of_confirming(nats_server):
+    """A REDIRECT waits for a flush to prove NATS has the client's LEAVEs; a flush cut by the node's death must
+    not pass for that proof (the bytes may have died with the node)."""
+    from entitynet.cluster.nats_client import NatsConnectionLost
+
+    async with NatsClient(nats_server.urls, name="a", reconnect_wait=0.05) as a:
+        await a.flush()
+        nats_server.nodes[0].kill()
+        with pytest.raises(NatsConnectionLost):
+            a.publish("x.y", b"lost with the node")
+            await a.flush(timeout=5)
