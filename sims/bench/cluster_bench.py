@@ -57,6 +57,7 @@ class _Beats:
     def __init__(self) -> None:
         self.latest: dict[int, dict] = {}
         self.times: dict[int, float] = {}
+        self.declared_dead: dict[int, float] = {}  # shard -> when a heartbeat first said it is dead
 
     def handler(self, subject: str, reply, data: bytes) -> None:
         import msgpack
@@ -65,6 +66,8 @@ class _Beats:
             m = msgpack.unpackb(data, raw=False, strict_map_key=False)
             self.latest[int(m[1])] = dict(m[4])
             self.times[int(m[1])] = trio.current_time()
+            for d in m[5] if len(m) > 5 else ():
+                self.declared_dead.setdefault(int(d), trio.current_time())
         except Exception:
             pass
 
@@ -141,15 +144,25 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
             t_kill = trio.current_time()
             shards.kill(1)
             killed = ("127.0.0.1", shards.ports[1])
-            recovered = None
+            recovered = rehomed = None
             with trio.move_on_after(20):
                 while True:  # its clients are home elsewhere, and every viewer sees exactly what it should
                     await trio.sleep(0.05)
                     missing, doubled = load.missing_and_doubled()
-                    if load.all_off(killed) and missing == 0 and doubled == 0:
+                    off = load.all_off(killed)
+                    if off and rehomed is None:
+                        rehomed = trio.current_time() - t_kill
+                    if off and missing == 0 and doubled == 0:
                         recovered = trio.current_time() - t_kill
                         break
             out["failover_recovery_s"] = None if recovered is None else round(recovered, 3)
+            # the timeline of that failover: a survivor's heartbeat says shard 1 is dead, every client it had is
+            # welcomed elsewhere, every viewer consistent (the recovery above)
+            dead_at = beats.declared_dead.get(1)
+            out["failover_timeline_s"] = {
+                "declared_dead": None if dead_at is None else round(dead_at - t_kill, 3),
+                "clients_rehomed": None if rehomed is None else round(rehomed, 3),
+                "viewers_consistent": out["failover_recovery_s"]}
             out["viewer_duplicates_after_failover"] = sum(v.duplicates for v in load.viewers) - \
                 (out["viewer_duplicates"] - doubled)
         nursery.cancel_scope.cancel()
