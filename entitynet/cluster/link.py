@@ -69,7 +69,8 @@ class ClusterLink:
                                     heartbeat_s=cfg.heartbeat_s, dead_after_s=cfg.dead_after_s,
                                     redirect_viewers=cfg.redirect_viewers, wake=self._poke)
             self.core.extra_counts = lambda: {"nats_in": nc.received, "nats_out": nc.published,
-                                              "nats_dropped": nc.dropped, "nats_reconnects": nc.reconnects}
+                                              "nats_writes": nc.writes, "nats_dropped": nc.dropped,
+                                              "nats_reconnects": nc.reconnects}
             p = self.core.prefix
             for sub in ("snap", "hb", "f", "q", "i"):
                 nc.subscribe(f"{p}.{sub}", self._on_msg)

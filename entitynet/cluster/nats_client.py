@@ -75,6 +75,7 @@ class NatsClient:
         self.reconnect_wait = reconnect_wait
         self.connect_timeout = connect_timeout
         self.on_reconnect = on_reconnect
+        self.writes = 0  # socket writes (each carries every publication queued since the last)
         self.info: dict = {}
         self.connected = False
         self.reconnects = 0
@@ -246,6 +247,7 @@ class NatsClient:
                 while self._out:
                     data = bytes(self._out)
                     self._out.clear()
+                    self.writes += 1
                     await stream.send_all(data)
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as exc:
             log.info("NATS write failed: %s", exc)
