@@ -58,7 +58,7 @@ def _unpack(data: bytes) -> Any:
 
 class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
     """Cluster logic of one shard; installs itself as the switchboard's `cluster` hook (queries by identity
-    across shards in `queries.py`)."""
+    across shards in `queries.py`; liveness, ownership and failover in `failover.py`)."""
 
     def __init__(self, sb: Any, regions: Any, shard: int, address: str, *, now: float, inbox: str,
                  heartbeat_s: float = 0.5, dead_after_s: float = 2.0, follow_ttl_s: float = 6.0,
