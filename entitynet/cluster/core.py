@@ -106,6 +106,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
         # first PUBLISHes held while their region's owner is quiet: cid -> local id -> (message, when it came);
         # judged again as soon as the owner is decided (declared dead, or heard again)
         self.held: dict[int, dict[int, tuple[Any, float]]] = {}
+        self.hold_since: dict[int, float] = {}  # cid -> when its first PUBLISH was held
 
     # ------------------------------------------------------------------------------------------ switchboard hooks
     def _pub(self, subject: str, payload: bytes, reply: str | None = None) -> None:
@@ -188,18 +189,25 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
             return True
         owners = self._owners(now)
         if any(owners[self.region_of[cell]] == self.shard for cell in cells):
+            self.hold_since.pop(c.cid, None)
             return True
         target = owners[self.region_of[cells[0]]]
         if self.address_of(target) is None:
+            self.hold_since.pop(c.cid, None)
             return True  # nowhere to send it: serve it here
-        if self._quiet(target, now):
-            # its owner has gone quiet (dying?): sending the client there would cost it a failover, serving it
+        since = self.hold_since.get(c.cid, now)
+        if self._quiet(target, now) or not self._heard_since(target, since):
+            # its owner has not been heard since this client came (a client failing over arrives after its shard
+            # died) or has gone quiet (dying?): sending the client there could cost it a failover, serving it
             # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
-            # moment the owner is decided (`_retry_held`): a client failing over early loses no time to it
+            # moment the owner is heard or decided (`_retry_held`): at most a heartbeat for a client that merely
+            # started on the wrong shard, and no round trip to a dead shard for one failing over
             self.stats["admissions_deferred"] += 1
             if msg is not None:
                 self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
+                self.hold_since.setdefault(c.cid, now)
             return False
+        self.hold_since.pop(c.cid, None)
         self._redirect(c, target)
         return False
 

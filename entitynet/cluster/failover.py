@@ -81,6 +81,12 @@ class ClusterFailoverMixin:
         p = self.peers.get(shard)
         return p is not None and p.alive and now - p.last_seen > self.quiet_s
 
+    def _heard_since(self, shard: int, since: float) -> bool:
+        """Whether `shard` sent a heartbeat after `since` (True for ourselves, and for a shard not heard from
+        at all yet: a cluster starting together presumes its peers alive)."""
+        p = self.peers.get(shard)
+        return shard == self.shard or p is None or p.last_seen > since
+
     def _retry_held(self, now: float) -> None:
         """Judge the held first PUBLISHes again (their validity shortened by the wait): admitted here, REDIRECTed
         to the region's new owner, or held on while it is still undecided."""
@@ -90,6 +96,7 @@ class ClusterFailoverMixin:
         for cid, msgs in held.items():
             c = self.sb.clients.get(cid)
             if c is None or c.closing:
+                self.hold_since.pop(cid, None)
                 continue
             for m, at in msgs.values():
                 left = m.validity_ms - round((now - at) * 1000)
@@ -108,7 +115,6 @@ class ClusterFailoverMixin:
             p = self.peers[shard] = Peer(shard)
         if not p.alive:
             log.info("shard %d is back", shard)
-        was_quiet = self._quiet(shard, now)
         p.address, p.last_seen, p.alive = str(m[2]), now, True
         p.counts = dict(m[4]) if isinstance(m[4], dict) else {}
         # another survivor declared these shards dead: believe it for any that is quiet here too, at once. Its
@@ -119,8 +125,8 @@ class ClusterFailoverMixin:
             q = self.peers.get(int(d))
             if q is not None and q.alive and int(d) != self.shard and self._quiet(int(d), now):
                 self._declare_dead(q, now, by=shard)
-        if self.held and (was_quiet or len(m) > 5 and m[5]):
-            self.wake()  # an owner decided: the held PUBLISHes are judged at the next tick
+        if self.held:
+            self.wake()  # an owner heard or decided: the held PUBLISHes are judged at the next tick
 
     def _heartbeat_out(self, now: float) -> None:
         """Our heartbeat: address, map digest, counts, and the shards we hold dead (so every survivor drops a
