@@ -346,6 +346,23 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin):
                                   None if ident is None else str(ident),
                                   None if aud is None else frozenset(str(a) for a in aud))
         self.stats["states_in" if ok else "states_dropped"] += 1
+        if ok:
+            self._forget_if_out_of_view(int(eid), cells)
+
+    def _forget_if_out_of_view(self, eid: int, cells: list) -> None:
+        """A mirror that moved into cells nobody here watches (and nobody here follows) is dropped now: its owner
+        publishes its later states and its LEAVE only to those cells, which we do not subscribe to, so kept it
+        would linger unseen until its validity and grace ran out, and a viewer subscribing to its cell meanwhile
+        (a client failing over onto this shard) would be shown a ghost beside the entity's real copy."""
+        if eid in self.following or eid in self.pending_follows:
+            return
+        subs = self.sb.subscribers
+        if any(int(c) in subs for c in cells):
+            return
+        e = self.sb.entities.get(eid)
+        if e is not None and not e.followers and e.owner.mirror is not None:
+            self.sb.inject_leave(eid)  # its viewers here had their LEAVE when it left their cells
+            self.stats["mirrors_out_of_view"] += 1
 
     def _answer_snapshot(self, cells: list, reply: str, now: float) -> None:
         sb = self.sb

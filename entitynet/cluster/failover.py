@@ -137,6 +137,7 @@ class ClusterFailoverMixin:
         counts["mirrored"] = sum(len(c.entities) for c in self.sb.mirrors.values())
         counts["updates_in"] = self.sb.stats["updates_in"]
         counts["deliveries"] = self.sb.stats["deliveries"]
+        counts["held"] = len(self.held)
         counts.update(self.extra_counts())
         dead = sorted(p.shard for p in self.peers.values() if not p.alive)
         self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT, self.shard, self.address, self.regions.digest, counts,

@@ -123,7 +123,8 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
                     break
         out["settle_s"] = round(trio.current_time() - t_stop, 2)
         out["entities_lost"] = missing
-        out["viewer_duplicates"] = sum(v.duplicates for v in load.viewers) + doubled
+        dups_settled = sum(v.duplicates for v in load.viewers)
+        out["viewer_duplicates"] = dups_settled + doubled
         gaps = [g for v in load.viewers for g in v.gaps]
         out["handovers_seen"] = len(gaps)
         p99 = _p99(gaps)
@@ -140,6 +141,7 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
                     await trio.sleep(0.02)
             out["nats_node_failover_s"] = round(trio.current_time() - t_kill, 3)
             await trio.sleep(1.0)
+            out["viewer_duplicates_after_nats_failover"] = sum(v.duplicates for v in load.viewers) - dups_settled
             progress(f"{k} shards: SIGKILL of shard 1")
             t_kill = trio.current_time()
             shards.kill(1)
@@ -163,8 +165,8 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
                 "declared_dead": None if dead_at is None else round(dead_at - t_kill, 3),
                 "clients_rehomed": None if rehomed is None else round(rehomed, 3),
                 "viewers_consistent": out["failover_recovery_s"]}
-            out["viewer_duplicates_after_failover"] = sum(v.duplicates for v in load.viewers) - \
-                (out["viewer_duplicates"] - doubled)
+            # from the NATS node's kill on (both failovers), as before; the NATS part alone above
+            out["viewer_duplicates_after_failover"] = sum(v.duplicates for v in load.viewers) - dups_settled
         nursery.cancel_scope.cancel()
     return out
 

@@ -152,3 +152,28 @@ def test_leaves_written_to_a_nats_node_that_died_are_published_again_after_the_r
     bus.run(0.4)
     assert u.entity not in b.entities and of(recv(b, v), P.Leave)
     assert bus.cores[0].stats["leaves_resent"] == 1
+
+
+def test_a_mirror_that_moves_out_of_every_watched_cell_is_forgotten_not_left_as_a_ghost():
+    """Its owner publishes later states and its LEAVE only to the cells it is in, which this shard does not
+    watch: kept, the mirror lingered unseen for validity + grace, and a viewer failing over onto this shard and
+    subscribing to its cell was shown it beside the entity's real copy (the duplicates of issue 13's failover)."""
+    bus = Bus(2)
+    bus.run(0.0)
+    a, b = bus.sbs
+    v = join(b)
+    b.receive(v, [P.Subscribe((10,), ())], 0.0)
+    bus.run(0.0)
+    p = join(a)
+    a.receive(p, [pub(1, 1, (10,), validity_ms=60_000, payload=b"g")], 0.1)
+    bus.run(0.1)
+    (u,) = of(recv(b, v), P.Update)
+    a.receive(p, [pub(1, 2, (20,), validity_ms=60_000, payload=b"g")], 0.2)  # out of b's view
+    bus.run(0.2)
+    assert of(recv(b, v), P.Leave) and u.entity not in b.entities  # forgotten at once, not in 65 s
+    a.disconnect(p, 0.3)  # its LEAVE goes to cell 20 only: b does not watch it
+    bus.run(0.3)
+    refugee = join(b, now=0.4)
+    b.receive(refugee, [P.Subscribe((20,), ())], 0.4)
+    bus.run(0.4)
+    assert not of(recv(b, refugee), P.Update)  # no ghost
