@@ -95,12 +95,14 @@ class Connection:
         limits: P.CodecLimits = P.DEFAULT_LIMITS,
         alternates: tuple[tuple[str, int] | str, ...] = (),
         failover_s: float = 3.0,
+        failover_attempts: int = 2,
     ):
         # alternates: the cluster's other shards, where this client fails over when its shard keeps failing
+        # (`failover_attempts` attempts in a row, or for `failover_s`: ClientSession)
         self.session = ClientSession(
             address, digest, token, policy=ReconnectPolicy(backoff[0], backoff[1], reconnect),
             ping_interval=ping_interval, handshake_timeout=handshake_timeout, alternates=tuple(alternates),
-            failover_s=failover_s)
+            failover_s=failover_s, failover_attempts=failover_attempts)
         self.digest = digest
         self.token = token
         self.ssl_context = ssl_context

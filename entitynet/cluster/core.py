@@ -33,20 +33,21 @@ from __future__ import annotations
 
 import itertools
 import logging
-from collections import Counter
-from dataclasses import dataclass, field
+from collections import Counter, deque
 from typing import Any
 
 import msgpack
 
 from entitynet import protocol as P
+from entitynet.cluster.failover import HEARTBEAT, ClusterFailoverMixin, Peer
 from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
 from entitynet.cluster.roaming import CameraRoamingMixin
 
 log = logging.getLogger("entitynet.cluster")
 
-STATE, LEAVE, SNAP_REQ, SNAP_REP, HEARTBEAT, FOLLOW_REQ = range(1, 7)
+STATE, LEAVE, SNAP_REQ, SNAP_REP, FOLLOW_REQ = 1, 2, 3, 4, 6  # (5: HEARTBEAT, in failover.py)
 INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py)
+RESEND_LEAVES_S = 3.0  # LEAVEs published again after a NATS reconnect if they went out this recently
 MAX_REDIRECT_ENTITIES = 8  # a connection carrying more (a proxy's fleet) is not redirected: mirrors carry it
 
 _packb = msgpack.Packer(use_bin_type=True).pack
@@ -56,21 +57,9 @@ def _unpack(data: bytes) -> Any:
     return msgpack.unpackb(data, raw=False, strict_map_key=False, use_list=True)
 
 
-@dataclass
-class Peer:
-    """What this shard knows of another from its heartbeats; `alive` turns False after `dead_after_s` of
-    silence, which hands its regions to the survivors."""
-
-    shard: int
-    address: str = ""
-    last_seen: float = 0.0
-    alive: bool = True
-    counts: dict = field(default_factory=dict)
-
-
-class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
+class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin):
     """Cluster logic of one shard; installs itself as the switchboard's `cluster` hook (queries by identity
-    across shards in `queries.py`)."""
+    across shards in `queries.py`; liveness, ownership and failover in `failover.py`)."""
 
     def __init__(self, sb: Any, regions: Any, shard: int, address: str, *, now: float, inbox: str,
                  heartbeat_s: float = 0.5, dead_after_s: float = 2.0, follow_ttl_s: float = 6.0,
@@ -103,6 +92,7 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
         self.queries: dict = {}  # key -> queries._Query
         self.redirected: set[int] = set()
         self.redirects: list[tuple[int, int, str]] = []  # REDIRECTs waiting for NATS to have our LEAVEs
+        self.recent_leaves: deque[tuple[float, int, tuple[int, ...]]] = deque()  # (when, entity, its cells)
         self.interest: dict[int, set[int]] = {}  # other shard -> the cells it subscribes to
         self.wanted: Counter[int] = Counter()  # cell -> how many other shards want it
         self._next_interest = now
@@ -111,41 +101,13 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
         self._next_hb = now
         self._next_follow_refresh = now
         self._owners_cache: tuple[frozenset[int], list[int]] | None = None
-
-    # ------------------------------------------------------------------------------------------ ownership
-    def live_shards(self, now: float) -> list[int]:
-        """Shards counted alive now, sorted (the failover rule indexes into it); a shard not heard from yet is
-        presumed alive for `dead_after_s` after start, so a cluster starting together does not reassign regions."""
-        live = {self.shard}
-        for s in range(self.regions.shards):
-            p = self.peers.get(s)
-            if p is not None and p.alive:
-                live.add(s)
-            elif p is None and now - self.started < self.dead_after_s:
-                live.add(s)  # not heard from yet: presumed alive while we start
-        return sorted(live)
-
-    def owner_of(self, region: int, live: list[int]) -> int:
-        """The failover rule: a region's own shard while it lives, else `live[region % len(live)]`."""
-        return region if region in live else live[region % len(live)]
-
-    def _owners(self, now: float) -> list[int]:
-        live = self.live_shards(now)
-        key = frozenset(live)
-        if self._owners_cache is None or self._owners_cache[0] != key:
-            self._owners_cache = (key, [self.owner_of(r, live) for r in range(self.regions.shards)])
-        return self._owners_cache[1]
-
-    def owned_regions(self, now: float) -> list[int]:
-        """The regions this shard serves now: its own, plus those of dead shards that the failover rule gives it."""
-        return [r for r, s in enumerate(self._owners(now)) if s == self.shard]
-
-    def address_of(self, shard: int) -> str | None:
-        """Where to REDIRECT a client for `shard`; None when that shard is dead or has not told us its address."""
-        if shard == self.shard:
-            return self.address
-        p = self.peers.get(shard)
-        return p.address if p is not None and p.alive and p.address else None
+        # a peer unheard for this long is "quiet": dying, not yet dead. No REDIRECT goes to it, a first PUBLISH
+        # for its regions is held (not refused), and another shard's word that it is dead is believed
+        self.quiet_s = min(2 * heartbeat_s, dead_after_s / 2)
+        # first PUBLISHes held while their region's owner is quiet: cid -> local id -> (message, when it came);
+        # judged again as soon as the owner is decided (declared dead, or heard again)
+        self.held: dict[int, dict[int, tuple[Any, float]]] = {}
+        self.hold_since: dict[int, float] = {}  # cid -> when its first PUBLISH was held
 
     # ------------------------------------------------------------------------------------------ switchboard hooks
     def _pub(self, subject: str, payload: bytes, reply: str | None = None) -> None:
@@ -189,9 +151,15 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
             self._roam_publisher(c, e, now)
 
     def on_leave(self, e: Any) -> None:
-        """A local entity left: its LEAVE goes to the cells other shards want, and to its `P.e.<eid>` if followed."""
+        """A local entity left: its LEAVE goes to the cells other shards want, and to its `P.e.<eid>` if followed.
+        Recent LEAVEs are kept for `RESEND_LEAVES_S`: a NATS node that dies takes what was written to it."""
         self.sent_at.pop(e.eid, None)
         msg = _packb([LEAVE, self.shard, e.eid])
+        now = self._now_hint
+        recent = self.recent_leaves
+        while recent and recent[0][0] < now - RESEND_LEAVES_S:
+            recent.popleft()
+        recent.append((now, e.eid, tuple(e.cells)))
         for cell in e.cells:
             if self.wanted[cell]:
                 self._pub(f"{self.prefix}.c.{cell}", msg)
@@ -213,7 +181,7 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
 
     _now_hint = 0.0  # the latest `now` the core saw (hooks without a `now` use it)
 
-    def admit(self, c: Any, cells: tuple[int, ...], now: float) -> bool:
+    def admit(self, c: Any, cells: tuple[int, ...], now: float, msg: Any = None) -> bool:
         """A connection's first entity, wholly in other shards' regions: REDIRECT it before it is published here,
         so no viewer sees it under an id that is about to vanish (after a failover, while this shard still
         counts the old owner alive, that would be a second copy beside the old owner's)."""
@@ -222,16 +190,25 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
             return True
         owners = self._owners(now)
         if any(owners[self.region_of[cell]] == self.shard for cell in cells):
+            self.hold_since.pop(c.cid, None)
             return True
         target = owners[self.region_of[cells[0]]]
         if self.address_of(target) is None:
+            self.hold_since.pop(c.cid, None)
             return True  # nowhere to send it: serve it here
-        peer = self.peers.get(target)
-        if peer is not None and now - peer.last_seen > 2 * self.heartbeat_s:
-            # its owner has gone quiet (dying?): sending the client there would cost it a failover, serving it
-            # here might show it twice; ignore this PUBLISH, the next one is judged once the owner is decided
+        since = self.hold_since.get(c.cid, now)
+        if self._quiet(target, now) or not self._heard_since(target, since):
+            # its owner has not been heard since this client came (a client failing over arrives after its shard
+            # died) or has gone quiet (dying?): sending the client there could cost it a failover, serving it
+            # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
+            # moment the owner is heard or decided (`_retry_held`): at most a heartbeat for a client that merely
+            # started on the wrong shard, and no round trip to a dead shard for one failing over
             self.stats["admissions_deferred"] += 1
+            if msg is not None:
+                self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
+                self.hold_since.setdefault(c.cid, now)
             return False
+        self.hold_since.pop(c.cid, None)
         self._redirect(c, target)
         return False
 
@@ -252,8 +229,8 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
         handed those LEAVEs to NATS and NATS has confirmed them (`release_redirects`): only then can the client
         re-publish elsewhere, so the new shard's first UPDATE never overtakes our LEAVE."""
         address = self.address_of(shard)
-        if address is None or shard == self.shard:
-            return
+        if address is None or shard == self.shard or self._quiet(shard, self._now_hint):
+            return  # not to a shard that is gone or going quiet: the client would only fail over again
         self.redirected.add(c.cid)
         self.sb.redirect(c.cid, shard, address, send=False)
         self.redirects.append((c.cid, shard, address))
@@ -307,7 +284,17 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
         return subs, unsubs
 
     def resync(self) -> None:
-        """After a NATS reconnect: every subscribed cell needs a fresh snapshot (states may have been missed)."""
+        """After a NATS reconnect: the LEAVEs of the last `RESEND_LEAVES_S` go out again (those written to the
+        node that died never reached anyone, and a mirror left behind would show its entity twice once it
+        re-appears elsewhere under a new id: a LEAVE twice is harmless), and every subscribed cell needs a fresh
+        snapshot (states may have been missed)."""
+        for _t, eid, cells_left in self.recent_leaves:
+            if eid not in self.sb.entities:
+                msg = _packb([LEAVE, self.shard, eid])
+                for cell in cells_left:
+                    if self.wanted[cell]:
+                        self._pub(f"{self.prefix}.c.{cell}", msg)
+                self.stats["leaves_resent"] += 1
         cells = sorted(self.nats_cells)
         for i in range(0, len(cells), 2000):
             self._pub(f"{self.prefix}.snap", _packb([SNAP_REQ, self.shard, cells[i : i + 2000]]), self.inbox)
@@ -360,6 +347,23 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
                                   None if ident is None else str(ident),
                                   None if aud is None else frozenset(str(a) for a in aud))
         self.stats["states_in" if ok else "states_dropped"] += 1
+        if ok:
+            self._forget_if_out_of_view(int(eid), cells)
+
+    def _forget_if_out_of_view(self, eid: int, cells: list) -> None:
+        """A mirror that moved into cells nobody here watches (and nobody here follows) is dropped now: its owner
+        publishes its later states and its LEAVE only to those cells, which we do not subscribe to, so kept it
+        would linger unseen until its validity and grace ran out, and a viewer subscribing to its cell meanwhile
+        (a client failing over onto this shard) would be shown a ghost beside the entity's real copy."""
+        if eid in self.following or eid in self.pending_follows:
+            return
+        subs = self.sb.subscribers
+        if any(int(c) in subs for c in cells):
+            return
+        e = self.sb.entities.get(eid)
+        if e is not None and not e.followers and e.owner.mirror is not None:
+            self.sb.inject_leave(eid)  # its viewers here had their LEAVE when it left their cells
+            self.stats["mirrors_out_of_view"] += 1
 
     def _answer_snapshot(self, cells: list, reply: str, now: float) -> None:
         sb = self.sb
@@ -412,42 +416,16 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
         else:
             self.interest.pop(shard, None)
 
-    def _heartbeat(self, shard: int, m: list, now: float) -> None:
-        if not 0 <= shard < self.regions.shards:
-            self.stats["bad_messages"] += 1
-            return
-        if str(m[3]) != self.regions.digest:
-            self.stats["peer_map_mismatch"] += 1  # another cluster map: not one of ours
-            return
-        p = self.peers.get(shard)
-        if p is None:
-            p = self.peers[shard] = Peer(shard)
-        if not p.alive:
-            log.info("shard %d is back", shard)
-        p.address, p.last_seen, p.alive = str(m[2]), now, True
-        p.counts = dict(m[4]) if isinstance(m[4], dict) else {}
-
     # ------------------------------------------------------------------------------------------ time
     def tick(self, now: float) -> None:
         """Heartbeats, dead peers, follow interest, queries and follows that ran out of time."""
         self._now_hint = now
-        if now >= self._next_hb:
-            self._next_hb = now + self.heartbeat_s
-            counts = self.sb.counts()
-            counts["owned_regions"] = len(self.owned_regions(now))
-            counts["mirrored"] = sum(len(c.entities) for c in self.sb.mirrors.values())
-            counts["updates_in"] = self.sb.stats["updates_in"]
-            counts["deliveries"] = self.sb.stats["deliveries"]
-            counts.update(self.extra_counts())
-            self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT, self.shard, self.address, self.regions.digest,
-                                                   counts]))
         for p in self.peers.values():
-            if p.alive and now - p.last_seen > self.dead_after_s:
-                p.alive = False
-                n = self.sb.drop_shard(p.shard)
-                self._set_interest(p.shard, set())
-                self.stats["peers_lost"] += 1
-                log.warning("shard %d is gone: dropped its %d mirrored entities", p.shard, n)
+            if p.alive and now - p.last_seen >= self.dead_after_s:
+                self._declare_dead(p, now)
+        if now >= self._next_hb:
+            self._heartbeat_out(now)
+        self._retry_held(now)
         if now >= self._next_interest:  # the whole set now and then: a shard that started late learns it
             self._next_interest = now + 2.0
             self._pub(f"{self.prefix}.i", _packb([INTEREST, self.shard, sorted(self.nats_cells), [], True]))
@@ -473,8 +451,13 @@ class ClusterCore(ClusterQueriesMixin, CameraRoamingMixin):
                 self.wake()
 
     def next_deadline(self) -> float:
-        """When `tick` must next run: the next heartbeat, interest or follow refresh, or query or follow timeout."""
+        """When `tick` must next run: the next heartbeat, interest or follow refresh, query or follow timeout, or
+        the moment a silent peer is due to be declared dead (not the next heartbeat after it: every survivor
+        then decides within a moment of the others)."""
         t = min(self._next_hb, self._next_follow_refresh, self._next_interest)
+        for p in self.peers.values():
+            if p.alive:
+                t = min(t, p.last_seen + self.dead_after_s)
         for q in self.queries.values():
             t = min(t, q.deadline)
         for waiting in self.pending_follows.values():

@@ -17,7 +17,7 @@ from typing import Any
 import trio
 
 from entitynet.cluster.core import ClusterCore
-from entitynet.cluster.nats_client import NatsClient
+from entitynet.cluster.nats_client import NatsClient, NatsConnectionLost
 
 log = logging.getLogger("entitynet.cluster")
 
@@ -69,7 +69,8 @@ class ClusterLink:
                                     heartbeat_s=cfg.heartbeat_s, dead_after_s=cfg.dead_after_s,
                                     redirect_viewers=cfg.redirect_viewers, wake=self._poke)
             self.core.extra_counts = lambda: {"nats_in": nc.received, "nats_out": nc.published,
-                                              "nats_dropped": nc.dropped, "nats_reconnects": nc.reconnects}
+                                              "nats_writes": nc.writes, "nats_dropped": nc.dropped,
+                                              "nats_reconnects": nc.reconnects}
             p = self.core.prefix
             for sub in ("snap", "hb", "f", "q", "i"):
                 nc.subscribe(f"{p}.{sub}", self._on_msg)
@@ -83,11 +84,15 @@ class ClusterLink:
                 self._wake = trio.Event()
                 self.core.tick(clock())
                 self._pump()
+                if server.sb.has_dirty():
+                    server._kick()  # LEAVEs of a dead shard's mirrors, answers to queries and follows
 
     def _on_msg(self, subject: str, reply: str | None, payload: bytes) -> None:
         if self.core is None:
             return
         self.core.on_message(subject, reply, payload, self.server.clock())
+        if self.server.sb.has_dirty():
+            self.server._kick()  # mirrored states for our viewers (a heartbeat wakes nobody)
         if self.core.out:
             self._wake.set()
 
@@ -115,10 +120,18 @@ class ClusterLink:
 
     async def _release(self) -> None:
         """Held REDIRECTs go out once NATS has confirmed everything published before them (a PING round trip):
-        the client's LEAVEs are then ahead of anything it can publish on its new shard."""
+        the client's LEAVEs are then ahead of anything it can publish on its new shard. A flush that loses its
+        connection proves nothing (the LEAVEs may have died with the node): wait for the reconnect, whose
+        resync publishes recent LEAVEs again, and flush there."""
         try:
             with trio.move_on_after(1.0):  # NATS unreachable: redirect anyway, a duplicate beats a stuck client
-                await self.nc.flush()
+                while True:
+                    try:
+                        await self.nc.flush()
+                        break
+                    except NatsConnectionLost:
+                        while not self.nc.connected:
+                            await trio.sleep(0.01)
         except trio.TooSlowError:
             pass
         finally:

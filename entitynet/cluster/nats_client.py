@@ -30,6 +30,20 @@ log = logging.getLogger("entitynet.cluster.nats")
 Handler = Callable[[str, str | None, bytes], None]
 
 
+class NatsConnectionLost(trio.BrokenResourceError):
+    """A flush whose connection was lost before the server answered: what was written on it may be lost."""
+
+
+class _Flush:
+    """One PING waiting for its PONG; `ok` stays False when the connection is lost first."""
+
+    __slots__ = ("event", "ok")
+
+    def __init__(self) -> None:
+        self.event = trio.Event()
+        self.ok = False
+
+
 def parse_servers(spec: str | Sequence[str]) -> list[tuple[str, int]]:
     """`nats://h1:4222,nats://h2:4222` (or a list) -> [(host, port)]; raises ValueError on a bad entry."""
     items = spec.split(",") if isinstance(spec, str) else list(spec)
@@ -61,6 +75,7 @@ class NatsClient:
         self.reconnect_wait = reconnect_wait
         self.connect_timeout = connect_timeout
         self.on_reconnect = on_reconnect
+        self.writes = 0  # socket writes (each carries every publication queued since the last)
         self.info: dict = {}
         self.connected = False
         self.reconnects = 0
@@ -72,7 +87,7 @@ class NatsClient:
         self._sid = itertools.count(1)
         self._out = bytearray()
         self._wake = trio.Event()
-        self._pongs: list[trio.Event] = []
+        self._pongs: list[_Flush] = []
         self._stream: trio.abc.Stream | None = None
         self._nursery: trio.Nursery | None = None
         self._connected_ev = trio.Event()
@@ -131,8 +146,8 @@ class NatsClient:
                     first = False
                 self.connected = False
                 self._stream = None
-                for ev in self._pongs:  # nobody will answer these
-                    ev.set()
+                for f in self._pongs:  # nobody will answer these: their flushes fail
+                    f.event.set()
                 self._pongs.clear()
                 if self._closed:
                     return
@@ -220,7 +235,9 @@ class NatsClient:
                     self._send(N.PONG)
                 elif t is N.Pong:
                     if self._pongs:
-                        self._pongs.pop(0).set()
+                        f = self._pongs.pop(0)
+                        f.ok = True
+                        f.event.set()
                 elif t is N.Err:
                     log.warning("NATS error: %s", ev.text)
                     if "authorization" in ev.text.lower() or "stale" in ev.text.lower():
@@ -236,6 +253,7 @@ class NatsClient:
                 while self._out:
                     data = bytes(self._out)
                     self._out.clear()
+                    self.writes += 1
                     await stream.send_all(data)
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as exc:
             log.info("NATS write failed: %s", exc)
@@ -298,9 +316,13 @@ class NatsClient:
             h(subject, reply, payload)
 
     async def flush(self, timeout: float = 2.0) -> None:
-        """Round trip: every publication and SUB before this call has reached the server."""
-        ev = trio.Event()
-        self._pongs.append(ev)
+        """Round trip: every publication and SUB before this call has reached the server. Raises
+        `NatsConnectionLost` when the connection drops first (bytes written on it may never have arrived: a
+        caller that needs them there publishes them again after the reconnect), `trio.TooSlowError` on timeout."""
+        f = _Flush()
+        self._pongs.append(f)
         self._send(N.PING)
         with trio.fail_after(timeout):
-            await ev.wait()
+            await f.event.wait()
+        if not f.ok:
+            raise NatsConnectionLost("NATS connection lost before the flush was confirmed")

@@ -274,6 +274,7 @@ class Server(WritingMixin):
                     break
             before = sb.stats["updates_in"]
             sb.receive(conn.cid, msgs[start:end] if start or end < n else msgs, self.clock(), frame_end=end >= n)
+            self._kick()
             self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
             self._rearm()
             ob = sb.outbox(conn.cid)
@@ -382,6 +383,8 @@ class Server(WritingMixin):
         while True:
             await trio.sleep(0.1)
             self._check_stalls()
+            if sb.has_dirty():
+                self._kick()  # a slow consumer dropped: its LEAVEs
             if self.tokens is not None and time.monotonic() >= next_auth:
                 next_auth = time.monotonic() + self.config.auth_recheck
                 for cid in self.tokens.poll(sb):  # revoked tokens: AUTH_FAILED queued, the writer closes

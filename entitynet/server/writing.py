@@ -25,8 +25,13 @@ if TYPE_CHECKING:
     from entitynet.server.app import _Conn
 
 
+IDLE_BACKSTOP_S = 1.0  # an idle flusher looks anyway after this long
+
+
 class WritingMixin:
     """Outbound half of `Server`; uses its `sb`, `config`, `metrics`, `conns` and counters."""
+
+    _flush_idle: trio.Event | None = None  # set while the flusher sleeps for want of work (`_kick` wakes it)
 
     def _try_write(self, conn: _Conn) -> None:
         """Drain the outbox into one frame and write what the socket takes now; the writer task gets the rest."""
@@ -170,14 +175,29 @@ class WritingMixin:
                     conn.dirty_since = t
                 self._try_write(conn)
 
+    def _kick(self) -> None:
+        """Something may have been queued for a client: wake the flusher if it sleeps for want of work. Called
+        wherever the core is fed outside `_wake_dirty` (client frames, NATS messages, the cluster's timers)."""
+        ev = self._flush_idle
+        if ev is not None:
+            ev.set()
+
     async def _flusher(self) -> None:
         """Flush every `flush_interval`, but after a flush that took W seconds wait at least W: under load the
         batches grow instead of the flusher eating the whole CPU (writes cost per frame, not per message), so
-        reading and forwarding keep at least half of the time."""
+        reading and forwarding keep at least half of the time. With nothing to write it sleeps until `_kick`
+        (not every `flush_interval`: an idle server, or an idle shard of a cluster, then costs no wake-ups;
+        the 1 s backstop only bounds the harm of a feeding path that forgot to kick)."""
         interval = self.config.flush_interval
+        sb = self.sb
         deadline = trio.current_time()
         while True:
             await trio.sleep_until(deadline)
+            if not sb.has_dirty():
+                self._flush_idle = trio.Event()
+                with trio.move_on_after(IDLE_BACKSTOP_S):
+                    await self._flush_idle.wait()
+                self._flush_idle = None
             t0 = trio.current_time()
             self._wake_dirty()
             t1 = trio.current_time()

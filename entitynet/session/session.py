@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from entitynet import protocol as P
+from entitynet.session.batching import batches as _batches
 from entitynet.session.clock import ClockEstimate
 from entitynet.session.events import Action, Answer, Connect, Deliver, Drop, Notice, Send, Stop
 from entitynet.session.policy import Address, ReconnectPolicy, parse_address
@@ -27,8 +28,6 @@ _CLIENT_ONLY = (P.Hello, P.Publish, P.Unpublish, P.Subscribe, P.Follow, P.Unfoll
                 P.Camera)
 #: errors that refuse the oldest pending query (the server answers queries in order)
 _QUERY_REFUSALS = (P.ErrorCode.QUERY_RATE, P.ErrorCode.NO_SUCH_CELL)
-REPLAY_CHUNK = 5000  # messages per replay frame at most, well inside the codec's 20,000 ...
-FRAME_ROOM = 64  # ... and bytes kept free below the frame limit for the array header and length prefix
 MAX_PINGS = 16  # unanswered pings remembered
 
 
@@ -65,18 +64,23 @@ class ClientSession:
 
     def __init__(self, address: Address, digest: str, token: str = "", *,
                  policy: ReconnectPolicy | None = None, ping_interval: float = 5.0,
-                 handshake_timeout: float = 10.0, alternates: tuple[Address, ...] = (), failover_s: float = 3.0):
+                 handshake_timeout: float = 10.0, alternates: tuple[Address, ...] = (), failover_s: float = 3.0,
+                 failover_attempts: int = 2):
         for name, v in (("ping_interval", ping_interval), ("handshake_timeout", handshake_timeout)):
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
         self.home: Address = address
-        # other shards of the cluster (given, or learned from REDIRECTs): once a shard has failed every attempt
-        # for `failover_s`, what it carried moves to the next of these (a dead switchboard's clients find a
-        # survivor, which REDIRECTs them on if their region went elsewhere). Keep it above the cluster's
-        # dead_after_s: the survivors have then dropped the dead shard's copies before we re-publish, so no
-        # viewer shows an entity twice
+        # other shards of the cluster (given, or learned from REDIRECTs): once a shard has failed
+        # `failover_attempts` attempts in a row (the lost link and one redial: a SIGKILLed shard refuses at once),
+        # or every attempt for `failover_s` (a shard that does not answer at all), what it carried moves to the
+        # next of these at once. A survivor holds a first PUBLISH for a dying shard's region until that shard is
+        # declared dead, then serves it or REDIRECTs it to the region's new owner (entitynet.cluster.failover),
+        # so moving early costs no duplicate and no second wait
         self.alternates: list[Address] = [a for a in alternates if a != address]
         self.failover_s = float(failover_s)
+        if failover_attempts < 0:
+            raise ValueError(f"failover_attempts must be >= 0 (0: by time only), got {failover_attempts!r}")
+        self.failover_attempts = int(failover_attempts)
         self._failover_turn = 0
         self.digest = digest
         self.token = token
@@ -181,7 +185,8 @@ class ClientSession:
         throttled, lk.throttle = lk.throttle > 0, 0.0
         if lk.failures == 1:
             lk.failing_since = now
-        if self.alternates and not throttled and now - lk.failing_since >= self.failover_s:
+        if self.alternates and not throttled and (now - lk.failing_since >= self.failover_s
+                                                  or 0 < self.failover_attempts <= lk.failures):
             self._fail_over(lk, now, out)
         return out
 
@@ -470,30 +475,3 @@ class ClientSession:
             lk.pings.pop(next(iter(lk.pings)))
         return [Send(lk.token, (P.Ping(ms),))]
 
-
-def _batches(msgs: list[P.Message], max_frame: int) -> list[tuple[P.Message, ...]]:
-    """Cut messages into frames of at most REPLAY_CHUNK messages and `max_frame` bytes: a fleet of entities with
-    large payloads would otherwise exceed the server's frame limit and be refused whole on every reconnect."""
-    room = max_frame - FRAME_ROOM
-    out: list[tuple[P.Message, ...]] = []
-    batch: list[P.Message] = []
-    size = 0
-    for m in msgs:
-        n = _size_bound(m)
-        if batch and (size + n > room or len(batch) >= REPLAY_CHUNK):
-            out.append(tuple(batch))
-            batch, size = [], 0
-        batch.append(m)
-        size += n
-    if batch:
-        out.append(tuple(batch))
-    return out
-
-
-def _size_bound(m: P.Message) -> int:
-    """Encoded size of a message, or a bound above it for PUBLISH (the hot path: no encoding twice). A PUBLISH is
-    a 6-array of type, four integers of at most 9 bytes each, a cell array (at most 9 bytes a cell plus its
-    header) and a bin payload (at most 5 bytes of header)."""
-    if type(m) is P.Publish:
-        return 1 + 1 + 4 * 9 + 5 + 9 * len(m.cells) + 5 + len(m.payload)
-    return len(P.encode_message(m))

@@ -218,7 +218,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
                 return
         eid = c.entities.get(local)
         if eid is None:
-            if self.cluster is not None and not self.cluster.admit(c, m.cells, now):
+            if self.cluster is not None and not self.cluster.admit(c, m.cells, now, m):
                 return  # sharded: the entity belongs elsewhere; REDIRECTed before anyone here sees it
             if len(c.entities) >= cfg.max_entities_per_client or len(self.entities) >= cfg.max_entities:
                 self._error(c, ErrorCode.LIMIT_ENTITIES, f"at most {cfg.max_entities_per_client} entities")

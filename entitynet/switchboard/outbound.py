@@ -26,6 +26,10 @@ log = logging.getLogger("entitynet.switchboard")
 class OutboundMixin:
     """What the core queues for a client besides forwarded states; uses the tables of `Switchboard`."""
 
+    def has_dirty(self) -> bool:
+        """Whether some client has something new to write (a shell's flusher sleeps while there is none)."""
+        return bool(self._dirty)
+
     def take_dirty(self, check: bool = True) -> set[int]:
         """Clients with something new to write since the last call. With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""

@@ -58,6 +58,7 @@ class _Beats:
         self.latest: dict[int, dict] = {}
         self.times: dict[int, float] = {}
         self.heard: dict[int, int] = {}  # shard -> heartbeats heard
+        self.declared_dead: dict[int, float] = {}  # shard -> when a heartbeat first said it is dead
 
     def handler(self, subject: str, reply, data: bytes) -> None:
         import msgpack
@@ -67,6 +68,8 @@ class _Beats:
             self.latest[int(m[1])] = dict(m[4])
             self.times[int(m[1])] = trio.current_time()
             self.heard[int(m[1])] = self.heard.get(int(m[1]), 0) + 1
+            for d in m[5] if len(m) > 5 else ():
+                self.declared_dead.setdefault(int(d), trio.current_time())
         except Exception:
             pass
 
@@ -125,7 +128,8 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
                     break
         out["settle_s"] = round(trio.current_time() - t_stop, 2)
         out["entities_lost"] = missing
-        out["viewer_duplicates"] = sum(v.duplicates for v in load.viewers) + doubled
+        dups_settled = sum(v.duplicates for v in load.viewers)
+        out["viewer_duplicates"] = dups_settled + doubled
         gaps = [g for v in load.viewers for g in v.gaps]
         out["handovers_seen"] = len(gaps)
         p99 = _p99(gaps)
@@ -142,21 +146,32 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
                     await trio.sleep(0.02)
             out["nats_node_failover_s"] = round(trio.current_time() - t_kill, 3)
             await trio.sleep(1.0)
+            out["viewer_duplicates_after_nats_failover"] = sum(v.duplicates for v in load.viewers) - dups_settled
             progress(f"{k} shards: SIGKILL of shard 1")
             t_kill = trio.current_time()
             shards.kill(1)
             killed = ("127.0.0.1", shards.ports[1])
-            recovered = None
+            recovered = rehomed = None
             with trio.move_on_after(20):
                 while True:  # its clients are home elsewhere, and every viewer sees exactly what it should
                     await trio.sleep(0.05)
                     missing, doubled = load.missing_and_doubled()
-                    if load.all_off(killed) and missing == 0 and doubled == 0:
+                    off = load.all_off(killed)
+                    if off and rehomed is None:
+                        rehomed = trio.current_time() - t_kill
+                    if off and missing == 0 and doubled == 0:
                         recovered = trio.current_time() - t_kill
                         break
             out["failover_recovery_s"] = None if recovered is None else round(recovered, 3)
-            out["viewer_duplicates_after_failover"] = sum(v.duplicates for v in load.viewers) - \
-                (out["viewer_duplicates"] - doubled)
+            # the timeline of that failover: a survivor's heartbeat says shard 1 is dead, every client it had is
+            # welcomed elsewhere, every viewer consistent (the recovery above)
+            dead_at = beats.declared_dead.get(1)
+            out["failover_timeline_s"] = {
+                "declared_dead": None if dead_at is None else round(dead_at - t_kill, 3),
+                "clients_rehomed": None if rehomed is None else round(rehomed, 3),
+                "viewers_consistent": out["failover_recovery_s"]}
+            # from the NATS node's kill on (both failovers), as before; the NATS part alone above
+            out["viewer_duplicates_after_failover"] = sum(v.duplicates for v in load.viewers) - dups_settled
         nursery.cancel_scope.cancel()
     return out
 

@@ -223,6 +223,8 @@ def test_a_new_publisher_in_another_region_is_redirected_before_anyone_sees_it(b
     a.receive(p, [pub(1, 1, (60,))], 0.1)  # region 1: b's
     assert a.counts()["entities"] == 0 and not recv(a, watcher)  # never published here
     bus.run(0.1)
+    assert not of(recv(a, p), P.Redirect)  # held until b is heard after the client came (alive, not dead)
+    bus.run(0.5)  # b's next heartbeat
     assert [(r.shard, r.address) for r in of(recv(a, p), P.Redirect)] == [(1, "h:1")]
     assert bus.cell_msgs == 0
 

@@ -104,3 +104,16 @@ async def test_cancelled_while_connecting_leaves_trio_intact():
     assert scope.cancelled_caught
     await trio.sleep(0.01)  # trio still runs tasks normally afterwards
     await listener.aclose()
+
+
+async def test_a_flush_whose_connection_dies_fails_instead_of_confirming(nats_server):
+    """A REDIRECT waits for a flush to prove NATS has the client's LEAVEs; a flush cut by the node's death must
+    not pass for that proof (the bytes may have died with the node)."""
+    from entitynet.cluster.nats_client import NatsConnectionLost
+
+    async with NatsClient(nats_server.urls, name="a", reconnect_wait=0.05) as a:
+        await a.flush()
+        nats_server.nodes[0].kill()
+        with pytest.raises(NatsConnectionLost):
+            a.publish("x.y", b"lost with the node")
+            await a.flush(timeout=5)

@@ -354,7 +354,7 @@ def test_bad_settings_are_refused():
 
 @pytest.mark.parametrize("n_cells,payload", [(0, 0), (1, 1), (64, 0), (3, 70_000), (200, 255), (15, 65_536)])
 def test_publish_size_bound_is_never_below_the_encoded_size(n_cells, payload):
-    from entitynet.session.session import _size_bound
+    from entitynet.session.batching import size_bound as _size_bound
 
     for big in (False, True):
         v = 2**63 - 1 if big else 1

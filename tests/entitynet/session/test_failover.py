@@ -3,6 +3,8 @@ everything the session carried there (its entities, and the viewer when it is ho
 
 from __future__ import annotations
 
+import pytest
+
 from entitynet import protocol as P
 from entitynet.session import ClientSession, Connect, ReconnectPolicy, Send
 
@@ -26,7 +28,8 @@ def _open(s, link, now):
 
 
 def test_a_dead_home_shard_moves_the_entities_and_the_viewer_to_an_alternate():
-    s = ClientSession(HOME, "d", policy=ReconnectPolicy(0.01, 0.02), alternates=(OTHER, THIRD), failover_s=1.5)
+    s = ClientSession(HOME, "d", policy=ReconnectPolicy(0.01, 0.02), alternates=(OTHER, THIRD), failover_s=1.5,
+                      failover_attempts=0)  # by time only
     (c,) = _connects(s.start(0.0))
     _open(s, c.link, 0.0)
     s.publish([P.Publish(1, 1, (5,), 10_000, b"x")], 0.0)
@@ -57,7 +60,7 @@ def test_without_alternates_the_session_keeps_retrying_its_shard():
 
 
 def test_redirects_teach_the_session_the_cluster():
-    s = ClientSession(HOME, "d", policy=ReconnectPolicy(0.01, 0.02), failover_s=1.0)
+    s = ClientSession(HOME, "d", policy=ReconnectPolicy(0.01, 0.02), failover_s=1.0, failover_attempts=0)
     (c,) = _connects(s.start(0.0))
     _open(s, c.link, 0.0)
     s.publish([P.Publish(1, 1, (5,), 10_000, b"x")], 0.0)
@@ -70,3 +73,26 @@ def test_redirects_teach_the_session_the_cluster():
     out = s.connection_lost(c3.link, 2.1, "reset")
     (c4,) = _connects(out)  # failing since 1.0: 1.1 s >= failover_s
     assert c4.address == HOME and s.where(1) == HOME  # back to the shard it learned first
+
+
+def test_a_lost_link_whose_redial_is_refused_fails_over_at_once():
+    """A SIGKILLed shard refuses the first redial: the session moves then (the default two attempts), not after
+    `failover_s` of retrying a shard that is gone; the survivors hold its first PUBLISH until they have decided."""
+    s = ClientSession(HOME, "d", policy=ReconnectPolicy(0.05, 0.5), alternates=(OTHER, THIRD), failover_s=30.0)
+    (c,) = _connects(s.start(0.0))
+    _open(s, c.link, 0.0)
+    s.publish([P.Publish(1, 1, (5,), 10_000, b"x")], 0.0)
+    s.subscribe((7,))
+    out = s.connection_lost(c.link, 1.0, "reset")
+    assert not _connects(out) and s.home == HOME  # one redial of the same shard first: a blip costs nothing
+    (c2,) = _connects(s.timers(1.05))
+    assert c2.address == HOME
+    (c3,) = _connects(s.connection_lost(c2.link, 1.06, "refused"))
+    assert c3.address == OTHER and s.home == OTHER and s.where(1) == OTHER  # 0.06 s after the loss, not 30 s
+    replay = _sent(_open(s, c3.link, 1.07), c3.link)
+    assert P.Subscribe((7,), ()) in replay and [m.entity for m in replay if isinstance(m, P.Publish)] == [1]
+
+
+def test_failover_attempts_must_not_be_negative():
+    with pytest.raises(ValueError, match="failover_attempts"):
+        ClientSession(HOME, "d", failover_attempts=-1)
