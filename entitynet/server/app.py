@@ -120,6 +120,7 @@ class Server(WritingMixin):
         self.written = 0  # messages written
         self.frames = 0  # frames written
         self._lat_n = 0
+        self._news = trio.Event()  # set when the core has queued something since the last flush (`_note_news`)
         # frames of up to this many states take the short path in _try_write (beyond the outbox bound the
         # long path drops the client)
         self._fast_batch = min(config.max_batch, self.sb.config.max_pending)
@@ -276,6 +277,7 @@ class Server(WritingMixin):
             sb.receive(conn.cid, msgs[start:end] if start or end < n else msgs, self.clock(), frame_end=end >= n)
             self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
             self._rearm()
+            self._note_news()
             ob = sb.outbox(conn.cid)
             if ob is not None and (ob.has_control or ob.close_after):
                 self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush

@@ -12,14 +12,17 @@ so that the stall timer counts only the time a client does not read.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from typing import TYPE_CHECKING
 
 import trio
 import trio_websocket
+from trio.testing import wait_all_tasks_blocked
 
 from entitynet import protocol as P
+from entitynet.server.flushloop import flush_short
 
 if TYPE_CHECKING:
     from entitynet.server.app import _Conn
@@ -161,24 +164,55 @@ class WritingMixin:
         await trio.lowlevel.checkpoint()
 
     def _wake_dirty(self) -> None:
-        conns = self.conns
-        t = time.monotonic()
-        for cid in self.sb.take_dirty(check=False):
-            conn = conns.get(cid)
-            if conn is not None:
-                if conn.dirty_since is None:
-                    conn.dirty_since = t
-                self._try_write(conn)
+        """Flush: every connection with news gets one frame now (`flushloop.flush_short`, compiled where built);
+        those it cannot serve (replies, a close, more than one frame, WebSocket or TLS) take `_try_write`."""
+        n_msgs, n_frames, self._lat_n, samples, slow, blocked, failed = flush_short(
+            self.sb.take_dirty(check=False), self.conns, time.monotonic(), self._fast_batch, self._sure_fit,
+            self._max_body, self._lat_n)
+        self.written += n_msgs
+        self.frames += n_frames
+        for s in samples:
+            self.metrics.latency.observe(s)
+        for conn in blocked:
+            conn.wake.set()  # the writer task sends `conn.rest`
+        for conn in failed:
+            if conn.scope is not None:
+                conn.scope.cancel()  # peer gone: the handler closes and disconnects
+        for conn in slow:
+            self._try_write(conn)
+
+    def _note_news(self) -> None:
+        """The core has queued something since the last flush: wake the flusher (called after each slice fed)."""
+        if not self._news.is_set() and self.sb.has_news():
+            self._news.set()
 
     async def _flusher(self) -> None:
-        """Flush every `flush_interval`, but after a flush that took W seconds wait at least W: under load the
-        batches grow instead of the flusher eating the whole CPU (writes cost per frame, not per message), so
-        reading and forwarding keep at least half of the time."""
-        interval = self.config.flush_interval
-        deadline = trio.current_time()
+        """Flush adaptively: as soon as the loop has nothing else to do (every reader has drained its pending
+        input, as Redis writes after each pass of its event loop), but not sooner than `flush_min_interval`
+        after the previous flush, and news never waits longer than `flush_interval` (under load, when the loop
+        is never idle, the timer flushes). After a flush that took W seconds the next one waits for idleness
+        up to W: under overload reading keeps at least half of the time and the batches grow (writes cost per
+        frame, not per message) instead of the flusher eating the whole CPU."""
+        bound = self.config.flush_interval
+        gap = min(self.config.flush_min_interval, bound)
+        last_end = -math.inf
+        cost = 0.0
         while True:
-            await trio.sleep_until(deadline)
+            if not self._news.is_set():
+                with trio.move_on_after(bound):  # news from a source that does not call `_note_news` (the
+                    await self._news.wait()  # cluster link's mirrored states) still waits at most about 2 bounds
+                if not self.sb.has_news():
+                    continue
+            t_news = trio.current_time()
+            earliest = last_end + gap
+            if earliest > t_news:
+                await trio.sleep_until(earliest)
+            latest = max(t_news + bound, last_end + cost)
+            if trio.current_time() < latest:
+                with trio.move_on_at(latest):
+                    await wait_all_tasks_blocked()
+            self._news = trio.Event()
             t0 = trio.current_time()
             self._wake_dirty()
-            t1 = trio.current_time()
-            deadline = max(deadline + interval, t1 + (t1 - t0))
+            last_end = trio.current_time()
+            cost = last_end - t0

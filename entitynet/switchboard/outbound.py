@@ -26,6 +26,10 @@ log = logging.getLogger("entitynet.switchboard")
 class OutboundMixin:
     """What the core queues for a client besides forwarded states; uses the tables of `Switchboard`."""
 
+    def has_news(self) -> bool:
+        """Something was queued for some client since the last `take_dirty` (the shell's flusher waits for it)."""
+        return bool(self._dirty)
+
     def take_dirty(self, check: bool = True) -> set[int]:
         """Clients with something new to write since the last call. With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
