@@ -27,8 +27,8 @@ def register(sub) -> None:
     add_users_db_option(p, "token store, alias --db (default: see `entitynet users`)")
     p.add_argument("--flush-ms", type=float, default=10.0,
                    help="longest wait of news for a flush, under load (default 10 ms; an idle server flushes sooner)")
-    p.add_argument("--flush-min-ms", type=float, default=1.0,
-                   help="shortest time between two flushes (default 1 ms): bounds the writes per second")
+    p.add_argument("--flush-min-ms", type=float, default=0.0,
+                   help="shortest time between two flushes (default 0: flush whenever the server is idle)")
     p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
     p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")
     from entitynet.commands.cluster_cmd import add_cluster_options
