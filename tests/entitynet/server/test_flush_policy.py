@@ -10,6 +10,7 @@ arrive before it fired.
 from __future__ import annotations
 
 import trio
+import trio.testing
 
 from entitynet import protocol as P
 from tests.entitynet.server_helpers import Raw, running
@@ -48,5 +49,27 @@ async def test_coalescing_and_order_still_hold_in_one_flush(flush_path):
             frame2 = await view.read()
         assert [m.seq for m in frame2] == [4, 4]
         assert [m.entity for m in frame2] == [frame[1].entity, frame[0].entity]  # first queued first: 6, then 5
+        await pub.stream.aclose()
+        await view.stream.aclose()
+
+
+async def test_flush_min_interval_spaces_flushes_even_when_idle(flush_path):
+    """The knob for fewer, larger frames: with a minimum interval far beyond the test, news that comes after a
+    flush waits (coalescing meanwhile) even on an idle server; replies are not held back."""
+    async with running(flush_interval=LONG, flush_min_interval=LONG) as server:
+        view = await Raw.connect(server)
+        await view.send(P.Subscribe((3,), ()))
+        pub = await Raw.connect(server)  # its WELCOME made news: the first flush has happened once all is idle
+        await pub.send(P.Ping(1))
+        await pub.expect(P.Pong)
+        await trio.testing.wait_all_tasks_blocked()
+        await trio.testing.wait_all_tasks_blocked()
+        await pub.send(P.Publish(7, 1, (3,), 10_000, b"a"), P.Publish(7, 2, (3,), 10_000, b"b"), P.Ping(2))
+        await pub.expect(P.Pong)  # both states are in the core, and the reply went out at once
+        with trio.move_on_after(0.5) as waited:
+            await view.expect(P.Update)
+        assert waited.cancelled_caught  # held back by the minimum interval
+        (cid,) = [c for c in server.conns if c != max(server.conns)]
+        assert server.sb.outbox(cid).n_states == 1  # coalesced to the latest state, still pending
         await pub.stream.aclose()
         await view.stream.aclose()
