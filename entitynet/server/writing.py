@@ -189,12 +189,12 @@ class WritingMixin:
     async def _flusher(self) -> None:
         """Flush adaptively: as soon as the loop has nothing else to do (every reader has drained its pending
         input: as Redis writes after each pass of its event loop), so that news goes out while the process is
-        still awake instead of after a timer (on a busy machine every timed sleep costs a scheduler wakeup).
-        While the loop stays busy, news waits for the first of: `flush_interval` after the previous flush began,
-        or, after a flush that took W seconds of CPU, W after it ended, whichever is later. So under load the
-        flusher takes at most about half of the time, reading keeps the other half and the batches grow (writes
-        cost per frame, not per message) instead of the flusher eating the whole CPU. `flush_min_interval` > 0
-        spaces flushes at least that far apart even when idle (fewer, larger frames; more latency)."""
+        awake instead of at a timer tick (on a busy machine every timed sleep costs a scheduler wakeup); but after
+        a flush that took W seconds of CPU, not before W has passed since it ended (nor `flush_min_interval`),
+        and while the loop stays busy, at the latest `flush_interval` after the previous flush began (or W after
+        it ended, if later). So the flusher takes at most about half of the time: under load reading keeps the
+        other half and the batches grow (writes cost per frame, for the server and its readers alike, not per
+        message) instead of the flusher eating the CPU; at light load W is tiny and news leaves at once."""
         bound = self.config.flush_interval
         gap = min(self.config.flush_min_interval, bound)
         last_start = last_end = -math.inf
@@ -205,8 +205,9 @@ class WritingMixin:
                     await self._news.wait()  # cluster link's mirrored states) still waits at most about 2 bounds
                 if not self.sb.has_news():
                     continue
-            if gap > 0 and trio.current_time() < last_end + gap:
-                await trio.sleep_until(last_end + gap)
+            earliest = last_end + max(gap, cost)
+            if trio.current_time() < earliest:
+                await trio.sleep_until(earliest)
             latest = max(last_start + bound, last_end + cost)
             if trio.current_time() < latest:
                 with trio.move_on_at(latest):
