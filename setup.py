@@ -1,6 +1,7 @@
-"""Builds the optional compiled fan-out (entitynet/switchboard/_fanout.pyx) with Cython; everything else is in
-pyproject.toml. Optional on purpose: without a C compiler the build goes on and the pure-Python path (the
-reference, `entitynet.switchboard.outbox`) is used."""
+"""Builds the optional compiled hot loops with Cython: the fan-out (entitynet/switchboard/_fanout.pyx) and the
+flush loop (entitynet/server/_flushloop.pyx); everything else is in pyproject.toml. Optional on purpose: without
+a C compiler the build goes on and the pure-Python paths (the references, `entitynet.switchboard.outbox` and
+`entitynet.server.flushloop`) are used."""
 
 from setuptools import Extension, setup
 
@@ -10,7 +11,8 @@ except ImportError:  # no Cython at build time: the pure path only
     ext_modules = []
 else:
     ext_modules = cythonize(
-        [Extension("entitynet.switchboard._fanout", ["entitynet/switchboard/_fanout.pyx"], optional=True)],
+        [Extension("entitynet.switchboard._fanout", ["entitynet/switchboard/_fanout.pyx"], optional=True),
+         Extension("entitynet.server._flushloop", ["entitynet/server/_flushloop.pyx"], optional=True)],
         language_level=3,
         quiet=True,
     )

@@ -38,3 +38,17 @@ def fanout_path(request):
     assert outbox.use_compiled(request.param == "compiled") == (request.param == "compiled")
     yield request.param
     outbox.use_compiled(was)
+
+
+@pytest.fixture(params=["pure", "compiled"])
+def flush_path(request):
+    """Run a test once with the server's pure-Python flush loop and once with the compiled one
+    (`entitynet/server/_flushloop.pyx`, built by pip; skipped, saying so, where it was not built)."""
+    from entitynet.server import flushloop
+
+    was = flushloop.compiled_in_use()
+    if request.param == "compiled" and flushloop.COMPILED is None:
+        pytest.skip("the compiled flush loop was not built (no Cython or C compiler at install time)")
+    assert flushloop.use_compiled(request.param == "compiled") == (request.param == "compiled")
+    yield request.param
+    flushloop.use_compiled(was)

@@ -84,15 +84,13 @@ class ClusterLink:
                 self._wake = trio.Event()
                 self.core.tick(clock())
                 self._pump()
-                if server.sb.has_dirty():
-                    server._kick()  # LEAVEs of a dead shard's mirrors, answers to queries and follows
+                server._note_news()  # LEAVEs of a dead shard's mirrors, answers to queries and follows
 
     def _on_msg(self, subject: str, reply: str | None, payload: bytes) -> None:
         if self.core is None:
             return
         self.core.on_message(subject, reply, payload, self.server.clock())
-        if self.server.sb.has_dirty():
-            self.server._kick()  # mirrored states for our viewers (a heartbeat wakes nobody)
+        self.server._note_news()  # mirrored states for our viewers (a heartbeat wakes nobody)
         if self.core.out:
             self._wake.set()
 

@@ -25,7 +25,10 @@ def register(sub) -> None:
     from entitynet.commands.users_cmd import add_users_db_option
 
     add_users_db_option(p, "token store, alias --db (default: see `entitynet users`)")
-    p.add_argument("--flush-ms", type=float, default=10.0, help="outbound batching window (default 10 ms)")
+    p.add_argument("--flush-ms", type=float, default=10.0,
+                   help="longest wait of news for a flush, under load (default 10 ms; an idle server flushes sooner)")
+    p.add_argument("--flush-min-ms", type=float, default=0.0,
+                   help="shortest time between two flushes (default 0: flush whenever the server is idle)")
     p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
     p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")
     from entitynet.commands.cluster_cmd import add_cluster_options
@@ -46,13 +49,14 @@ def run(args: argparse.Namespace) -> int:
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("entitynet.server").setLevel(logging.INFO)
     logs.use_json(args.log_json)
-    if args.flush_ms < 0 or args.grace < 0:
-        raise CommandError("--flush-ms and --grace must be >= 0")
+    if args.flush_ms < 0 or args.flush_min_ms < 0 or args.grace < 0:
+        raise CommandError("--flush-ms, --flush-min-ms and --grace must be >= 0")
     config = ServerConfig(
         host=args.host, port=args.port, ws_port=args.ws_port, metrics_port=args.metrics_port,
         http_port=args.http_port,
         tls_cert=args.tls_cert, tls_key=args.tls_key, topology=args.topology, open_mode=args.open,
-        users_db=args.users_db, flush_interval=args.flush_ms / 1000.0, switch={"grace_s": args.grace},
+        users_db=args.users_db, flush_interval=args.flush_ms / 1000.0,
+        flush_min_interval=args.flush_min_ms / 1000.0, switch={"grace_s": args.grace},
         log_json=args.log_json,
     )
     if args.cluster:

@@ -120,6 +120,7 @@ class Server(WritingMixin):
         self.written = 0  # messages written
         self.frames = 0  # frames written
         self._lat_n = 0
+        self._news = trio.Event()  # set when the core has queued something since the last flush (`_note_news`)
         # frames of up to this many states take the short path in _try_write (beyond the outbox bound the
         # long path drops the client)
         self._fast_batch = min(config.max_batch, self.sb.config.max_pending)
@@ -274,9 +275,9 @@ class Server(WritingMixin):
                     break
             before = sb.stats["updates_in"]
             sb.receive(conn.cid, msgs[start:end] if start or end < n else msgs, self.clock(), frame_end=end >= n)
-            self._kick()
             self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
             self._rearm()
+            self._note_news()
             ob = sb.outbox(conn.cid)
             if ob is not None and (ob.has_control or ob.close_after):
                 self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
@@ -383,8 +384,7 @@ class Server(WritingMixin):
         while True:
             await trio.sleep(0.1)
             self._check_stalls()
-            if sb.has_dirty():
-                self._kick()  # a slow consumer dropped: its LEAVEs
+            self._note_news()  # a slow consumer dropped: its LEAVEs
             if self.tokens is not None and time.monotonic() >= next_auth:
                 next_auth = time.monotonic() + self.config.auth_recheck
                 for cid in self.tokens.poll(sb):  # revoked tokens: AUTH_FAILED queued, the writer closes

@@ -33,7 +33,8 @@ class ServerConfig:
     open_mode: bool = False
     users_db: str | None = None  # None = entitynet.auth.default_db_path()
     auth_recheck: float = 1.0  # how often (s) to look for changes of the token store and re-check connections
-    flush_interval: float = 0.01  # outbound batching window (s): one write per connection per flush
+    flush_interval: float = 0.01  # news waits at most this long (s) for a flush: one write per connection per flush
+    flush_min_interval: float = 0.0  # ... and flushes (as soon as the loop is idle) are at least this far apart
     stall_timeout: float = 5.0  # a write blocked this long without progress (client not reading) drops it
     max_batch: int = 20_000  # messages per written frame (and at most the codec's max_frame bytes)
     feed_slice: int = 256  # messages of one frame fed to the core between checkpoints (others served between)

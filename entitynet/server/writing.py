@@ -12,14 +12,17 @@ so that the stall timer counts only the time a client does not read.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from typing import TYPE_CHECKING
 
 import trio
 import trio_websocket
+from trio.testing import wait_all_tasks_blocked
 
 from entitynet import protocol as P
+from entitynet.server.flushloop import flush_short
 
 if TYPE_CHECKING:
     from entitynet.server.app import _Conn
@@ -31,7 +34,6 @@ IDLE_BACKSTOP_S = 1.0  # an idle flusher looks anyway after this long
 class WritingMixin:
     """Outbound half of `Server`; uses its `sb`, `config`, `metrics`, `conns` and counters."""
 
-    _flush_idle: trio.Event | None = None  # set while the flusher sleeps for want of work (`_kick` wakes it)
 
     def _try_write(self, conn: _Conn) -> None:
         """Drain the outbox into one frame and write what the socket takes now; the writer task gets the rest."""
@@ -166,39 +168,61 @@ class WritingMixin:
         await trio.lowlevel.checkpoint()
 
     def _wake_dirty(self) -> None:
-        conns = self.conns
-        t = time.monotonic()
-        for cid in self.sb.take_dirty(check=False):
-            conn = conns.get(cid)
-            if conn is not None:
-                if conn.dirty_since is None:
-                    conn.dirty_since = t
-                self._try_write(conn)
+        """Flush: every connection with news gets one frame now (`flushloop.flush_short`, compiled where built);
+        those it cannot serve (replies, a close, more than one frame, WebSocket or TLS) take `_try_write`."""
+        n_msgs, n_frames, self._lat_n, samples, slow, blocked, failed = flush_short(
+            self.sb.take_dirty(check=False), self.conns, time.monotonic(), self._fast_batch, self._sure_fit,
+            self._max_body, self._lat_n)
+        self.written += n_msgs
+        self.frames += n_frames
+        for s in samples:
+            self.metrics.latency.observe(s)
+        for conn in blocked:
+            conn.wake.set()  # the writer task sends `conn.rest`
+        for conn in failed:
+            if conn.scope is not None:
+                conn.scope.cancel()  # peer gone: the handler closes and disconnects
+        for conn in slow:
+            self._try_write(conn)
 
-    def _kick(self) -> None:
-        """Something may have been queued for a client: wake the flusher if it sleeps for want of work. Called
-        wherever the core is fed outside `_wake_dirty` (client frames, NATS messages, the cluster's timers)."""
-        ev = self._flush_idle
-        if ev is not None:
-            ev.set()
+    def _note_news(self) -> None:
+        """The core may have queued something for a client: wake the flusher if so. Called wherever the core is
+        fed outside `_wake_dirty` (each slice of a client frame, NATS messages, the cluster's and the server's
+        timers); a path that forgot to call it costs at most the flusher's `IDLE_BACKSTOP_S`."""
+        if not self._news.is_set() and self.sb.has_news():
+            self._news.set()
 
     async def _flusher(self) -> None:
-        """Flush every `flush_interval`, but after a flush that took W seconds wait at least W: under load the
-        batches grow instead of the flusher eating the whole CPU (writes cost per frame, not per message), so
-        reading and forwarding keep at least half of the time. With nothing to write it sleeps until `_kick`
-        (not every `flush_interval`: an idle server, or an idle shard of a cluster, then costs no wake-ups;
-        the 1 s backstop only bounds the harm of a feeding path that forgot to kick)."""
-        interval = self.config.flush_interval
-        sb = self.sb
-        deadline = trio.current_time()
+        """Flush adaptively: as soon as the loop has nothing else to do (every reader has drained its pending
+        input: as Redis writes after each pass of its event loop), so that news goes out while the process is
+        awake instead of at a timer tick (on a busy machine every timed sleep costs a scheduler wakeup); but after
+        a flush that took W seconds of CPU, not before W has passed since it ended (nor `flush_min_interval`),
+        and while the loop stays busy, at the latest `flush_interval` after the previous flush began (or W after
+        it ended, if later). So the flusher takes at most about half of the time: under load reading keeps the
+        other half and the batches grow (writes cost per frame, for the server and its readers alike, not per
+        message) instead of the flusher eating the CPU; at light load W is tiny and news leaves at once. With
+        nothing queued it sleeps until `_note_news` (an idle server, or an idle shard of a cluster, then costs no
+        wake-ups; `IDLE_BACKSTOP_S` only bounds the harm of a feeding path that forgot to call it)."""
+        bound = self.config.flush_interval
+        gap = min(self.config.flush_min_interval, bound)
+        last_start = last_end = -math.inf
+        cost = 0.0
         while True:
-            await trio.sleep_until(deadline)
-            if not sb.has_dirty():
-                self._flush_idle = trio.Event()
+            if not self._news.is_set():
                 with trio.move_on_after(IDLE_BACKSTOP_S):
-                    await self._flush_idle.wait()
-                self._flush_idle = None
-            t0 = trio.current_time()
+                    await self._news.wait()
+                if not self.sb.has_news():
+                    continue
+            earliest = last_end + max(gap, cost)
+            if trio.current_time() < earliest:
+                await trio.sleep_until(earliest)
+            latest = max(last_start + bound, last_end + cost)
+            if trio.current_time() < latest:
+                with trio.move_on_at(latest):
+                    await wait_all_tasks_blocked()
+            self._news = trio.Event()
+            last_start = trio.current_time()
+            cpu = time.thread_time()
             self._wake_dirty()
-            t1 = trio.current_time()
-            deadline = max(deadline + interval, t1 + (t1 - t0))
+            last_end = trio.current_time()
+            cost = time.thread_time() - cpu  # CPU, not wall time: time preempted by other processes is not ours

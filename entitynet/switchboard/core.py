@@ -65,6 +65,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         # changed subscribers since (and its followers have not changed), so most PUBLISHes reuse it.
         self._tick = 0
         self._cell_tick: dict[int, int] = {}  # cell -> tick of its last subscriber change
+        self._cell_targets: dict[int, tuple[int, tuple]] = {}  # cell -> (tick made, its subscribers' handle)
         self._valid_from = 0  # viewer sets computed before this tick are void (shutdown)
         self._next_cid = 1
         self._rng = random.Random(config.seed)
@@ -291,8 +292,11 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
                 viewers |= s
         if e.followers:
             viewers |= e.followers
-        viewers.discard(c.cid)
-        self._deliver(e, viewers, None)
+        if c.cid in viewers or e.followers or e.owner.identity is not None:
+            viewers.discard(c.cid)
+            self._deliver(e, viewers, None)
+        elif viewers:  # exactly the cells' subscribers: store through the cells' handles
+            self._deliver_to_cells(e, viewers, new)
         gone = e.viewers - viewers
         if gone:
             self._leave(eid, gone)
@@ -315,6 +319,26 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
             self.outboxes.fan_out_to(targets, eid, e.enc_plain)
         else:
             self.outboxes.fan_out(viewers, eid, e.enc_plain)
+        self._dirty |= viewers
+        self.stats["deliveries"] += len(viewers)
+
+    def _deliver_to_cells(self, e: EntityState, viewers: set[int], cells: tuple[int, ...]) -> None:
+        """`_deliver` for a viewer set that is exactly the union of `cells`' subscribers (no followers, not the
+        owner, no identity shown): the stores go through one `Outboxes.targets` handle per cell, kept until the
+        cell's subscribers change (per-cell ticks), instead of a client-id lookup per delivery. A viewer in two
+        of the cells gets the same bytes stored twice under the same key: the same outbox afterwards (a dict
+        keeps a key's first position), so frames are unchanged."""
+        eid, enc = e.eid, e.enc_plain
+        handles, tick, cell_tick, subs = self._cell_targets, self._tick, self._cell_tick, self.subscribers
+        fan_out_to = self.outboxes.fan_out_to
+        for cell in cells:
+            h = handles.get(cell)
+            if h is None or h[0] < cell_tick.get(cell, 0) or h[0] < self._valid_from:
+                s = subs.get(cell)
+                if not s:
+                    continue
+                h = handles[cell] = (tick, self.outboxes.targets(s))
+            fan_out_to(h[1], eid, enc)
         self._dirty |= viewers
         self.stats["deliveries"] += len(viewers)
 
@@ -410,6 +434,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
                 if not s:
                     del self.subscribers[cell]
             cell_tick[cell] = self._tick
+            self._cell_targets.pop(cell, None)  # its handle names this client's outbox: let it go now
         for cell in c.subs:
             for eid in self.occupants.get(cell, ()):
                 self.entities[eid].viewers.discard(cid)

@@ -26,8 +26,8 @@ log = logging.getLogger("entitynet.switchboard")
 class OutboundMixin:
     """What the core queues for a client besides forwarded states; uses the tables of `Switchboard`."""
 
-    def has_dirty(self) -> bool:
-        """Whether some client has something new to write (a shell's flusher sleeps while there is none)."""
+    def has_news(self) -> bool:
+        """Something was queued for some client since the last `take_dirty` (the shell's flusher waits for it)."""
         return bool(self._dirty)
 
     def take_dirty(self, check: bool = True) -> set[int]:

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from entitynet.server import flushloop
 from entitynet.switchboard.outbox import compiled_in_use
 from sims.bench.switch_drivers import PAD, PAYLOAD, TICK, NatsDriver, OursDriver, RedisDriver
 from sims.bench.switch_ladder import (
@@ -330,6 +331,7 @@ def run(args, progress) -> dict[str, Any]:
         "pin_note": plan["note"],
         # the server subprocess runs this interpreter and environment: the same fan-out loops
         "compiled_fanout": compiled_in_use(),
+        "compiled_flush": flushloop.compiled_in_use(),
     }
     progress(plan["note"])
     notes: list[str] = [plan["note"]]

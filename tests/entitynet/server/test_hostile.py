@@ -87,7 +87,7 @@ async def test_more_pings_in_one_frame_than_replies_allowed_get_a_clear_error_an
         assert server.sb.stats["slow_consumers"] == 0
 
 
-async def test_every_slow_consumer_drop_is_counted_in_the_metrics():
+async def test_every_slow_consumer_drop_is_counted_in_the_metrics(flush_path):
     async with running(switch={"max_pending": 5}) as server:
         pub, view = await pair(server, cell=2)
         lazies = []

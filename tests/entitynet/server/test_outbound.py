@@ -25,7 +25,7 @@ async def _publish_many(server, n: int, cells: int, payload: bytes = b"s", per_f
     return pubs
 
 
-async def test_a_viewer_of_more_than_max_batch_entities_is_not_dropped():
+async def test_a_viewer_of_more_than_max_batch_entities_is_not_dropped(flush_path):
     async with running() as server:  # defaults: max_batch 20,000, max_pending 50,000, max_control 1,000
         n = server.config.max_batch + 1500
         pubs = await _publish_many(server, n, cells=100)
@@ -52,7 +52,7 @@ async def _connection(server, got: list) -> Connection:
                       ping_interval=60.0)
 
 
-async def test_every_frame_fits_max_frame_so_the_projects_connection_receives_everything():
+async def test_every_frame_fits_max_frame_so_the_projects_connection_receives_everything(flush_path):
     """1,000 entities with 2 KiB payloads are a 2 MB snapshot: it must reach a Connection (default limits, which
     refuse any frame over 1 MiB with FRAME_TOO_LARGE) in several frames, on its first connection."""
     async with running() as server:
@@ -80,7 +80,7 @@ async def test_every_frame_fits_max_frame_so_the_projects_connection_receives_ev
             n.cancel_scope.cancel()
 
 
-async def test_many_small_states_are_split_by_bytes_too():
+async def test_many_small_states_are_split_by_bytes_too(flush_path):
     """16,000 entities with 48-byte payloads: under max_batch messages, but over 1 MiB."""
     async with running() as server:
         pubs = await _publish_many(server, 16_000, cells=50, payload=b"y" * 48)  # kept open: entities stay

@@ -51,7 +51,7 @@ async def test_a_server_freeze_does_not_drop_a_viewer_that_reads_promptly():
         assert server.sb.stats["slow_consumers"] == 0
 
 
-async def test_a_viewer_that_stops_reading_is_still_dropped():
+async def test_a_viewer_that_stops_reading_is_still_dropped(flush_path):
     async with running(stall_timeout=0.5) as server:
         pub = await Raw.connect(server)
         big = b"z" * 2000

@@ -83,3 +83,40 @@ def test_handles_follow_subscription_changes_follows_and_disconnects():
     assert recv(sb, a) == []
     assert [u.seq for u in of(recv(sb, c), P.Update)] == [4]
     assert [u.seq for u in of(recv(sb, d), P.Update)] == [4]
+
+
+def test_entities_changing_cells_store_through_per_cell_handles(pure_fanout):
+    """Most PUBLISHes of a moving entity change its cells, so its viewer set is new every time; the stores still
+    go through handles, one per cell, made once per change of that cell's subscribers (on main: one lookup
+    by client id per delivery). Overlapping cells give each viewer one UPDATE; an owner subscribed to its
+    entity's cell gets none; a disconnect or a subscription change is followed exactly."""
+    sb = make()
+    viewers = [join(sb) for _ in range(10)]
+    for i, v in enumerate(viewers):
+        sb.receive(v, [P.Subscribe((3, 4) if i % 2 else (4, 5), ())], 0.0)
+        recv(sb, v)
+    owner = join(sb)
+    sb.receive(owner, [pub(1, 1, (3, 4))], 0.0)  # all ten: five through cells 3 and 4, five through 4 only
+    assert all(len(of(recv(sb, v), P.Update)) == 1 for v in viewers)
+    counting = _CountingStates(sb.outboxes._states)  # the index behind `fan_out` (outbox.py's insides)
+    sb.outboxes._states = counting
+    _CountingStates.lookups = 0
+    cells = [(4,), (4, 5), (3, 4), (4,), (4, 5), (3, 4), (5,)]
+    for seq, cs in enumerate(cells, start=2):
+        sb.receive(owner, [pub(1, seq, cs)], 0.0)
+    assert _CountingStates.lookups <= 10 + 5 + 5  # cells 4, 5 and 3 resolved once each (on main: 60)
+    for i, v in enumerate(viewers):
+        got = recv(sb, v)
+        if i % 2:  # (3, 4): lost it at (5,), the LEAVE replaced the pending UPDATE
+            assert of(got, P.Update) == [] and len(of(got, P.Leave)) == 1
+        else:  # (4, 5): once, coalesced to the latest state
+            assert [u.seq for u in of(got, P.Update)] == [8] and of(got, P.Leave) == []
+    sb.receive(owner, [P.Subscribe((3,), ())], 0.1)
+    recv(sb, owner)
+    sb.disconnect(viewers[0], 0.1)  # subscribed to (4, 5): its cells' handles must forget it
+    sb.receive(viewers[2], [P.Subscribe((), (4, 5))], 0.1)
+    recv(sb, viewers[2])
+    sb.receive(owner, [pub(1, 20, (3, 4, 5))], 0.2)
+    assert recv(sb, owner) == []  # never its own entity
+    assert sb.outbox(viewers[0]) is None and of(recv(sb, viewers[2]), P.Update) == []
+    assert all([u.seq for u in of(recv(sb, v), P.Update)] == [20] for v in (viewers[1], *viewers[3:]))

@@ -82,3 +82,15 @@ def test_the_fanout_micro_benchmark_runs_every_path():
     rows = measure(rounds=1, reps=1)
     want = {"by_id_pure", "handle_pure"} | ({"by_id_compiled", "handle_compiled"} if outbox.COMPILED else set())
     assert set(rows[0]) == want and all(v > 0 for v in rows[0].values())
+
+
+def test_the_news_at_flush_comparison_and_the_flush_micro_benchmark_run():
+    from entitynet.server import flushloop
+    from sims.bench.switch_fanout_micro import news_at_flush
+    from sims.bench.switch_flush_micro import measure
+
+    r = news_at_flush(n_viewers=50, n_entities=200, dirty=10, reps=1)
+    assert r["deliveries"] > 0 and r["stores_ms"] >= 0 and r["sets_ms"] >= 0
+    rows = measure(n_conns=20, states=3, rounds=1, reps=2)
+    assert set(rows[0]) == {"pure"} | ({"compiled"} if flushloop.COMPILED else set())
+    assert all(v > 0 for v in rows[0].values())

@@ -33,3 +33,12 @@ def test_replay_is_deterministic_and_sensitive_to_the_workload(helsinki):
     assert a.core_s > 0 and a.core_us_per_delivery == a.core_s * 1e6 / a.deliveries
     other = replay(helsinki, entities=120, viewers=20, seconds=3.0, seed=8)
     assert other.digest != a.digest
+
+
+def test_the_socket_path_delivers_exactly_the_pinned_frames(helsinki, flush_path):
+    """Flushed through the server's flush loop (pure and compiled) onto loopback TCP, the peers receive the very
+    frames the pin describes: one per client with news per flush, every message's bytes and order intact."""
+    res = replay(helsinki, **SMALL, sockets=True)
+    got = {k: getattr(res, k) for k in PINNED}
+    assert got == PINNED
+    assert res.flush_s > 0 and res.flush_us_per_frame == res.flush_s * 1e6 / res.frames
