@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -91,6 +92,19 @@ def _certain_end_at(path: Path, k: int, networks: int) -> float:
     de = path.edges[k]
     s_node = path.cum[k + 1]
     node_cell = path.cell(s_node - 1e-9) if s_node > 0 else path.cell(0.0)
+    cache = net.__dict__.setdefault("_allowance", {})
+    key = (de, networks, node_cell)
+    allowance = cache.get(key)
+    if allowance is None:
+        if len(cache) > 65536:
+            cache.clear()
+        allowance = cache[key] = _allowance(net, de, networks, node_cell)
+    return min(s_node + allowance, path.length)
+
+
+def _allowance(net, de, networks: int, node_cell: int) -> float:
+    """How far every way on from the end node of `de` stays in `node_cell` (0 where one leaves it at once, or
+    none goes on): a function of the map alone, so `_certain_end_at` keeps it per (edge, networks, cell)."""
     allowance = INF
     for cand in net.choices(de, networks):
         pieces = net.pieces(*cand)
@@ -98,7 +112,7 @@ def _certain_end_at(path: Path, k: int, networks: int) -> float:
         allowance = min(allowance, b0 if c0 == node_cell else 0.0)
     if not net.choices(de, networks):
         allowance = 0.0
-    return min(s_node + allowance, path.length)
+    return allowance
 
 
 def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int = 48,
@@ -107,22 +121,47 @@ def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int
     its first cell boundary beyond `depth` metres from the node (a tree; dead ends bound nothing). Returns the
     cells and the shortest covered distance (where the first uncovered cell could be entered).
 
-    The tree depends only on the directed edge, the depth and the budgets, so it is computed once per
-    view and key (publishing without a route repeats the same few keys)."""
+    The tree depends only on the directed edge, the budgets and on which side of `depth` each distance the
+    search compares with it falls: one computation answers every depth in an interval [lo, hi) (`_span`),
+    so the memo keeps, per directed edge and budgets, the intervals found so far (sorted, disjoint) and a
+    publish without a route, whose depth is a fresh float each time, finds its tree by one bisection."""
     net = path.net
     de = path.edges[k]
+    if depth != depth:  # NaN: no interval holds it (every comparison is false); computed, never cached
+        return _branch_cover(net, de, depth, networks, max_cells, max_edges)
     cache = net.__dict__.setdefault("_branch_cover", {})
-    key = (de, depth, networks, max_cells, max_edges)
-    hit = cache.get(key)
-    if hit is None:
+    key = (de, networks, max_cells, max_edges)
+    spans = cache.get(key)
+    if spans is None:
         if len(cache) > 4096:
             cache.clear()
-        hit = cache[key] = _branch_cover(net, de, depth, networks, max_cells, max_edges)
-    return list(hit[0]), hit[1]
+        spans = cache[key] = ([], [])  # interval starts, (end, cells, shortest): sorted by start
+    los, rest = spans
+    i = bisect_right(los, depth) - 1
+    if i >= 0 and depth < rest[i][0]:
+        hit = rest[i]
+        return list(hit[1]), hit[2]
+    cells, shortest, lo, hi = _span(net, de, depth, networks, max_cells, max_edges)
+    if len(los) < 256:
+        j = bisect_right(los, lo)
+        los.insert(j, lo)
+        rest.insert(j, (hi, tuple(cells), shortest))
+    return cells, shortest
 
 
 def _branch_cover(net, de, depth: float, networks: int, max_cells: int, max_edges: int) -> tuple[list[int], float]:
+    """The tree of `branch_cover`, computed (the reference for the memo)."""
+    cells, shortest, _lo, _hi = _span(net, de, depth, networks, max_cells, max_edges)
+    return cells, shortest
+
+
+def _span(net, de, depth: float, networks: int, max_cells: int,
+          max_edges: int) -> tuple[list[int], float, float, float]:
+    """`_branch_cover` and the interval [lo, hi) of depths it answers alike: `depth` enters the search only
+    through `x > depth` for distances x, so every depth with the same outcomes for the same x (at least the
+    largest x not above it, below the smallest x above it) runs the same search to the same result."""
     cells: list[int] = []
+    lo, hi = -INF, INF
     node = net.end_node(de)
     if net.node_area[node] >= 0:
         cells.append(net.area_cell[net.node_area[node]])
@@ -143,9 +182,14 @@ def _branch_cover(net, de, depth: float, networks: int, max_cells: int, max_edge
             continue
         leaf = None
         for a0, _b0, c in net.pieces(*cand):
-            if d0 + a0 > depth:
-                leaf = d0 + a0
+            x = d0 + a0
+            if x > depth:
+                if x < hi:
+                    hi = x
+                leaf = x
                 break
+            if x > lo:
+                lo = x
             if c not in cells:
                 cells.append(c)
         if leaf is not None:
@@ -160,7 +204,7 @@ def _branch_cover(net, de, depth: float, networks: int, max_cells: int, max_edge
             continue
         for nxt in net.choices(cand, networks):
             heapq.heappush(queue, (d1, nxt))
-    return cells, (0.0 if shortest == INF and not cells else shortest)
+    return cells, (0.0 if shortest == INF and not cells else shortest), lo, hi
 
 
 def occupy(
