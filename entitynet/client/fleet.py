@@ -47,14 +47,21 @@ from entitynet.protocol import Publish, Unpublish
 
 W = MAX_PATH_EDGES  # the widest path a row holds (the tracker never keeps more edges)
 RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent`
-_F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt", "kq",
-      "dist_ema", "vpeak", "vpeak_t", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "pub_t",
-      "validity", "heartbeat", "max_gap", "lost_after", "lf_off", "lf_x", "lf_y", "lf_d", "g_t0", "g_s0", "g_v",
-      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop", "body",
-      *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)))  # rings: oldest first, last RECENT
+# the float fields in three groups, each a contiguous run of columns that `_load` writes in one assignment:
+# what any call may change (with the rings: oldest first, last RECENT), what changes only with a new ghost
+# (a publish), and the entity's constants (written once; `player(slot)` hands the Player out, so it may change)
+_VAR = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt",
+        "dist_ema", "vpeak", "vpeak_t", "lf_off", "lf_x", "lf_y", "lf_d")
+_GHOST = ("pub_t", "validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
+_CONST = ("kq", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap",
+          "lost_after", "body")
+_F = (*_VAR, *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)), *_GHOST, *_CONST)
 _RINGS = _F.index("rs0")
+_G0 = _F.index("pub_t")  # the ghost's columns [_G0, _C0), the constants' [_C0, end)
+_C0 = _F.index("kq")
 _I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
-_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty")  # path_dirty: trimmed in the arrays
+_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty", "consts")  # path_dirty: trimmed in the arrays;
+# consts: the constants' columns hold the Player's
 
 
 def _deadline(p: Player) -> float:
@@ -112,6 +119,7 @@ class FleetCore:
         self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
         self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
         self._paths: list = [None] * cap if old == 0 else self._paths + [None] * (cap - old)
+        self._ghosts: list = [None] * cap if old == 0 else self._ghosts + [None] * (cap - old)
         self._cap = cap
 
     # ---- slots ---------------------------------------------------------------------------------------------
@@ -140,6 +148,8 @@ class FleetCore:
             raise KeyError(f"slot {slot} holds no player")
         if self.dirty[slot]:
             self._store(slot, p)
+        self.consts[slot] = False  # the caller may change the Player: read it all at the next `_load`
+        self._ghosts[slot] = None
         return p
 
     # ---- one tick ------------------------------------------------------------------------------------------
@@ -430,28 +440,28 @@ class FleetCore:
         if paths is None or paths[1] is not ghost.path:
             self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
         self._paths[s] = (trk.path, ghost.path)
-        placer, et = trk.placer, trk.etype
-        tb, sb, vb, b = ghost.plan
-        row = {
-            "last_t": p.last_t, "mx": p.measured[0], "my": p.measured[1], "deadline": self.deadline[s],
-            "ks": kf.s, "kv": kf.v, "ka": kf.a, "p00": kf.p00, "p01": kf.p01, "p02": kf.p02, "p11": kf.p11,
-            "p12": kf.p12, "p22": kf.p22, "kt": kf.t, "kq": kf.q, "dist_ema": trk.dist_ema, "vpeak": trk.vpeak,
-            "vpeak_t": trk.vpeak_t,
-            "swm": placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
-            "reacq": placer.reacquire, "v_start": et.v_start, "v_stop": et.v_stop,
-            "behind": trk.body + trk.margin + 50.0, "la": trk.lookahead, "mg": trk.margin, "thr": rules.threshold,
-            "pub_t": p.pub_t, "validity": rules.validity(p.occupation), "heartbeat": rules.heartbeat,
-            "max_gap": rules.max_gap, "lost_after": rules.lost_after, "lf_off": lf[2], "lf_x": lf[3], "lf_y": lf[4],
-            "lf_d": lf[5], "g_t0": ghost.t0, "g_s0": ghost.s0, "g_v": ghost.v, "g_a": ghost.a, "g_vmax": ghost.vmax,
-            "g_tb": tb, "g_sb": sb, "g_vb": vb, "g_b": b, "g_stop": ghost.stop_s, "body": trk.body,
-        }
         n_s, n_r = len(trk.recent_s), len(rules.recent)
         pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
-        self.fm[s] = ([row[f] for f in _F[:_RINGS]] + pad_s + trk.recent_s + pad_r + [pt[0] for pt in rules.recent]
-                      + pad_r + [pt[1] for pt in rules.recent])
+        self.fm[s, :_G0] = [p.last_t, p.measured[0], p.measured[1], self.deadline[s], kf.s, kf.v, kf.a, kf.p00,
+                            kf.p01, kf.p02, kf.p11, kf.p12, kf.p22, kf.t, trk.dist_ema, trk.vpeak, trk.vpeak_t,
+                            lf[2], lf[3], lf[4], lf[5],
+                            *pad_s, *trk.recent_s, *pad_r, *[pt[0] for pt in rules.recent],
+                            *pad_r, *[pt[1] for pt in rules.recent]]
+        if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish, and with it pub_t, validity
+            self._ghosts[s] = ghost
+            tb, sb, vb, b = ghost.plan
+            self.fm[s, _G0:_C0] = [p.pub_t, rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a,
+                                   ghost.vmax, tb, sb, vb, b, ghost.stop_s]
+        if not self.consts[s]:
+            placer, et = trk.placer, trk.etype
+            self.fm[s, _C0:] = [kf.q, placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
+                                placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0,
+                                trk.lookahead, trk.margin, rules.threshold, rules.heartbeat, rules.max_gap,
+                                rules.lost_after, trk.body]
+            self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
+            self.consts[s] = True
         dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
         self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
-        self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
 
     @staticmethod
     def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:

@@ -161,49 +161,61 @@ def _span(net, de, depth: float, networks: int, max_cells: int,
     through `x > depth` for distances x, so every depth with the same outcomes for the same x (at least the
     largest x not above it, below the smallest x above it) runs the same search to the same result."""
     cells: list[int] = []
+    listed: set[int] = set()  # `cells` as a set: the membership test of every piece
     lo, hi = -INF, INF
     node = net.end_node(de)
     if net.node_area[node] >= 0:
         cells.append(net.area_cell[net.node_area[node]])
+        listed.add(cells[0])
     shortest = INF
+    info = _edge_info(net, networks)
     # nearest first (Dijkstra order), so that when the cell budget runs out the tree is cut at its far end
     queue = [(0.0, cand) for cand in net.choices(de, networks)]
     heapq.heapify(queue)
+    pop, push = heapq.heappop, heapq.heappush
     seen = {de}
     edges = 0
     while queue:
-        d0, cand = heapq.heappop(queue)
+        d0, cand = pop(queue)
         if cand in seen:
             continue
         seen.add(cand)
         edges += 1
         if edges > max_edges or len(cells) >= max_cells:
-            shortest = min(shortest, d0)  # budget spent: nothing beyond here is covered
+            if d0 < shortest:
+                shortest = d0  # budget spent: nothing beyond here is covered
             continue
-        leaf = None
-        for a0, _b0, c in net.pieces(*cand):
+        row = info.get(cand)
+        if row is None:
+            row = info[cand] = _info_row(net, cand, networks)
+        pieces, length, end_cell, onward = row
+        leaf = False
+        for a0, _b0, c in pieces:
             x = d0 + a0
             if x > depth:
                 if x < hi:
                     hi = x
-                leaf = x
+                if x < shortest:
+                    shortest = x
+                leaf = True
                 break
             if x > lo:
                 lo = x
-            if c not in cells:
+            if c not in listed:
+                listed.add(c)
                 cells.append(c)
-        if leaf is not None:
-            shortest = min(shortest, leaf)
+        if leaf:
             continue
-        d1 = d0 + net.edge_len[cand[0]]
-        if net.node_area[net.end_node(cand)] >= 0:
-            c = net.area_cell[net.node_area[net.end_node(cand)]]
-            if c not in cells:
-                cells.append(c)
-            shortest = min(shortest, d1)  # into an area: the area cell is covered, not beyond
+        d1 = d0 + length
+        if end_cell >= 0:
+            if end_cell not in listed:
+                listed.add(end_cell)
+                cells.append(end_cell)
+            if d1 < shortest:
+                shortest = d1  # into an area: the area cell is covered, not beyond
             continue
-        for nxt in net.choices(cand, networks):
-            heapq.heappush(queue, (d1, nxt))
+        for nxt in onward:
+            push(queue, (d1, nxt))
     return cells, (0.0 if shortest == INF and not cells else shortest), lo, hi
 
 
@@ -280,6 +292,20 @@ def occupy(
             aft = travel(behind - start)
     validity = max(min(front, aft, max_validity), min_validity)
     return make_occupation(tuple(cells), validity, front, aft, start, cover_end)
+
+
+def _edge_info(net, networks: int) -> dict:
+    """Per directed edge, what the branch search reads of it (`_info_row`), kept per view and networks."""
+    return net.__dict__.setdefault("_branch_info", {}).setdefault(networks, {})
+
+
+def _info_row(net, cand, networks: int) -> tuple[list, float, int, list]:
+    """(cell pieces, length, the area cell at its end node or -1, the ways on from it): the map's data the
+    branch search reads at every directed edge it visits, fetched once."""
+    end = net.end_node(cand)
+    area = net.node_area[end]
+    return (net.pieces(*cand), net.edge_len[cand[0]], int(net.area_cell[area]) if area >= 0 else -1,
+            net.choices(cand, networks))
 
 
 def wire_validity(validity: float) -> float:
