@@ -34,7 +34,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from entitynet.client.fixes import FixRejected
-from entitynet.client.fleet_kernels import Geometry, ghost_s_speed, hypot_py, kf_update
+from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed, hypot_py, kf_update
 from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
@@ -86,7 +86,8 @@ class FleetCore:
         self._near = NearTables()
         self.net = None
         self.last_now = -math.inf
-        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "scalar_fixes": 0, "scalar_ticks": 0}
+        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "vector_extends": 0,
+                         "scalar_fixes": 0, "scalar_ticks": 0}
         self._cap = 0
         self._grow(max(int(capacity), 1))
 
@@ -281,9 +282,17 @@ class FleetCore:
             rs[tr] = rs[tr] - c0[:, None]
         vpos = np.where(nv > 0.0, nv, 0.0)
         last = pe[rows, pn - 1], pd[rows, pn - 1]
-        extend = ((pc[rows, pn] < ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos) & (pn < W)
-                  & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl])))
-        ok &= ~extend
+        need = ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos
+        extend = (pc[rows, pn] < need) & (pn < W) & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl]))
+        dead = np.zeros(len(sl), dtype=bool)
+        ext = np.flatnonzero(extend & ok)
+        if len(ext):  # `_maintain_path`'s extension ahead, row by row (rows that stay in arrays otherwise)
+            pe, pd, pc, pn = pe.copy(), pd.copy(), pc.copy(), pn.copy()
+            dead[ext] = extend_rows(self.players, self.net, sl, ext, need, pe, pd, pc, pn)
+            trim[ext] = True  # (the path changed: committed like a trimmed one)
+            self.counters["vector_extends"] += len(ext)
+        else:
+            ok &= ~extend
         rx = np.concatenate([self.rx[sl][:, 1:], px[:, None]], axis=1)
         ry = np.concatenate([self.ry[sl][:, 1:], py[:, None]], axis=1)
         rr_n = np.minimum(self.rr_n[sl] + 1, RECENT)
@@ -327,6 +336,9 @@ class FleetCore:
         self.dist_ema[c] = dist_ema[w]
         for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), [ns, *new[1:]], strict=True):
             getattr(self, f)[c] = v[w]
+        dw = w[dead[w]]
+        if len(dw):  # nothing follows the path's last edge: `dead_end`, not asked again
+            self.dead_e[sl[dw]], self.dead_d[sl[dw]] = pe[dw, pn[dw] - 1], pd[dw, pn[dw] - 1]
         tw = w[trim[w]]
         if len(tw):
             self.counters["vector_trims"] += len(tw)
@@ -394,6 +406,7 @@ class FleetCore:
         trk.last_fix = _new_fix(Fix, ("edge", int(self.lf_e[s]), float(self.lf_off[s]), float(self.lf_x[s]),
                                       float(self.lf_y[s]), float(self.lf_d[s])))
         trk.dist_ema = float(self.dist_ema[s])
+        trk.dead_end = (int(self.dead_e[s]), int(self.dead_d[s])) if self.dead_e[s] >= 0 else None
         n = int(self.rs_n[s])
         trk.recent_s = self.rs[s, RECENT - n:].tolist()
         if self.path_dirty[s]:  # trimmed in the arrays: the same edges and cumulative lengths as `Path.suffix`

@@ -1,16 +1,18 @@
 """The fleet core's read-back after a scalar call (`FleetCore._load`, issue 11): it reads what a call can
 change (the filter, the fixes, the path) every time, the published ghost only when a publish made a new one,
-and the entity's constants once; `player(slot)` hands the Player out, so the next read-back reads it all."""
+and the entity's constants once; `player(slot)` hands the Player out, so the next read-back reads it all.
+And a fix whose path must be extended ahead no longer leaves the arrays for it."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+import pytest
 
 from entitynet.client.fleet import _C0, _F, _G0
 from tests.entitynet.client.test_fleet import _run
-from tests.entitynet.client_fixtures import parallel
+from tests.entitynet.client_fixtures import chain, cross, parallel
 
 
 def _fast_slot(core) -> int:
@@ -49,3 +51,19 @@ def test_a_new_ghost_and_a_changed_constant_are_read():
     assert core.fm[s, _F.index("pub_t")] == p.pub_t
     assert core.fm[s, _F.index("g_t0")] == p.ghost.t0 and core.fm[s, _F.index("g_s0")] == p.ghost.s0
     assert math.isfinite(core.fm[s, _C0])
+
+
+@pytest.mark.parametrize("topo", [parallel(gap=12.0, length=300.0), chain(), cross(arm=100.0)])
+def test_paths_extended_in_arrays_give_the_players_messages_and_state(topo):
+    """A fix whose path needs extending ahead (`_maintain_path`) stays in arrays: the edges `follow` gives are
+    appended row by row (a dead end is remembered); the messages and the written-back paths are the twins'."""
+    got_a, got_b, core, ents = _run(topo, n=12, ticks=160)
+    assert got_a == got_b
+    assert core.counters["vector_extends"] > 0
+    for s, e in enumerate(ents):
+        if core.players[s] is None:
+            continue
+        p, twin = core.player(s), e[0]
+        if p.tracker is not None and p.tracker.path is not None and twin.tracker.path is not None:
+            assert p.tracker.path == twin.tracker.path and p.tracker.path.cum == twin.tracker.path.cum
+            assert p.tracker.dead_end == twin.tracker.dead_end
