@@ -13,11 +13,11 @@ once and calls an entity's own `Player` only where something happens:
    usual update is done entirely in arrays: either `NetworkTracker._track_on` (within the switch margin of the
    current edge, away from its ends, no area at either end, the edge not repeated nearby) or, beyond the
    margin, `Placer.near`'s neighbourhood search (fleet_near.py) choosing an edge of the path window that occurs
-   once in the path; then the along-path filter, the recent-fix bookkeeping, the path trimmed behind the body,
-   and `UpdateRules.decide`'s stop / start / drift / expiry tests (fleet_kernels.py). Every other fix (first
-   placement, an area or a neighbourhood holding one, a fix nearest another way, a reversal, a path to extend,
-   re-acquisition, any fix that publishes) goes to the entity's `Player` (`feed` then `tick`, as
-   `sims.engine.clients.Fleet` calls them).
+   once in the path; then the along-path filter, the recent-fix bookkeeping, the path trimmed behind the body
+   and extended ahead (`follow` row by row: `extend_rows`), and `UpdateRules.decide`'s stop / start / drift /
+   expiry tests (fleet_kernels.py). Every other fix (first placement, an area or a neighbourhood holding one, a
+   fix nearest another way, a reversal, re-acquisition, any fix that publishes) goes to the entity's `Player`
+   (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
 
 One source of truth: for an entity the arrays hold (`fast[i]`), its array state is the newer one after a
 vectorised fix (`dirty[i]`), and it is written back into the `Player` (`_store`) before any scalar call; after
@@ -261,7 +261,7 @@ class FleetCore:
         # the recent fixes: path coordinates (tracker) and projected points (rules)
         rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
         # `_maintain_path`: the edges behind the body and margin are trimmed here (`Path.trimmed`, `kf.shift`,
-        # `recent_s` shifted: the same subtractions); a path to extend ahead goes to the scalar code
+        # `recent_s` shifted: the same subtractions); a path to extend ahead is extended below, row by row
         keep = ns - self.behind[sl]
         trim = (pn + 1 > 2) & (keep > pc[:, 1])
         if trim.any():  # (the trimmed rows only: shifting every row's 49 columns costs more than the rest)
