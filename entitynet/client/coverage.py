@@ -13,6 +13,7 @@ import math
 from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
+from entitynet.client.lateral import near_index
 from entitynet.client.modes import AREA
 from entitynet.client.motion import AreaModel, Model, NetworkModel
 from entitynet.client.network import NetView
@@ -36,6 +37,19 @@ def _wire(occ: Occupation) -> Occupation:
     if v == occ.validity:
         return occ
     return Occupation(occ.cells, v, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+def _way_back(net: NetView, back: tuple[int, int], networks: int, distance: float) -> Path:
+    """The path from `back` on by the junction rule, `distance` metres: a function of the map alone (paths are
+    not changed in place), so it is built once per (edge, direction, networks, distance) and shared."""
+    cache = net.__dict__.setdefault("_way_back", {})
+    key = (back, networks, distance)
+    path = cache.get(key)
+    if path is None:
+        if len(cache) > 16384:
+            cache.clear()
+        path = cache[key] = Path(net, [back] + follow(net, back, networks, distance, max_edges=MAX_PATH_EDGES))
+    return path
 
 
 class Coverage:
@@ -131,8 +145,8 @@ class Coverage:
         e, d = path.edges[k]
         back = (e, -d)
         s_back = path.cum[k + 1] - s
-        edges = [back] + follow(net, back, networks, lookahead + self.margin + 80.0, max_edges=MAX_PATH_EDGES)
-        return occupy(Path(net, edges), s_back, 0.0, 0.0, 0.0, self.etype.vmax, networks, margin=self.margin,
+        way = _way_back(net, back, networks, lookahead + self.margin + 80.0)
+        return occupy(way, s_back, 0.0, 0.0, 0.0, self.etype.vmax, networks, margin=self.margin,
                       lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
 
     def _lateral_cells(self, trk: NetworkTracker, path: Path, s: float, ahead: float,
@@ -142,6 +156,7 @@ class Coverage:
         covered from `behind` metres behind the projected point (default: the margin and the body) to `ahead`
         metres on, in the direction of travel."""
         net, placer = self.net, trk.placer
+        near = near_index(placer)
         x, y = path.xy(s)
         hx, hy = path.xy(min(s + 1.0, path.length))
         bx, by = path.xy(max(s - 1.0, 0.0))
@@ -154,7 +169,7 @@ class Coverage:
         on_path = {edges[k][0] for k in range(len(edges)) if cum[k + 1] >= s - back and cum[k] <= s + ahead}
         out: list[int] = []
         # every way near the position, connected or not (footways drawn twice, a few metres apart)
-        for e in placer.edges_near(x, y, self.lateral):
+        for e in near.edges_near(x, y, self.lateral):
             if e == e_cur or e in on_path:
                 continue
             f = placer.project_on(x, y, e)
@@ -170,7 +185,7 @@ class Coverage:
                 if b0 >= lo and a0 <= hi and c not in out:
                     out.append(c)
         for area in placer.areas_near(x, y, self.lateral):  # an area next to the way: maybe inside it
-            if ring_distance(placer.ring(area), x, y) <= self.lateral:
+            if near.within_ring(area, x, y, self.lateral):
                 c = net.area_cell[area]
                 if c not in out:
                     out.append(c)

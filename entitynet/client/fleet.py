@@ -13,11 +13,11 @@ once and calls an entity's own `Player` only where something happens:
    usual update is done entirely in arrays: either `NetworkTracker._track_on` (within the switch margin of the
    current edge, away from its ends, no area at either end, the edge not repeated nearby) or, beyond the
    margin, `Placer.near`'s neighbourhood search (fleet_near.py) choosing an edge of the path window that occurs
-   once in the path; then the along-path filter, the recent-fix bookkeeping, the path trimmed behind the body,
-   and `UpdateRules.decide`'s stop / start / drift / expiry tests (fleet_kernels.py). Every other fix (first
-   placement, an area or a neighbourhood holding one, a fix nearest another way, a reversal, a path to extend,
-   re-acquisition, any fix that publishes) goes to the entity's `Player` (`feed` then `tick`, as
-   `sims.engine.clients.Fleet` calls them).
+   once in the path; then the along-path filter, the recent-fix bookkeeping, the path trimmed behind the body
+   and extended ahead (`follow` row by row: `extend_rows`), and `UpdateRules.decide`'s stop / start / drift /
+   expiry tests (fleet_kernels.py). Every other fix (first placement, an area or a neighbourhood holding one, a
+   fix nearest another way, a reversal, re-acquisition, any fix that publishes) goes to the entity's `Player`
+   (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
 
 One source of truth: for an entity the arrays hold (`fast[i]`), its array state is the newer one after a
 vectorised fix (`dirty[i]`), and it is written back into the `Player` (`_store`) before any scalar call; after
@@ -34,7 +34,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from entitynet.client.fixes import FixRejected
-from entitynet.client.fleet_kernels import Geometry, ghost_s_speed, hypot_py, kf_update
+from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed, hypot_py, kf_update
 from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
@@ -47,14 +47,21 @@ from entitynet.protocol import Publish, Unpublish
 
 W = MAX_PATH_EDGES  # the widest path a row holds (the tracker never keeps more edges)
 RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent`
-_F = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt", "kq",
-      "dist_ema", "vpeak", "vpeak_t", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "pub_t",
-      "validity", "heartbeat", "max_gap", "lost_after", "lf_off", "lf_x", "lf_y", "lf_d", "g_t0", "g_s0", "g_v",
-      "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop", "body",
-      *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)))  # rings: oldest first, last RECENT
+# the float fields in three groups, each a contiguous run of columns that `_load` writes in one assignment:
+# what any call may change (with the rings: oldest first, last RECENT), what changes only with a new ghost
+# (a publish), and the entity's constants (written once; `player(slot)` hands the Player out, so it may change)
+_VAR = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt",
+        "dist_ema", "vpeak", "vpeak_t", "lf_off", "lf_x", "lf_y", "lf_d")
+_GHOST = ("pub_t", "validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
+_CONST = ("kq", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap",
+          "lost_after", "body")
+_F = (*_VAR, *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)), *_GHOST, *_CONST)
 _RINGS = _F.index("rs0")
+_G0 = _F.index("pub_t")  # the ghost's columns [_G0, _C0), the constants' [_C0, end)
+_C0 = _F.index("kq")
 _I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
-_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty")  # path_dirty: trimmed in the arrays
+_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty", "consts")  # path_dirty: trimmed in the arrays;
+# consts: the constants' columns hold the Player's
 
 
 def _deadline(p: Player) -> float:
@@ -79,7 +86,8 @@ class FleetCore:
         self._near = NearTables()
         self.net = None
         self.last_now = -math.inf
-        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "scalar_fixes": 0, "scalar_ticks": 0}
+        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "vector_extends": 0,
+                         "scalar_fixes": 0, "scalar_ticks": 0}
         self._cap = 0
         self._grow(max(int(capacity), 1))
 
@@ -112,6 +120,7 @@ class FleetCore:
         self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
         self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
         self._paths: list = [None] * cap if old == 0 else self._paths + [None] * (cap - old)
+        self._ghosts: list = [None] * cap if old == 0 else self._ghosts + [None] * (cap - old)
         self._cap = cap
 
     # ---- slots ---------------------------------------------------------------------------------------------
@@ -140,6 +149,8 @@ class FleetCore:
             raise KeyError(f"slot {slot} holds no player")
         if self.dirty[slot]:
             self._store(slot, p)
+        self.consts[slot] = False  # the caller may change the Player: read it all at the next `_load`
+        self._ghosts[slot] = None
         return p
 
     # ---- one tick ------------------------------------------------------------------------------------------
@@ -250,7 +261,7 @@ class FleetCore:
         # the recent fixes: path coordinates (tracker) and projected points (rules)
         rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
         # `_maintain_path`: the edges behind the body and margin are trimmed here (`Path.trimmed`, `kf.shift`,
-        # `recent_s` shifted: the same subtractions); a path to extend ahead goes to the scalar code
+        # `recent_s` shifted: the same subtractions); a path to extend ahead is extended below, row by row
         keep = ns - self.behind[sl]
         trim = (pn + 1 > 2) & (keep > pc[:, 1])
         if trim.any():  # (the trimmed rows only: shifting every row's 49 columns costs more than the rest)
@@ -271,9 +282,17 @@ class FleetCore:
             rs[tr] = rs[tr] - c0[:, None]
         vpos = np.where(nv > 0.0, nv, 0.0)
         last = pe[rows, pn - 1], pd[rows, pn - 1]
-        extend = ((pc[rows, pn] < ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos) & (pn < W)
-                  & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl])))
-        ok &= ~extend
+        need = ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos
+        extend = (pc[rows, pn] < need) & (pn < W) & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl]))
+        dead = np.zeros(len(sl), dtype=bool)
+        ext = np.flatnonzero(extend & ok)
+        if len(ext):  # `_maintain_path`'s extension ahead, row by row (rows that stay in arrays otherwise)
+            pe, pd, pc, pn = pe.copy(), pd.copy(), pc.copy(), pn.copy()
+            dead[ext] = extend_rows(self.players, self.net, sl, ext, need, pe, pd, pc, pn)
+            trim[ext] = True  # (the path changed: committed like a trimmed one)
+            self.counters["vector_extends"] += len(ext)
+        else:
+            ok &= ~extend
         rx = np.concatenate([self.rx[sl][:, 1:], px[:, None]], axis=1)
         ry = np.concatenate([self.ry[sl][:, 1:], py[:, None]], axis=1)
         rr_n = np.minimum(self.rr_n[sl] + 1, RECENT)
@@ -317,6 +336,9 @@ class FleetCore:
         self.dist_ema[c] = dist_ema[w]
         for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), [ns, *new[1:]], strict=True):
             getattr(self, f)[c] = v[w]
+        dw = w[dead[w]]
+        if len(dw):  # nothing follows the path's last edge: `dead_end`, not asked again
+            self.dead_e[sl[dw]], self.dead_d[sl[dw]] = pe[dw, pn[dw] - 1], pd[dw, pn[dw] - 1]
         tw = w[trim[w]]
         if len(tw):
             self.counters["vector_trims"] += len(tw)
@@ -384,6 +406,7 @@ class FleetCore:
         trk.last_fix = _new_fix(Fix, ("edge", int(self.lf_e[s]), float(self.lf_off[s]), float(self.lf_x[s]),
                                       float(self.lf_y[s]), float(self.lf_d[s])))
         trk.dist_ema = float(self.dist_ema[s])
+        trk.dead_end = (int(self.dead_e[s]), int(self.dead_d[s])) if self.dead_e[s] >= 0 else None
         n = int(self.rs_n[s])
         trk.recent_s = self.rs[s, RECENT - n:].tolist()
         if self.path_dirty[s]:  # trimmed in the arrays: the same edges and cumulative lengths as `Path.suffix`
@@ -430,28 +453,28 @@ class FleetCore:
         if paths is None or paths[1] is not ghost.path:
             self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
         self._paths[s] = (trk.path, ghost.path)
-        placer, et = trk.placer, trk.etype
-        tb, sb, vb, b = ghost.plan
-        row = {
-            "last_t": p.last_t, "mx": p.measured[0], "my": p.measured[1], "deadline": self.deadline[s],
-            "ks": kf.s, "kv": kf.v, "ka": kf.a, "p00": kf.p00, "p01": kf.p01, "p02": kf.p02, "p11": kf.p11,
-            "p12": kf.p12, "p22": kf.p22, "kt": kf.t, "kq": kf.q, "dist_ema": trk.dist_ema, "vpeak": trk.vpeak,
-            "vpeak_t": trk.vpeak_t,
-            "swm": placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
-            "reacq": placer.reacquire, "v_start": et.v_start, "v_stop": et.v_stop,
-            "behind": trk.body + trk.margin + 50.0, "la": trk.lookahead, "mg": trk.margin, "thr": rules.threshold,
-            "pub_t": p.pub_t, "validity": rules.validity(p.occupation), "heartbeat": rules.heartbeat,
-            "max_gap": rules.max_gap, "lost_after": rules.lost_after, "lf_off": lf[2], "lf_x": lf[3], "lf_y": lf[4],
-            "lf_d": lf[5], "g_t0": ghost.t0, "g_s0": ghost.s0, "g_v": ghost.v, "g_a": ghost.a, "g_vmax": ghost.vmax,
-            "g_tb": tb, "g_sb": sb, "g_vb": vb, "g_b": b, "g_stop": ghost.stop_s, "body": trk.body,
-        }
         n_s, n_r = len(trk.recent_s), len(rules.recent)
         pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
-        self.fm[s] = ([row[f] for f in _F[:_RINGS]] + pad_s + trk.recent_s + pad_r + [pt[0] for pt in rules.recent]
-                      + pad_r + [pt[1] for pt in rules.recent])
+        self.fm[s, :_G0] = [p.last_t, p.measured[0], p.measured[1], self.deadline[s], kf.s, kf.v, kf.a, kf.p00,
+                            kf.p01, kf.p02, kf.p11, kf.p12, kf.p22, kf.t, trk.dist_ema, trk.vpeak, trk.vpeak_t,
+                            lf[2], lf[3], lf[4], lf[5],
+                            *pad_s, *trk.recent_s, *pad_r, *[pt[0] for pt in rules.recent],
+                            *pad_r, *[pt[1] for pt in rules.recent]]
+        if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish, and with it pub_t, validity
+            self._ghosts[s] = ghost
+            tb, sb, vb, b = ghost.plan
+            self.fm[s, _G0:_C0] = [p.pub_t, rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a,
+                                   ghost.vmax, tb, sb, vb, b, ghost.stop_s]
+        if not self.consts[s]:
+            placer, et = trk.placer, trk.etype
+            self.fm[s, _C0:] = [kf.q, placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
+                                placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0,
+                                trk.lookahead, trk.margin, rules.threshold, rules.heartbeat, rules.max_gap,
+                                rules.lost_after, trk.body]
+            self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
+            self.consts[s] = True
         dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
         self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
-        self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
 
     @staticmethod
     def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:

@@ -192,3 +192,31 @@ def kf_update(z, t, r, s, v, a, p00, p01, p02, p11, p12, p22, kt, q, accel) -> t
         k0, k1, k2 = p00 / sden, p01 / sden, p02 / sden
     return (s + k0 * y, v + k1 * y, a + k2 * y, p00 - k0 * p00, p01 - k0 * p01, p02 - k0 * p02,
             p11 - k1 * p01, p12 - k1 * p02, p22 - k2 * p02, sden)
+
+
+def extend_rows(players, net, sl: np.ndarray, ext: np.ndarray, need: np.ndarray, pe: np.ndarray, pd: np.ndarray,
+                pc: np.ndarray, pn: np.ndarray) -> np.ndarray:
+    """`NetworkTracker._maintain_path`'s extension ahead for rows `ext` of the path arrays (changed in place):
+    the edges `follow` gives (route or junction rule) appended with the cumulative lengths `Path.extended`
+    computes (the same additions). Returns per row of `ext` whether nothing followed (a dead end)."""
+    from entitynet.client.path import follow
+    from entitynet.client.tracker import MAX_PATH_EDGES
+
+    dead = np.zeros(len(ext), dtype=bool)
+    edge_len = net.edge_len
+    for i, r in enumerate(ext.tolist()):
+        trk = players[int(sl[r])].tracker
+        n = int(pn[r])
+        last = (int(pe[r, n - 1]), int(pd[r, n - 1]))
+        length = float(pc[r, n])
+        ahead = follow(net, last, trk.etype.networks, float(need[r]) - length, trk.route.edges,
+                       trk.route.index(last), max_edges=MAX_PATH_EDGES - n)
+        if not ahead:
+            dead[i] = True
+            continue
+        c = length
+        for j, (e, d) in enumerate(ahead):
+            c = c + edge_len[e]
+            pe[r, n + j], pd[r, n + j], pc[r, n + j + 1] = e, d, c
+        pn[r] = n + len(ahead)
+    return dead

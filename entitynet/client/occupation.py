@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -91,6 +92,19 @@ def _certain_end_at(path: Path, k: int, networks: int) -> float:
     de = path.edges[k]
     s_node = path.cum[k + 1]
     node_cell = path.cell(s_node - 1e-9) if s_node > 0 else path.cell(0.0)
+    cache = net.__dict__.setdefault("_allowance", {})
+    key = (de, networks, node_cell)
+    allowance = cache.get(key)
+    if allowance is None:
+        if len(cache) > 65536:
+            cache.clear()
+        allowance = cache[key] = _allowance(net, de, networks, node_cell)
+    return min(s_node + allowance, path.length)
+
+
+def _allowance(net, de, networks: int, node_cell: int) -> float:
+    """How far every way on from the end node of `de` stays in `node_cell` (0 where one leaves it at once, or
+    none goes on): a function of the map alone, so `_certain_end_at` keeps it per (edge, networks, cell)."""
     allowance = INF
     for cand in net.choices(de, networks):
         pieces = net.pieces(*cand)
@@ -98,7 +112,7 @@ def _certain_end_at(path: Path, k: int, networks: int) -> float:
         allowance = min(allowance, b0 if c0 == node_cell else 0.0)
     if not net.choices(de, networks):
         allowance = 0.0
-    return min(s_node + allowance, path.length)
+    return allowance
 
 
 def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int = 48,
@@ -107,60 +121,102 @@ def branch_cover(path: Path, k: int, depth: float, networks: int, max_cells: int
     its first cell boundary beyond `depth` metres from the node (a tree; dead ends bound nothing). Returns the
     cells and the shortest covered distance (where the first uncovered cell could be entered).
 
-    The tree depends only on the directed edge, the depth and the budgets, so it is computed once per
-    view and key (publishing without a route repeats the same few keys)."""
+    The tree depends only on the directed edge, the budgets and on which side of `depth` each distance the
+    search compares with it falls: one computation answers every depth in an interval [lo, hi) (`_span`),
+    so the memo keeps, per directed edge and budgets, the intervals found so far (sorted, disjoint) and a
+    publish without a route, whose depth is a fresh float each time, finds its tree by one bisection."""
     net = path.net
     de = path.edges[k]
+    if depth != depth:  # NaN: no interval holds it (every comparison is false); computed, never cached
+        return _branch_cover(net, de, depth, networks, max_cells, max_edges)
     cache = net.__dict__.setdefault("_branch_cover", {})
-    key = (de, depth, networks, max_cells, max_edges)
-    hit = cache.get(key)
-    if hit is None:
+    key = (de, networks, max_cells, max_edges)
+    spans = cache.get(key)
+    if spans is None:
         if len(cache) > 4096:
             cache.clear()
-        hit = cache[key] = _branch_cover(net, de, depth, networks, max_cells, max_edges)
-    return list(hit[0]), hit[1]
+        spans = cache[key] = ([], [])  # interval starts, (end, cells, shortest): sorted by start
+    los, rest = spans
+    i = bisect_right(los, depth) - 1
+    if i >= 0 and depth < rest[i][0]:
+        hit = rest[i]
+        return list(hit[1]), hit[2]
+    cells, shortest, lo, hi = _span(net, de, depth, networks, max_cells, max_edges)
+    if len(los) < 256:
+        j = bisect_right(los, lo)
+        los.insert(j, lo)
+        rest.insert(j, (hi, tuple(cells), shortest))
+    return cells, shortest
 
 
 def _branch_cover(net, de, depth: float, networks: int, max_cells: int, max_edges: int) -> tuple[list[int], float]:
+    """The tree of `branch_cover`, computed (the reference for the memo)."""
+    cells, shortest, _lo, _hi = _span(net, de, depth, networks, max_cells, max_edges)
+    return cells, shortest
+
+
+def _span(net, de, depth: float, networks: int, max_cells: int,
+          max_edges: int) -> tuple[list[int], float, float, float]:
+    """`_branch_cover` and the interval [lo, hi) of depths it answers alike: `depth` enters the search only
+    through `x > depth` for distances x, so every depth with the same outcomes for the same x (at least the
+    largest x not above it, below the smallest x above it) runs the same search to the same result."""
     cells: list[int] = []
+    listed: set[int] = set()  # `cells` as a set: the membership test of every piece
+    lo, hi = -INF, INF
     node = net.end_node(de)
     if net.node_area[node] >= 0:
         cells.append(net.area_cell[net.node_area[node]])
+        listed.add(cells[0])
     shortest = INF
+    info = _edge_info(net, networks)
     # nearest first (Dijkstra order), so that when the cell budget runs out the tree is cut at its far end
     queue = [(0.0, cand) for cand in net.choices(de, networks)]
     heapq.heapify(queue)
+    pop, push = heapq.heappop, heapq.heappush
     seen = {de}
     edges = 0
     while queue:
-        d0, cand = heapq.heappop(queue)
+        d0, cand = pop(queue)
         if cand in seen:
             continue
         seen.add(cand)
         edges += 1
         if edges > max_edges or len(cells) >= max_cells:
-            shortest = min(shortest, d0)  # budget spent: nothing beyond here is covered
+            if d0 < shortest:
+                shortest = d0  # budget spent: nothing beyond here is covered
             continue
-        leaf = None
-        for a0, _b0, c in net.pieces(*cand):
-            if d0 + a0 > depth:
-                leaf = d0 + a0
+        row = info.get(cand)
+        if row is None:
+            row = info[cand] = _info_row(net, cand, networks)
+        pieces, length, end_cell, onward = row
+        leaf = False
+        for a0, _b0, c in pieces:
+            x = d0 + a0
+            if x > depth:
+                if x < hi:
+                    hi = x
+                if x < shortest:
+                    shortest = x
+                leaf = True
                 break
-            if c not in cells:
+            if x > lo:
+                lo = x
+            if c not in listed:
+                listed.add(c)
                 cells.append(c)
-        if leaf is not None:
-            shortest = min(shortest, leaf)
+        if leaf:
             continue
-        d1 = d0 + net.edge_len[cand[0]]
-        if net.node_area[net.end_node(cand)] >= 0:
-            c = net.area_cell[net.node_area[net.end_node(cand)]]
-            if c not in cells:
-                cells.append(c)
-            shortest = min(shortest, d1)  # into an area: the area cell is covered, not beyond
+        d1 = d0 + length
+        if end_cell >= 0:
+            if end_cell not in listed:
+                listed.add(end_cell)
+                cells.append(end_cell)
+            if d1 < shortest:
+                shortest = d1  # into an area: the area cell is covered, not beyond
             continue
-        for nxt in net.choices(cand, networks):
-            heapq.heappush(queue, (d1, nxt))
-    return cells, (0.0 if shortest == INF and not cells else shortest)
+        for nxt in onward:
+            push(queue, (d1, nxt))
+    return cells, (0.0 if shortest == INF and not cells else shortest), lo, hi
 
 
 def occupy(
@@ -236,6 +292,20 @@ def occupy(
             aft = travel(behind - start)
     validity = max(min(front, aft, max_validity), min_validity)
     return make_occupation(tuple(cells), validity, front, aft, start, cover_end)
+
+
+def _edge_info(net, networks: int) -> dict:
+    """Per directed edge, what the branch search reads of it (`_info_row`), kept per view and networks."""
+    return net.__dict__.setdefault("_branch_info", {}).setdefault(networks, {})
+
+
+def _info_row(net, cand, networks: int) -> tuple[list, float, int, list]:
+    """(cell pieces, length, the area cell at its end node or -1, the ways on from it): the map's data the
+    branch search reads at every directed edge it visits, fetched once."""
+    end = net.end_node(cand)
+    area = net.node_area[end]
+    return (net.pieces(*cand), net.edge_len[cand[0]], int(net.area_cell[area]) if area >= 0 else -1,
+            net.choices(cand, networks))
 
 
 def wire_validity(validity: float) -> float:
