@@ -14,6 +14,7 @@ import numpy as np
 
 from entitynet import protocol as P
 from entitynet.client import GhostStore, Subscriptions
+from entitynet.client.motion import Model
 from entitynet.client.network import NetView
 from sims.mobility import Trajectory, random_start
 from topology.raw import PEDESTRIAN
@@ -64,14 +65,17 @@ class SimViewer:
     """A camera walking the pedestrian network (street level, 1.7 m, 1.4 m/s) or flying over it (40-90 m up,
     6 m/s), subscribed to what `cells_at` gives for its position."""
 
-    def __init__(self, net: NetView, index: int, high: bool, cells_at: CellsAt, rng: random.Random):
+    def __init__(self, net: NetView, index: int, high: bool, cells_at: CellsAt, rng: random.Random,
+                 decoder: Callable[[bytes], Model] | None = None):
+        """`decoder`: the payload decoder its ghost store uses (the simulation's viewers share one caching
+        decoder, `sims.engine.decode_cache`; default: each decodes its own)."""
         self.index = index
         self.high = high
         self.z = rng.uniform(40.0, 90.0) if high else 1.7
         self.traj = Trajectory.starting_at(net, PEDESTRIAN, rng, random_start(net, PEDESTRIAN, rng))
         self.speed = 6.0 if high else 1.4
         self.subs = Subscriptions(cells_at)
-        self.ghosts = GhostStore(net)
+        self.ghosts = GhostStore(net, decoder=decoder)
         self.deliveries = 0
         self.leaves = 0
         self.bytes = 0
