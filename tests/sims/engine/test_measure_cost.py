@@ -122,3 +122,47 @@ def test_a_measure_share_samples_that_share_of_viewer_time():
 def test_a_bad_measure_share_is_refused(share):
     with pytest.raises(ValueError, match="measure share"):
         small(measure_share=share)
+
+
+def _pvs_like(size: float = 60.0):
+    """A lookup that, like the PVS index, answers every camera in one square with the same cached array."""
+    import numpy as np
+
+    topo = grid()
+    b = topo.cell_footprints.bounds()
+    cx, cy = (b[:, 0] + b[:, 2]) / 2.0, (b[:, 1] + b[:, 3]) / 2.0
+    cache: dict = {}
+
+    def cells_at(x: float, y: float, z: float):
+        key = (int(x // size), int(y // size))
+        if key not in cache:
+            cache[key] = np.flatnonzero(np.hypot(cx - x, cy - y) < 250.0)
+        return cache[key]
+
+    return topo, cells_at
+
+
+def test_a_camera_in_the_same_view_cell_skips_its_lookup_and_nothing_changes():
+    topo, cells_at = _pvs_like()
+    fast = Sim(topo, small(), cells_at=cells_at)
+    rep = run_local(fast, 30.0)
+    topo2, cached = _pvs_like()
+    slow = Sim(topo2, small(), cells_at=lambda x, y, z: cached(x, y, z).copy())  # a new array every time
+    want = run_local(slow, 30.0)
+    assert rep == want
+    assert sum(v.lookups_skipped for v in fast.viewers) > 30
+    assert sum(v.lookups_skipped for v in slow.viewers) == 0
+    assert rep["truth_vs_viewer"]["all"]["visible_entity_samples"] > 50
+
+
+def test_a_welcome_makes_the_next_move_resubscribe_under_its_limits():
+    topo, cells_at = _pvs_like()
+    sim = Sim(topo, small(viewers=1), cells_at=cells_at)
+    v = sim.viewers[0]
+    v.move(0.0)
+    assert len(v.subs.cells) > 3
+    assert v.move(0.0) == []  # same place: skipped
+    w = P.Welcome(P.PROTOCOL_VERSION, 1, 0, {"max_subscriptions": 3})
+    v.receive(w, sim.now)
+    msgs = v.move(0.0)
+    assert len(v.subs.cells) == 3 and msgs and msgs[0].removed
