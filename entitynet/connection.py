@@ -227,12 +227,16 @@ class Connection:
 
     async def _apply(self, actions: list[Action], wake: bool = False) -> None:
         """Carry out the session's actions in order; `wake` when the event may have moved a deadline."""
+        on_message = self.on_message
         for a in actions:
             t = type(a)
-            if t is Send:
+            if t is Deliver:  # the common case first: a frame of UPDATEs for a viewer
+                if on_message is not None:  # called in place: no coroutine per message (issue 11, fan-out)
+                    on_message(a.msg)
+                else:
+                    await self._in_send.send(a.msg)
+            elif t is Send:
                 await self._write(a.link, a.msgs)
-            elif t is Deliver:
-                await self._deliver(a.msg)
             elif t is Answer:
                 ch = self._queries.get(a.query_id)
                 if ch is not None:
@@ -303,12 +307,6 @@ class Connection:
         if self.ssl_context is not None:
             return "tcp", await trio.open_ssl_over_tcp_stream(host, port, ssl_context=self.ssl_context)
         return "tcp", await trio.open_tcp_stream(host, port)
-
-    async def _deliver(self, m: P.Message) -> None:
-        if self.on_message is not None:
-            self.on_message(m)
-        else:
-            await self._in_send.send(m)
 
     # ------------------------------------------------------------------------------------------ bytes
     async def _next_messages(self, s: _Stream) -> list[P.Message]:

@@ -78,6 +78,7 @@ class Shell:
         self.subscribe_msgs = 0
         self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
         self._cameras: dict[int, tuple[float, float]] = {}  # viewer -> where its camera was last sent
+        self._sizes: dict[P.Update | P.Leave, int] = {}  # this tick's arrivals -> encoded size (`_size`)
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
         self.published = 0
         self.publishers: list[Connection] = []
@@ -161,10 +162,20 @@ class Shell:
         def on_message(m: P.Message) -> None:
             if isinstance(m, P.Redirect):
                 self.redirects += 1
-            size = len(P.encode_message(m)) if isinstance(m, P.Update | P.Leave) else 0
+            size = self._size(m) if isinstance(m, P.Update | P.Leave) else 0
             sim.deliver(i, m, size)
 
         return on_message
+
+    def _size(self, m: P.Update | P.Leave) -> int:
+        """The encoded size of a message that arrived (for the viewers' byte counts). Why a cache: the server
+        fans one UPDATE out to every viewer of its cells, and re-encoding each copy cost more than the viewer's
+        own handling of it; equal messages (frozen dataclasses, every field in the key) encode alike. Cleared
+        every tick, so it holds one tick's distinct messages."""
+        size = self._sizes.get(m)
+        if size is None:
+            size = self._sizes[m] = len(P.encode_message(m))
+        return size
 
     async def _loop(self, pubs: list[Connection], views: list[Connection], stop: trio.Event) -> None:
         sim, cfg = self.sim, self.config
@@ -197,6 +208,7 @@ class Shell:
                     self.say(f"[{sim.ticks * sim.dt:6.0f}s] server unreachable: {down} connection(s) down, "
                              "stepping on and reconnecting")
             self._was_down = bool(down)
+            self._sizes.clear()
             out = sim.step()
             self._tick_wall = time.monotonic()
             await self._send(pubs, views, *out)

@@ -62,6 +62,10 @@ def register(sub) -> None:
     p.add_argument("--topology", metavar="FILE", help="topology artifact (default: the bundled Helsinki map)")
     p.add_argument("--connections", type=int, default=4, help="connections carrying the entities (default 4)")
     p.add_argument("--radius", action="store_true", help="viewers subscribe to a 500 m radius instead of the PVS")
+    p.add_argument("--measure-share", type=float, default=0.25, metavar="S",
+                   help="share of the viewers measured against the truth at each 1 s sample, in turn (default "
+                        "0.25: each viewer every 4 s, so the measure does not make real time late); 1 = the full "
+                        "measure")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
     p.add_argument("--summary-every", type=float, default=5.0, metavar="S", help="summary interval (default 5 s)")
     p.add_argument("--report", metavar="FILE.json", help="write the final JSON report here (default: stdout)")
@@ -104,7 +108,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         config = SimConfig(entities=args.entities, viewers=args.viewers, connections=args.connections,
                            car_share=args.car_share, tick_hz=args.tick_hz, seed=args.seed, start=args.start,
-                           transit=args.gtfs != "none", subscribe="radius" if args.radius else "pvs")
+                           transit=args.gtfs != "none", subscribe="radius" if args.radius else "pvs",
+                           measure_share=args.measure_share)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     if not 0 <= args.car_share <= 1:

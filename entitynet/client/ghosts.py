@@ -11,6 +11,7 @@ Undecodable payloads are counted and skipped, never raised into the viewer.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from entitynet.client.limits import HORIZON
@@ -36,9 +37,14 @@ class GhostStore:
     """A viewer's received entities, kept while invisible until their validity ends so that they
     reappear at once when their cells become visible again."""
 
-    def __init__(self, net: NetView | None, *, clock_offset: float = 0.0) -> None:
-        """`clock_offset`: add to a payload's t0 to get receiver time (from PING/PONG); 0 on a shared clock."""
+    def __init__(self, net: NetView | None, *, clock_offset: float = 0.0,
+                 decoder: Callable[[bytes], Model] | None = None) -> None:
+        """`clock_offset`: add to a payload's t0 to get receiver time (from PING/PONG); 0 on a shared clock.
+        `decoder`: payload bytes -> model, raising PayloadError (default: `payload.decode` on `net`); many
+        viewers in one process share one caching decoder, since the server fans one payload out to all of them
+        and models are immutable (sims.engine.decode_cache)."""
         self.net = net
+        self._decode: Callable[[bytes], Model] = decoder if decoder is not None else self._decode_payload
         self.clock_offset = clock_offset
         self.ghosts: dict[int, Ghost] = {}
         self.visible_cells: set[int] = set()
@@ -57,12 +63,15 @@ class GhostStore:
         if old is not None and msg.seq <= old.seq:
             return
         try:
-            model = decode(msg.payload, self.net)
+            model = self._decode(msg.payload)
         except PayloadError:
             self.bad_payloads += 1
             return
         life = min(msg.validity_ms / 1000.0, HORIZON)
         self.ghosts[msg.entity] = Ghost(msg.entity, msg.seq, tuple(msg.cells), now + life, model, msg.identity)
+
+    def _decode_payload(self, data: bytes) -> Model:
+        return decode(data, self.net)
 
     def set_visible(self, cells) -> None:
         """The cells the viewer currently sees (its PVS)."""

@@ -71,6 +71,7 @@ class Measure:
             cells_of[a.id] = cs = a.cells()
             for c in cs:
                 where[c].append(a.id)
+        memo: dict[tuple[int, float], tuple[float, float]] = {}  # (model, t) -> xy: viewers share models
         for v in viewers:
             t = self.tallies["roof" if v.high else "street"]
             t.viewer_samples += 1
@@ -79,12 +80,12 @@ class Measure:
                 inside.update(where.get(c, ()))
             shown = {}
             claimed: dict[int, tuple[int, ...]] = {}
-            for eid, xy in v.ghosts.positions(now).items():
+            for eid, (xy, cells) in _drawn(v, now, memo).items():
                 aid = eid_to_agent.get(eid, -1)
                 if aid < 0:  # not a simulated entity (the demo's transit proxy publishes its own): no truth
                     continue
                 shown[aid] = xy
-                claimed[aid] = v.ghosts.ghosts[eid].cells
+                claimed[aid] = cells
             t.visible += len(inside)
             t.shown += len(shown)
             for aid in inside:
@@ -112,3 +113,26 @@ class Measure:
             total.viewer_samples += t.viewer_samples
         out["all"] = total.summary()
         return out
+
+
+def _drawn(v: SimViewer, now: float, memo: dict) -> dict[int, tuple[tuple[float, float], tuple[int, ...]]]:
+    """What `v.ghosts.positions(now)` gives (expired ghosts dropped, only the visible drawn), with each ghost's
+    claimed cells. Why not call it: the viewers share decoded models (`sims.engine.decode_cache`), so one
+    entity's ghost is extrapolated once per sample in `memo`, not once per viewer that holds it (the per-viewer
+    calls were most of a sample's cost). Keyed by the model object's id, alive while the ghosts hold it."""
+    gs = v.ghosts
+    if not math.isfinite(now):
+        raise ValueError(f"now must be finite, got {now!r}")
+    gs.expire(now)
+    t = now - gs.clock_offset
+    visible = gs.visible_cells
+    out = {}
+    for e, g in gs.ghosts.items():
+        if visible.isdisjoint(g.cells):
+            continue
+        key = (id(g.model), t)
+        xy = memo.get(key)
+        if xy is None:
+            xy = memo[key] = g.model.xy_at(t)
+        out[e] = (xy, g.cells)
+    return out

@@ -1,0 +1,107 @@
+"""Where a real-time tick's time goes: `python -m sims.bench.rt_split ENTITIES VIEWERS [SECONDS] [SHARE]`.
+
+Why: `entities_realtime_max` says only pass or fail; to cut a tick one needs its parts. This builds the sim and
+shell as the bench's real-time trial does (server in this process, loopback), runs the shell as fast as it can
+(speed 1000, so a tick's cost is its wall time), and wraps the parts in wall-clock timers: the world's step,
+the fleet, the viewers' camera moves and arrivals, the measure, the shell's sends and the server's
+switchboard core. The sends await the sockets, so the server shell and the viewer connections run inside
+them: `rest` = the tick less the parts outside the sends. Figures are ms per tick after `WARM` ticks (the
+start's burst). Timings move with the machine's load: say the load average with them.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+import time
+from collections import defaultdict
+
+WARM = 6
+
+
+def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topology=None) -> dict:
+    """The per-tick split (ms) of a real-time run of `n` entities and `viewers` viewers (see the docstring).
+    `topology`: (topo, artifact path) to run on instead of the bundled map and schedule (no transit then)."""
+    import trio
+
+    from entitynet.topology_cache import bundled_topology, cache_dir
+    from sims.engine.schedule import BUNDLED_FEED, load_schedule
+    from sims.engine.sim import Sim, SimConfig
+    from sims.shell import Shell, ShellConfig
+
+    if topology is None:
+        topo, artifact = bundled_topology(lambda m: None, with_pvs=True)
+        schedule = load_schedule(BUNDLED_FEED, topo, cache=cache_dir())
+    else:
+        (topo, artifact), schedule = topology, None
+    sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=share,
+                              transit=schedule is not None), schedule)
+    acc: dict[str, float] = defaultdict(float)
+
+    def timed(obj, name: str, key: str) -> None:
+        f = getattr(obj, name)
+
+        @functools.wraps(f)
+        def wrapper(*a, **k):
+            t = time.perf_counter()
+            try:
+                return f(*a, **k)
+            finally:
+                if sim.ticks >= WARM:
+                    acc[key] += time.perf_counter() - t
+        setattr(obj, name, wrapper)
+
+    def atimed(obj, name: str, key: str) -> None:
+        f = getattr(obj, name)
+
+        async def wrapper(*a, **k):
+            t = time.perf_counter()
+            try:
+                return await f(*a, **k)
+            finally:
+                if sim.ticks >= WARM:
+                    acc[key] += time.perf_counter() - t
+        setattr(obj, name, wrapper)
+
+    timed(sim.world, "step", "world")
+    timed(sim.fleet, "step", "fleet")
+    timed(sim.population, "step", "population")
+    for v in sim.viewers:
+        timed(v, "move", "viewer_move")
+        timed(v, "receive", "viewer_receive")
+    timed(sim, "maybe_sample", "measure")
+    shell = Shell(sim, ShellConfig(duration=seconds + WARM * sim.dt, speed=1000.0, summary_every=1e9,
+                                   artifact=artifact, keys=False), lambda m: None)
+    atimed(shell, "_send", "send (server and viewer connections inside)")
+    t0: list[float] = []
+    step = sim.step
+
+    def first_timed_step():
+        if sim.ticks == WARM:
+            t0.append(time.perf_counter())
+        return step()
+    sim.step = first_timed_step
+
+    async def main() -> None:
+        async with trio.open_nursery() as nursery:
+            server = await nursery.start(shell.run)
+            timed(server.sb, "receive", "server_core")
+
+    trio.run(main)
+    ticks = sim.ticks - WARM
+    out = {k: round(1000 * x / ticks, 1) for k, x in sorted(acc.items())}
+    out["tick"] = round(1000 * (time.perf_counter() - t0[0]) / ticks, 1)
+    outside = ("world", "fleet", "population", "viewer_move", "measure")
+    out["rest (sends, server, viewer connections)"] = round(out["tick"] - sum(out.get(k, 0.0) for k in outside), 1)
+    return {"entities": n, "viewers": viewers, "on_map": len(sim.world.agents), "ticks": ticks,
+            "measure_share": share, "load": os.getloadavg()[0], "ms_per_tick": out}
+
+
+if __name__ == "__main__":
+    a = sys.argv[1:]
+    if len(a) < 2:
+        sys.exit(__doc__.splitlines()[0])
+    print(json.dumps(split(int(a[0]), int(a[1]), float(a[2]) if len(a) > 2 else 10.0,
+                           float(a[3]) if len(a) > 3 else 0.25), indent=1))

@@ -1,0 +1,38 @@
+"""The shell's per-tick cache of arrivals' encoded sizes (issue 11, more entities in real time): the viewers'
+byte counts stay the encoded sizes, each distinct message encoded once per tick; and `--measure-share`."""
+
+from __future__ import annotations
+
+from entitynet import protocol as P
+from entitynet.cli import main
+from sims.engine.sim import Sim, SimConfig
+from sims.shell import Shell, ShellConfig
+from tests.sims.engine.test_routes import grid
+
+
+def _shell() -> Shell:
+    sim = Sim(grid(), SimConfig(entities=2, viewers=2, subscribe="radius", radius=300.0, transit=False, start=0.0))
+    return Shell(sim, ShellConfig(duration=1.0, keys=False), lambda m: None)
+
+
+def test_an_arrival_is_counted_at_its_encoded_size_and_encoded_once(monkeypatch):
+    shell = _shell()
+    a = P.Update(7, 3, (1, 2, 9), 4500, b"\x93\x01\x02\x03", None)
+    same = P.Update(7, 3, (1, 2, 9), 4500, b"\x93\x01\x02" + bytes([3]), None)  # another viewer's copy
+    other = P.Update(7, 4, (1, 2), 4500, b"\x93\x01\x02\x04\x05", "bob")
+    leave = P.Leave(7)
+    calls = []
+    real = P.encode_message
+    monkeypatch.setattr(P, "encode_message", lambda m: calls.append(m) or real(m))
+    got = [shell._size(m) for m in (a, same, other, leave, leave)]
+    assert got == [len(real(m)) for m in (a, same, other, leave, leave)]
+    assert calls == [a, other, leave]
+    deliveries = []
+    shell.sim.deliver = lambda i, m, size=0: deliveries.append((i, size))
+    shell._on_view(1)(a)
+    assert deliveries == [(1, len(real(a)))]
+
+
+def test_cli_refuses_a_bad_measure_share(capsys):
+    assert main(["sim", "--measure-share", "0", "--duration", "1"]) == 2
+    assert "measure share" in capsys.readouterr().err
