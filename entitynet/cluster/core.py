@@ -343,17 +343,19 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
 
     def _inject(self, st: list, now: float) -> None:
         shard, owner, eid, seq, cells, vms, payload, ident, aud, user = st[:10]
-        if int(shard) == self.shard:
+        shard = int(shard)
+        if shard == self.shard:
             return
-        ok = self.sb.inject_state(int(shard), int(owner), int(eid), int(seq), tuple(int(c) for c in cells),
-                                  int(vms), bytes(payload), now, str(user),
+        eid = int(eid)
+        cells = tuple(map(int, cells))  # (map: the per-message cost of a generator is not negligible here)
+        ok = self.sb.inject_state(shard, int(owner), eid, int(seq), cells, int(vms), bytes(payload), now, str(user),
                                   None if ident is None else str(ident),
-                                  None if aud is None else frozenset(str(a) for a in aud))
+                                  None if aud is None else frozenset(map(str, aud)))
         self.stats["states_in" if ok else "states_dropped"] += 1
         if ok:
-            self._forget_if_out_of_view(int(eid), cells)
+            self._forget_if_out_of_view(eid, cells)
 
-    def _forget_if_out_of_view(self, eid: int, cells: list) -> None:
+    def _forget_if_out_of_view(self, eid: int, cells: tuple[int, ...]) -> None:
         """A mirror that moved into cells nobody here watches (and nobody here follows) is dropped now: its owner
         publishes its later states and its LEAVE only to those cells, which we do not subscribe to, so kept it
         would linger unseen until its validity and grace ran out, and a viewer subscribing to its cell meanwhile
@@ -361,8 +363,9 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
         if eid in self.following or eid in self.pending_follows:
             return
         subs = self.sb.subscribers
-        if any(int(c) in subs for c in cells):
-            return
+        for c in cells:
+            if c in subs:
+                return
         e = self.sb.entities.get(eid)
         if e is not None and not e.followers and e.owner.mirror is not None:
             self.sb.inject_leave(eid)  # its viewers here had their LEAVE when it left their cells
