@@ -128,24 +128,27 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
         """A local entity's new state: to its cells' subjects (and the cells it left), maybe a REDIRECT."""
         self._now_hint = now
         self.sent_at[e.eid] = now
-        o = c
-        aud = None if o.audience is None else sorted(o.audience)
-        msg = _packb([STATE, self.shard, o.session, e.eid, e.seq, list(e.cells), e.validity_ms, e.payload,
-                      o.identity, aud, o.user_id])
         p = self.prefix
         wanted = self.wanted
-        for cell in e.cells:
-            if wanted[cell]:
-                self._pub(f"{p}.c.{cell}", msg)
+        # the subjects first, the message only if one exists: a state of a cell no other shard watches (a
+        # region's interior, which in a city is most of it; every state of a lone shard) costs no encoding
+        subjects = [f"{p}.c.{cell}" for cell in e.cells if cell in wanted]
         for cell in old:
-            if cell not in e.cells and wanted[cell]:
-                self._pub(f"{p}.c.{cell}", msg)
+            if cell not in e.cells and cell in wanted:
+                subjects.append(f"{p}.c.{cell}")
         until = self.remote_followed.get(e.eid)
         if until is not None:
             if until >= now:
-                self._pub(f"{p}.e.{e.eid}", msg)
+                subjects.append(f"{p}.e.{e.eid}")
             else:
                 del self.remote_followed[e.eid]
+        if subjects:
+            aud = None if c.audience is None else sorted(c.audience)
+            msg = _packb([STATE, self.shard, c.session, e.eid, e.seq, list(e.cells), e.validity_ms, e.payload,
+                          c.identity, aud, c.user_id])  # once per state, whatever the number of subjects
+            for subject in subjects:
+                self._pub(subject, msg)
+            self.stats["states_encoded"] += 1
         self.stats["states_out"] += 1
         if c.cid not in self.redirected:
             self._roam_publisher(c, e, now)
@@ -340,17 +343,19 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
 
     def _inject(self, st: list, now: float) -> None:
         shard, owner, eid, seq, cells, vms, payload, ident, aud, user = st[:10]
-        if int(shard) == self.shard:
+        shard = int(shard)
+        if shard == self.shard:
             return
-        ok = self.sb.inject_state(int(shard), int(owner), int(eid), int(seq), tuple(int(c) for c in cells),
-                                  int(vms), bytes(payload), now, str(user),
+        eid = int(eid)
+        cells = tuple(map(int, cells))  # (map: the per-message cost of a generator is not negligible here)
+        ok = self.sb.inject_state(shard, int(owner), eid, int(seq), cells, int(vms), bytes(payload), now, str(user),
                                   None if ident is None else str(ident),
-                                  None if aud is None else frozenset(str(a) for a in aud))
+                                  None if aud is None else frozenset(map(str, aud)))
         self.stats["states_in" if ok else "states_dropped"] += 1
         if ok:
-            self._forget_if_out_of_view(int(eid), cells)
+            self._forget_if_out_of_view(eid, cells)
 
-    def _forget_if_out_of_view(self, eid: int, cells: list) -> None:
+    def _forget_if_out_of_view(self, eid: int, cells: tuple[int, ...]) -> None:
         """A mirror that moved into cells nobody here watches (and nobody here follows) is dropped now: its owner
         publishes its later states and its LEAVE only to those cells, which we do not subscribe to, so kept it
         would linger unseen until its validity and grace ran out, and a viewer subscribing to its cell meanwhile
@@ -358,8 +363,9 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
         if eid in self.following or eid in self.pending_follows:
             return
         subs = self.sb.subscribers
-        if any(int(c) in subs for c in cells):
-            return
+        for c in cells:
+            if c in subs:
+                return
         e = self.sb.entities.get(eid)
         if e is not None and not e.followers and e.owner.mirror is not None:
             self.sb.inject_leave(eid)  # its viewers here had their LEAVE when it left their cells

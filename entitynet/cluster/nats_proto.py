@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import re
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 CRLF = b"\r\n"
 MAX_CONTROL_LINE = 4096
@@ -36,9 +36,10 @@ class Info:
     info: dict[str, Any]
 
 
-@dataclass(frozen=True)
-class Msg:
-    """A message on a subscription: `sid` says which handler gets it; `reply` is the inbox to answer, if any."""
+class Msg(NamedTuple):
+    """A message on a subscription: `sid` says which handler gets it; `reply` is the inbox to answer, if any.
+    A named tuple, not a frozen dataclass: one is made per message received, and a frozen dataclass's
+    `__init__` (four `object.__setattr__` calls) cost about as much as parsing the MSG line."""
 
     subject: str
     sid: int
@@ -141,6 +142,27 @@ class Parser:
         """The next complete event, or None until more bytes arrive; raises `NatsProtocolError` on anything
         malformed or over the limits, never buffers without bound."""
         buf = self._buf
+        pos = self._pos
+        if self._pending is None and buf.startswith(b"MSG ", pos):
+            # the hot path (every state from another shard): head and payload in one step when both are here
+            i = buf.find(CRLF, pos, pos + self.max_control_line + 2)
+            if i > 0:
+                parts = buf[pos + 4 : i].split()
+                if len(parts) == 3 and parts[1].isdigit() and parts[2].isdigit():  # no reply inbox
+                    subject, sid, reply, n = parts[0].decode("ascii", "replace"), int(parts[1]), None, int(parts[2])
+                    if n > self.max_payload + 1024:
+                        raise NatsProtocolError(f"MSG of {n} bytes beyond max_payload {self.max_payload}")
+                else:
+                    subject, sid, reply, n = self._msg_head(bytes(buf[pos + 4 : i]))
+                start = i + 2
+                end = start + n
+                if len(buf) < end + 2:
+                    self._pending, self._pos = (subject, sid, reply, n), start
+                    return None
+                if buf[end] != 13 or buf[end + 1] != 10:
+                    raise NatsProtocolError("MSG payload not followed by CRLF")
+                self._pos = end + 2
+                return Msg(subject, sid, reply, bytes(buf[start:end]))
         if self._pending is not None:
             subject, sid, reply, n = self._pending
             end = self._pos + n

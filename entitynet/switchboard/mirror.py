@@ -54,7 +54,7 @@ class MirrorMixin:
         """A state of another shard's entity (from NATS). False when refused: bad cells, an id taken by a local
         entity, or not newer than what is known (duplicates arrive once per cell subject)."""
         n = self.config.n_cells
-        if not (P.LOCAL_ID_LIMIT <= eid < P.MAX_INT) or any(not 0 <= cell < n for cell in cells):
+        if not (P.LOCAL_ID_LIMIT <= eid < P.MAX_INT) or (cells and (min(cells) < 0 or max(cells) >= n)):
             self.stats["mirror_refused"] += 1
             return False
         c = self._stand_in(shard, owner, user_id, identity, audience)
