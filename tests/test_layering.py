@@ -125,3 +125,16 @@ def test_the_runtime_check_would_see_a_loaded_library():
     code = "import json, sys; import topology.placement_index; print(json.dumps('shapely' in sys.modules))"
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert json.loads(done.stdout.strip().splitlines()[-1]) is True
+
+
+def test_the_command_line_parser_loads_no_build_time_geometry():
+    """Every `entitynet` process builds the whole parser (a switchboard shard's `serve` included): building it
+    must not import shapely or networkx, which cost a shard about half a second of start-up."""
+    code = (
+        "import json, sys; import entitynet.cli as cli; cli.build_parser(); "
+        f"print(json.dumps([m for m in {BUILD_TIME_LIBRARIES!r} if m in sys.modules]))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    loaded = json.loads(done.stdout.strip().splitlines()[-1])
+    assert loaded == [], f"building the CLI parser loads {', '.join(loaded)}"

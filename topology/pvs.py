@@ -45,19 +45,13 @@ import shapely
 
 from topology.polygons import Polygons
 from topology.pvs_index import PvsIndex as PvsIndex  # re-exported: builders make one from a PvsResult
+from topology.pvs_quality import QUALITY as QUALITY  # re-exported: the presets live apart, free of shapely
 from topology.pvs_raster import _erode, _Raster, _rasterise
 from topology.viewcells import ViewGrid, build_view_grid, column_squares
 
 MAX_LABEL_LAYERS = 8  # how many overlapping visibility cells one target pixel can stand for
 
 ALGORITHM = "2.5D radial horizon sweeps from top-face viewpoint lattices over an eroded height raster"
-
-#: quality presets (see PvsConfig for the fields)
-QUALITY: dict[str, dict[str, float]] = {
-    "fast": {"raster": 3.0, "samples": 2, "shrink": 3.0, "ray_spacing": 2.0, "far_step_from": 150.0},
-    "default": {"raster": 2.0, "samples": 2, "shrink": 3.0, "ray_spacing": 2.0, "far_step_from": 200.0},
-    "high": {"raster": 2.0, "samples": 3, "shrink": 2.0, "ray_spacing": 1.5, "far_step_from": 1e9},
-}
 
 
 @dataclass(frozen=True)

@@ -11,11 +11,14 @@ import argparse
 import json
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from entitynet.cli import CommandError
-from topology.pvs import QUALITY, PvsConfig
 from topology.pvs_index import PvsIndex
+from topology.pvs_quality import QUALITY
+
+if TYPE_CHECKING:
+    from topology.pvs import PvsConfig
 
 
 def _positive(text: str) -> float:
@@ -42,6 +45,8 @@ def add_pvs_arguments(parser: argparse.ArgumentParser) -> None:
 def pvs_config_from_args(args: Any) -> PvsConfig:
     """The PvsConfig of parsed build options: the quality preset, then the options given (a worker count
     below 1 means in-process, 1, rather than an error: it is a resource hint, not a result setting)."""
+    from topology.pvs import PvsConfig  # the builder (shapely) only when a PVS is built
+
     workers = getattr(args, "pvs_workers", None)
     if workers is not None and workers < 1:
         workers = 1
