@@ -26,29 +26,31 @@ def helsinki(helsinki_path):
     return load(helsinki_path)
 
 
+def _both_paths(request, module, what: str):
+    """Select the pure or the compiled path of `module` for one test (skipped, saying so, where the compiled
+    one was not built), and put back what was in use after it."""
+    was = module.compiled_in_use()
+    compiled = request.param == "compiled"
+    if compiled and module.COMPILED is None:
+        pytest.skip(f"the compiled {what} was not built (no Cython or C compiler at install time)")
+    assert module.use_compiled(compiled) == compiled
+    yield request.param
+    module.use_compiled(was)
+
+
 @pytest.fixture(params=["pure", "compiled"])
 def fanout_path(request):
     """Run a test once with the switchboard's pure-Python fan-out loops and once with the compiled ones
-    (`entitynet/switchboard/_fanout.pyx`, built by pip; skipped, saying so, where they were not built)."""
+    (`entitynet/switchboard/_fanout.pyx`, built by pip)."""
     from entitynet.switchboard import outbox
 
-    was = outbox.compiled_in_use()
-    if request.param == "compiled" and outbox.COMPILED is None:
-        pytest.skip("the compiled fan-out was not built (no Cython or C compiler at install time)")
-    assert outbox.use_compiled(request.param == "compiled") == (request.param == "compiled")
-    yield request.param
-    outbox.use_compiled(was)
+    yield from _both_paths(request, outbox, "fan-out")
 
 
 @pytest.fixture(params=["pure", "compiled"])
 def flush_path(request):
     """Run a test once with the server's pure-Python flush loop and once with the compiled one
-    (`entitynet/server/_flushloop.pyx`, built by pip; skipped, saying so, where it was not built)."""
+    (`entitynet/server/_flushloop.pyx`, built by pip)."""
     from entitynet.server import flushloop
 
-    was = flushloop.compiled_in_use()
-    if request.param == "compiled" and flushloop.COMPILED is None:
-        pytest.skip("the compiled flush loop was not built (no Cython or C compiler at install time)")
-    assert flushloop.use_compiled(request.param == "compiled") == (request.param == "compiled")
-    yield request.param
-    flushloop.use_compiled(was)
+    yield from _both_paths(request, flushloop, "flush loop")

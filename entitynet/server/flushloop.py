@@ -17,12 +17,27 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Iterable
+from dataclasses import dataclass
 from types import ModuleType, SimpleNamespace
 from typing import Any
 
 from entitynet.protocol import frame_prefix
 
 LATENCY_EVERY = 16  # one queue-latency sample per this many frames written (Histogram.observe costs a write's)
+
+
+@dataclass
+class FlushConn:
+    """The fields of the server's connection record (`entitynet.server.app._Conn`) that the flush loop reads
+    and writes: what a benchmark or a test drives the loop with, without a server around it."""
+
+    cid: int
+    outbox: Any
+    fd: int | None
+    busy: bool = False
+    closed: bool = False
+    dirty_since: float | None = None
+    rest: bytes | None = None
 
 
 def flush_short_py(dirty: Iterable[int], conns: dict, now: float, max_messages: int, sure_fit: int, max_body: int,

@@ -10,24 +10,10 @@ from __future__ import annotations
 
 import socket
 import time
-from dataclasses import dataclass
 
 from entitynet import protocol as P
 from entitynet.server import flushloop
 from entitynet.switchboard.outbox import Outbox
-
-
-@dataclass
-class _Conn:
-    """The fields of the server's connection record that the flush loop uses."""
-
-    cid: int
-    outbox: Outbox
-    fd: int | None
-    busy: bool = False
-    closed: bool = False
-    dirty_since: float | None = None
-    rest: bytes | None = None
 
 
 def measure(n_conns: int = 1000, states: int = 10, rounds: int = 3, reps: int = 20) -> list[dict[str, float]]:
@@ -45,7 +31,7 @@ def measure(n_conns: int = 1000, states: int = 10, rounds: int = 3, reps: int = 
         pairs.append((srv, cli))
     lst.close()
     enc = [P.encode_update(P.LOCAL_ID_LIMIT + e, 1, (e, e + 1), 5000, b"p" * 66) for e in range(states)]
-    conns = {i: _Conn(i, Outbox(1000, 10), srv.fileno()) for i, (srv, _cli) in enumerate(pairs)}
+    conns = {i: flushloop.FlushConn(i, Outbox(1000, 10), srv.fileno()) for i, (srv, _cli) in enumerate(pairs)}
     paths = {"pure": flushloop.PURE}
     if flushloop.COMPILED is not None:
         paths["compiled"] = flushloop.COMPILED

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 import msgpack
 
 from entitynet import protocol as P
-from entitynet.server.flushloop import flush_short
+from entitynet.server.flushloop import FlushConn, flush_short
 from entitynet.switchboard import Switchboard, SwitchConfig
 from sims.bench.switch_bench import TICK, OursDriver, pvs_viewer_cells, viewer_cells
 from sims.mobility import Walkers
@@ -77,19 +77,6 @@ class ReplayResult:
         return (self.core_s + self.flush_s) * 1e6 / max(self.deliveries, 1)
 
 
-@dataclass
-class _Conn:
-    """The fields of the server's connection record that `flush_short` uses."""
-
-    cid: int
-    outbox: object
-    fd: int | None
-    busy: bool = False
-    closed: bool = False
-    dirty_since: float | None = None
-    rest: bytes | None = None
-
-
 class _Wire:
     """Loopback TCP pairs, one per client: the server's end is written by `flush_short`, the peer's end is read
     back into frames of raw messages (each message's own bytes, as the core encoded them)."""
@@ -111,7 +98,7 @@ class _Wire:
         self.dec[cid] = P.FrameDecoder(P.CodecLimits(max_frame=1 << 24, max_messages=1 << 20))
         return srv.fileno()
 
-    def finish(self, conn: _Conn) -> None:
+    def finish(self, conn: FlushConn) -> None:
         """What the writer task would do for a write the kernel took only in part: send the rest."""
         rest, conn.rest, conn.busy = conn.rest, None, False
         srv = self.srv[conn.cid]
@@ -169,7 +156,7 @@ def replay(topo, *, entities: int = 2000, viewers: int = 300, seconds: float = 1
     core = [0.0]
     flush_cpu = [0.0]
     wire = _Wire() if sockets else None
-    conns: dict[int, _Conn] = {}
+    conns: dict[int, FlushConn] = {}
     codec = sb.config.codec
     max_body = codec.max_frame - 5
     sure_fit = max(1, max_body // (64 + codec.max_payload + 5 * codec.max_publish_cells + 4 * codec.max_str))
@@ -229,7 +216,7 @@ def replay(topo, *, entities: int = 2000, viewers: int = 300, seconds: float = 1
     def connect(peer: str) -> int:
         cid = sb.connect(t0, peer)
         if wire is not None:
-            conns[cid] = _Conn(cid, sb.outbox(cid), wire.open(cid))
+            conns[cid] = FlushConn(cid, sb.outbox(cid), wire.open(cid))
         return cid
 
     for cells in view_cells:

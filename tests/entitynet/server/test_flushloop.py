@@ -12,26 +12,12 @@ from __future__ import annotations
 
 import random
 import socket
-from dataclasses import dataclass
 
 import pytest
 
 from entitynet import protocol as P
 from entitynet.server import flushloop
 from entitynet.switchboard.outbox import Outbox
-
-
-@dataclass
-class FakeConn:
-    """The fields of `entitynet.server.app._Conn` that the flush loop reads and writes."""
-
-    cid: int
-    outbox: Outbox
-    fd: int | None
-    busy: bool = False
-    closed: bool = False
-    dirty_since: float | None = None
-    rest: bytes | None = None
 
 
 def _pair(sndbuf: int | None = None) -> tuple[socket.socket, socket.socket]:
@@ -63,7 +49,7 @@ def _read_all(sock: socket.socket) -> bytes:
 def _case(seed: int):
     """A random set of connections covering every branch of the loop; returns (dirty, conns, sockets)."""
     rng = random.Random(seed)
-    conns: dict[int, FakeConn] = {}
+    conns: dict[int, flushloop.FlushConn] = {}
     socks = []
     dirty = []
     for cid in range(1, 41):
@@ -81,7 +67,7 @@ def _case(seed: int):
             ob.put_control(P.encode_message(P.Pong(1, 2)))
         srv, cli = _pair(sndbuf=4096 if kind == "partial" else None)
         socks.append((cid, srv, cli))
-        conn = FakeConn(cid, ob, None if kind == "nofd" else srv.fileno())
+        conn = flushloop.FlushConn(cid, ob, None if kind == "nofd" else srv.fileno())
         conn.busy = kind == "busy"
         conn.closed = kind == "closed"
         if kind == "since":
@@ -149,7 +135,7 @@ def test_frames_of_every_array_header_size_decode(flush_path, n):
     ob = Outbox(max_states=n + 1, max_control=1)
     for e in range(n):
         ob.put_state(e, P.encode_leave(e + P.LOCAL_ID_LIMIT))
-    conn = FakeConn(1, ob, srv.fileno())
+    conn = flushloop.FlushConn(1, ob, srv.fileno())
     n_msgs, n_frames, *_rest = flushloop.flush_short([1], {1: conn}, 1.0, n + 1, n + 1, 1 << 22, 0)
     assert (n_msgs, n_frames) == (n, 1)
     data = conn.rest or b""
@@ -176,7 +162,7 @@ def test_a_partial_write_leaves_the_rest_for_the_writer(flush_path):
     ob = Outbox(max_states=100, max_control=1)
     for e in range(50):
         ob.put_state(e, P.encode_update(e + P.LOCAL_ID_LIMIT, 1, (1,), 1000, b"p" * 2000))
-    conn = FakeConn(1, ob, srv.fileno())
+    conn = flushloop.FlushConn(1, ob, srv.fileno())
     *_c, slow, blocked, failed = flushloop.flush_short([1], {1: conn}, 1.0, 100, 100, 1 << 20, 0)
     assert blocked == [conn] and not slow and not failed
     assert conn.busy and conn.rest and len(ob) == 0 and conn.dirty_since == 1.0  # latency counted when done
