@@ -29,6 +29,9 @@ def register(sub) -> None:
                    help="longest wait of news for a flush, under load (default 10 ms; an idle server flushes sooner)")
     p.add_argument("--flush-min-ms", type=float, default=0.0,
                    help="shortest time between two flushes (default 0: flush whenever the server is idle)")
+    p.add_argument("--gc-full-every", type=float, default=300.0, metavar="S",
+                   help="run Python's full garbage collection only every S seconds instead of whenever the heap "
+                        "grows (default 300; 0 = Python's own policy; docs/switch.md)")
     p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
     p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")
     from entitynet.commands.cluster_cmd import add_cluster_options
@@ -49,15 +52,15 @@ def run(args: argparse.Namespace) -> int:
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("entitynet.server").setLevel(logging.INFO)
     logs.use_json(args.log_json)
-    if args.flush_ms < 0 or args.flush_min_ms < 0 or args.grace < 0:
-        raise CommandError("--flush-ms, --flush-min-ms and --grace must be >= 0")
+    if not (args.flush_ms >= 0 and args.flush_min_ms >= 0 and args.grace >= 0 and args.gc_full_every >= 0):
+        raise CommandError("--flush-ms, --flush-min-ms, --grace and --gc-full-every must be >= 0")
     config = ServerConfig(
         host=args.host, port=args.port, ws_port=args.ws_port, metrics_port=args.metrics_port,
         http_port=args.http_port,
         tls_cert=args.tls_cert, tls_key=args.tls_key, topology=args.topology, open_mode=args.open,
         users_db=args.users_db, flush_interval=args.flush_ms / 1000.0,
-        flush_min_interval=args.flush_min_ms / 1000.0, switch={"grace_s": args.grace},
-        log_json=args.log_json,
+        flush_min_interval=args.flush_min_ms / 1000.0, gc_full_every=args.gc_full_every or None,
+        switch={"grace_s": args.grace}, log_json=args.log_json,
     )
     if args.cluster:
         from entitynet.commands.cluster_cmd import cluster_config_from

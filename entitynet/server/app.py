@@ -135,6 +135,7 @@ class Server(WritingMixin):
         self._timer_scope: trio.CancelScope | None = None  # the sleep of `_timers`, until `_timer_at` ...
         self._timer_at = math.inf  # ... the core's next deadline (in the core's clock)
         self.cluster = None  # the ClusterLink when config.cluster is set
+        self.gc = None  # gcpolicy.FullCollections when config.gc_full_every is set
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -159,6 +160,12 @@ class Server(WritingMixin):
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
+                if cfg.gc_full_every is not None:
+                    from entitynet.server.gcpolicy import FullCollections
+
+                    self.gc = FullCollections(cfg.gc_full_every, self.metrics.gc_pause.observe)
+                    self.gc.start()
+                    nursery.start_soon(self.gc.run)  # which restores the collector when the server stops
                 nursery.start_soon(self._timers)
                 if cfg.cluster is not None:  # sharded: the link to the other switchboards (entitynet.cluster)
                     from entitynet.cluster.link import ClusterLink

@@ -35,6 +35,7 @@ class ServerConfig:
     auth_recheck: float = 1.0  # how often (s) to look for changes of the token store and re-check connections
     flush_interval: float = 0.01  # news waits at most this long (s) for a flush: one write per connection per flush
     flush_min_interval: float = 0.0  # ... and flushes (as soon as the loop is idle) are at least this far apart
+    gc_full_every: float | None = None  # full garbage collections only this often (s); None = Python's (gcpolicy)
     stall_timeout: float = 5.0  # a write blocked this long without progress (client not reading) drops it
     max_batch: int = 20_000  # messages per written frame (and at most the codec's max_frame bytes)
     feed_slice: int = 256  # messages of one frame fed to the core between checkpoints (others served between)

@@ -27,6 +27,10 @@ class Metrics:
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5),
             registry=r,
         )
+        self.gc_pause = Histogram(
+            "entitynet_gc_full_pause_seconds", "scheduled full garbage collections (--gc-full-every) and their pause",
+            buckets=(0.001, 0.005, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0), registry=r,
+        )
 
 
 def metrics_handler(registry: CollectorRegistry):
