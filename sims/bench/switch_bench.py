@@ -45,11 +45,13 @@ from sims.bench.switch_ladder import (
     DOWN_STEPS,
     FULL_STEPS,
     QUICK_STEPS,
+    REFINE_ROUNDS,
     OfferedCounter,
     capacity,
     past_saturation,
     qualifies,
     ratio,
+    refinements,
     step_row,
 )
 from sims.bench.switch_readers import LAT_BINS, ReaderLoop, Tally, reader_process
@@ -321,6 +323,7 @@ def run(args, progress) -> dict[str, Any]:
         "window_s": 5.0 if quick else 20.0,
         "ladder_warmup_s": 5.0,
         "ladder_window_s": 10.0,
+        "refine_rounds": 0 if quick else REFINE_ROUNDS,
         "flush_ms": 10.0,
         "update_interval_s": [5.0, 15.0],
         "payload_bytes": PAYLOAD.size + len(PAD),
@@ -399,6 +402,11 @@ def run(args, progress) -> dict[str, Any]:
                 for n_ent, n_view in DOWN_STEPS:
                     for system in [s for s in ladder if not any(qualifies(r) for r in ladder[s])]:
                         step(system, n_ent, n_view, False)
+                for _ in range(p["refine_rounds"]):  # bisect each system's bracket: capacities within 1.19x
+                    for system, n_ent in refinements(ladder).items():
+                        step(system, n_ent, p["viewers"], False)
+            for rows in ladder.values():
+                rows.sort(key=lambda r: (r["viewers"], r["entities"]))
     finally:
         if plan["pinned"]:
             os.sched_setaffinity(0, own_affinity)

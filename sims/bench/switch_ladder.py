@@ -15,7 +15,11 @@ deliveries/s against the offered ones, p50/p99 latency, server CPU per million d
 - a system that qualifies at no step from the standard load upward descends `DOWN_STEPS` until one does (a
   busy or small machine: the capacity is then below the standard load, and the report shows it);
 - a system stops climbing once a step is past saturation (`past_saturation`): less than `STOP_SHARE` delivered,
-  or p99 over `STOP_P99_MS`; further steps would only measure its backlog.
+  or p99 over `STOP_P99_MS`; further steps would only measure its backlog;
+- the steps double, so on their own they tell capacities apart only by factors of two (a ratio could come out
+  only 0.5, 1 or 2). `refinements` then bisects each system's bracket (its best qualifying step and the
+  lowest failing one above it) geometrically, `REFINE_ROUNDS` times: with two rounds a capacity is known to
+  within a factor of 2^(1/4) = 1.19.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ QUICK_STEPS = ((2000, 300),)
 # below the standard load, tried (in this order) only for a system that met the capacity rule at no step above:
 # on a machine that cannot carry the standard load at p99 under the limit, the capacity is still measured
 DOWN_STEPS = ((2500, 1000), (1250, 1000), (625, 1000))
+REFINE_ROUNDS = 2
+REFINE_MIN_RATIO = 1.1  # a bracket narrower than this is not split further
 
 
 class OfferedCounter:
@@ -104,6 +110,30 @@ STEP_KEYS = ("entities", "viewers", "offered_deliveries_per_s", "deliveries_per_
 def qualifies(step: dict[str, Any]) -> bool:
     """The step counts as capacity: whole and p99 under the limit."""
     return whole(step) and within_latency(step)
+
+
+def bracket(steps: Sequence[dict[str, Any]]) -> tuple[int, int] | None:
+    """(entities of the best qualifying step, entities of the lowest step above it that does not qualify), the
+    interval where the system's capacity lies; None when it has no such interval (nothing qualified, or nothing
+    above the best failed). Steps over other viewer counts than the best one's are not compared."""
+    ok = [s for s in steps if qualifies(s)]
+    if not ok:
+        return None
+    best = max(ok, key=lambda s: s["deliveries_per_s"])
+    above = [s["entities"] for s in steps
+             if s["viewers"] == best["viewers"] and s["entities"] > best["entities"] and not qualifies(s)]
+    return (best["entities"], min(above)) if above else None
+
+
+def refinements(ladder: dict[str, Sequence[dict[str, Any]]]) -> dict[str, int]:
+    """The next step (entities) to run per system: the geometric middle of its bracket, rounded to tens;
+    systems whose bracket is unknown or already narrower than `REFINE_MIN_RATIO` get none."""
+    out = {}
+    for system, steps in ladder.items():
+        b = bracket(steps)
+        if b is not None and b[1] / b[0] > REFINE_MIN_RATIO:
+            out[system] = int(round((b[0] * b[1]) ** 0.5, -1))
+    return out
 
 
 def step_row(entities: int, viewers: int, res: dict[str, Any]) -> dict[str, Any]:

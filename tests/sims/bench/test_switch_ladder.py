@@ -94,3 +94,28 @@ def test_the_news_at_flush_comparison_and_the_flush_micro_benchmark_run():
     rows = measure(n_conns=20, states=3, rounds=1, reps=2)
     assert set(rows[0]) == {"pure"} | ({"compiled"} if flushloop.COMPILED else set())
     assert all(v > 0 for v in rows[0].values())
+
+
+def test_refinement_bisects_each_systems_bracket_geometrically():
+    """The doubling steps alone tell capacities apart only by factors of two; two rounds of bisection narrow
+    each system's bracket to 2^(1/4)."""
+    from sims.bench.switch_ladder import bracket, refinements
+
+    ours = [_row(5000, 250_000, 252_000, 60.0), _row(10_000, 500_000, 505_000, 125.0),
+            _row(20_000, 800_000, 1_000_000, 8000.0)]
+    peer = [_row(5000, 250_000, 252_000, 50.0), _row(10_000, 500_000, 505_000, 87.0),
+            _row(20_000, 1_000_000, 1_010_000, 4500.0)]
+    low = [_row(5000, 250_000, 252_000, 400.0), _row(625, 33_000, 33_100, 60.0), _row(1250, 66_000, 66_500, 130.0)]
+    none = [_row(5000, 250_000, 252_000, 400.0)]
+    top = [_row(5000, 250_000, 252_000, 40.0)]  # qualified at the highest step run: no bracket above
+    assert bracket(ours) == (5000, 10_000) and bracket(peer) == (10_000, 20_000) and bracket(low) == (625, 1250)
+    assert bracket(none) is None and bracket(top) is None
+    first = refinements({"ours": ours, "peer": peer, "low": low, "none": none, "top": top})
+    assert first == {"ours": 7070, "peer": 14_140, "low": 880}
+    ours.append(_row(7070, 353_000, 354_000, 90.0))  # qualifies: the bracket becomes (7070, 10000)
+    assert refinements({"ours": ours}) == {"ours": 8410}
+    ours.append(_row(8410, 420_000, 421_000, 110.0))  # fails: (7070, 8410), 1.19x, still split once more
+    assert bracket(ours) == (7070, 8410)
+    assert refinements({"ours": ours}) == {"ours": 7710}
+    ours.append(_row(7710, 385_000, 386_000, 95.0))
+    assert refinements({"ours": ours}) == {}  # 8410 / 7710 < 1.1: known closely enough
