@@ -122,7 +122,7 @@ def started(system: str, exe: str | None, topo_path: str, digest: str, p: dict, 
         prof = os.environ.get("ENTITYNET_BENCH_PROFILE")  # developer aid: profile the server process
         cmd = [*pin, sys.executable, *(["-m", "cProfile", "-o", prof] if prof else []), "-m", "entitynet.cli",
                "serve", "--topology", topo_path, "--port", str(port), "--metrics-port", str(mport), "--open",
-               "--flush-ms", str(p["flush_ms"])]
+               "--flush-ms", str(p["flush_ms"]), *p.get("server_args", ())]  # switch_repeat's variants
         driver: Any = OursDriver(port, digest)
         scrape = scraper(mport)
     elif system == "redis":
