@@ -65,6 +65,8 @@ def _parse_variants(items: list[str]) -> dict[str, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command: parse, run the plan one run at a time (a fresh server each), print the medians and write
+    the report; bad arguments exit with argparse's usage error before anything starts."""
     ap = argparse.ArgumentParser(prog="python -m sims.bench.switch_repeat", description=__doc__.split("\n\n")[0])
     ap.add_argument("--entities", type=int, default=5000)
     ap.add_argument("--viewers", type=int, default=1000)
