@@ -35,7 +35,7 @@ class FullCollections:
             raise ValueError(f"the full-collection interval must be > 0 s, not {every!r}")
         self.every = every
         self.observe = observe
-        self.pauses: list[float] = []  # the last few, newest last (tests and logs)
+        self.pauses: list[float] = []  # the last ten, newest last: readable without scraping /metrics
         self._saved = gc.get_threshold()
         self._froze = False
 

@@ -55,7 +55,15 @@ from sims.bench.switch_ladder import (
     step_row,
 )
 from sims.bench.switch_readers import LAT_BINS, ReaderLoop, Tally, reader_process
-from sims.bench.switch_systems import SYSTEMS, find_exe, pin_plan, started, usable_cores
+from sims.bench.switch_systems import (
+    SYSTEMS,
+    find_exe,
+    pin_loadgen,
+    pin_plan,
+    started,
+    usable_cores,
+    workload_params,
+)
 from sims.mobility import Walkers
 
 __all__ = ["PAD", "PAYLOAD", "TICK", "NatsDriver", "OursDriver", "RedisDriver", "run"]  # drivers re-exported
@@ -316,19 +324,15 @@ def run(args, progress) -> dict[str, Any]:
         "entities": steps[0][0],
         "viewers": steps[0][1],
         "ladder_steps": [list(s) for s in steps],
-        "publisher_connections": 4,
-        "reader_processes": 2 if len(cores) <= 4 else min(8, len(plan["loadgen_cores"]) - 1),
-        "radius_m": 500.0,
+        **workload_params(cores, plan),
         "warmup_s": 2.0 if quick else 5.0,
         "window_s": 5.0 if quick else 20.0,
         "ladder_warmup_s": 5.0,
         "ladder_window_s": 10.0,
         "refine_rounds": 0 if quick else REFINE_ROUNDS,
-        "flush_ms": 10.0,
         "update_interval_s": [5.0, 15.0],
         "payload_bytes": PAYLOAD.size + len(PAD),
         "tick_ms": TICK * 1000,
-        "seed": 7,
         "usable_cores": len(cores),
         "pinned": plan["pinned"],
         "pin_note": plan["note"],
@@ -342,9 +346,7 @@ def run(args, progress) -> dict[str, Any]:
     for system, binary in (("redis", "redis-server"), ("nats", "nats-server")):
         exes[system], how = find_exe(binary, binary, progress)
         notes.append(f"{system}: {how}")
-    own_affinity = set(cores)
-    if plan["pinned"]:
-        os.sched_setaffinity(0, plan["loadgen_cores"])  # the readers (forked) inherit it
+    unpin = pin_loadgen(plan)  # the readers (forked) inherit it
     standard: dict[str, dict] = {}
     ladder: dict[str, list] = {s: [] for s in SYSTEMS if exes[s]}
     try:
@@ -408,8 +410,7 @@ def run(args, progress) -> dict[str, Any]:
             for rows in ladder.values():
                 rows.sort(key=lambda r: (r["viewers"], r["entities"]))
     finally:
-        if plan["pinned"]:
-            os.sched_setaffinity(0, own_affinity)
+        unpin()
     results = _results(standard, ladder, p)
     body: dict[str, Any] = {"params": p, "results": results, "notes": notes, "ladder": ladder}
     peers = {s: standard[s] for s in ("redis", "nats") if s in standard}

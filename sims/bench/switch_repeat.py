@@ -23,7 +23,7 @@ from typing import Any
 
 from sims.bench import switch_bench as bench
 from sims.bench.switch_ladder import OfferedCounter
-from sims.bench.switch_systems import find_exe, pin_plan, started, usable_cores
+from sims.bench.switch_systems import find_exe, pin_loadgen, pin_plan, started, usable_cores, workload_params
 from sims.mobility import Walkers
 
 FIGURES = ("deliveries_per_s", "offered_deliveries_per_s", "latency_p50_ms", "latency_p99_ms",
@@ -52,6 +52,26 @@ def medians(rows: list[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
                       for k in FIGURES}
         out[label]["runs"] = len(mine)
     return out
+
+
+def _run_plan(plan_runs, reps: int, p: dict[str, Any], plan: dict[str, Any], exes: dict[str, str | None], topo,
+              topo_path: str, cells, progress) -> list[dict[str, Any]]:
+    """Each planned run on a fresh server, one after the other; a row of `FIGURES` per run."""
+    rows = []
+    for rep, label, system, extra in plan_runs:
+        progress(f"run {rep + 1}/{reps}: {label}")
+        p["server_args"] = shlex.split(extra)
+        with tempfile.TemporaryDirectory(prefix="switch-repeat-") as tmpd, \
+                started(system, exes[system], topo_path, topo.digest, p, plan, Path(tmpd), progress) as \
+                (driver, proc, scrape):
+            res = bench._run_load(driver, proc,
+                                  lambda: Walkers(topo, p["entities"], random.Random(p["seed"] + 1)),
+                                  cells, p, progress, scrape, OfferedCounter(cells, int(topo.n_cells)))
+        row = {"rep": rep, "label": label, "system": system, "server_args": extra, "time": time.time(),
+               **{k: res.get(k) for k in FIGURES}}
+        rows.append(row)
+        progress(json.dumps({k: row[k] for k in ("label", "latency_p50_ms", "latency_p99_ms", "deliveries_per_s")}))
+    return rows
 
 
 def _parse_variants(items: list[str]) -> dict[str, str]:
@@ -91,30 +111,23 @@ def main(argv: list[str] | None = None) -> int:
 
     topo_path = bench._topology_path(argparse.Namespace(topology=a.topology), progress, False)
     topo = load(topo_path)
-    p: dict[str, Any] = {"entities": a.entities, "viewers": a.viewers, "publisher_connections": 4,
-                         "reader_processes": 2, "radius_m": 500.0, "warmup_s": a.warmup, "window_s": a.window,
-                         "flush_ms": 10.0, "seed": 7}
+    cores = usable_cores()
+    plan = pin_plan(cores)
+    p: dict[str, Any] = {"entities": a.entities, "viewers": a.viewers, **workload_params(cores, plan),
+                         "warmup_s": a.warmup, "window_s": a.window}
     cells = bench._view_cells(topo, a.viewers, p, [], progress)
-    plan = pin_plan(usable_cores())
     exes = {"entitynet": sys.executable}
     for system in systems:
         if system != "entitynet":
             exes[system], how = find_exe(f"{system}-server", f"{system}-server", progress)
             if exes[system] is None:
                 ap.error(how)
-    rows = []
-    for rep, label, system, extra in runs_plan(systems, variants, a.reps):
-        progress(f"run {rep + 1}/{a.reps}: {label}")
-        p["server_args"] = shlex.split(extra)
-        with tempfile.TemporaryDirectory(prefix="switch-repeat-") as tmpd, \
-                started(system, exes[system], topo_path, topo.digest, p, plan, Path(tmpd), progress) as \
-                (driver, proc, scrape):
-            res = bench._run_load(driver, proc, lambda: Walkers(topo, a.entities, random.Random(p["seed"] + 1)),
-                                  cells, p, progress, scrape, OfferedCounter(cells, int(topo.n_cells)))
-        row = {"rep": rep, "label": label, "system": system, "server_args": extra, "time": time.time(),
-               **{k: res.get(k) for k in FIGURES}}
-        rows.append(row)
-        progress(json.dumps({k: row[k] for k in ("label", "latency_p50_ms", "latency_p99_ms", "deliveries_per_s")}))
+    unpin = pin_loadgen(plan)  # as the ladder does: the readers (forked) inherit it
+    try:
+        rows = _run_plan(runs_plan(systems, variants, a.reps), a.reps, p, plan, exes, topo, topo_path, cells,
+                         progress)
+    finally:
+        unpin()
     report = {"params": {**p, "reps": a.reps, "systems": systems, "variants": a.variant, "pinned": plan["pinned"],
                          "pin_note": plan["note"]},
               "runs": rows, "medians": medians(rows)}

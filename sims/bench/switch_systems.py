@@ -17,7 +17,7 @@ import subprocess
 import sys
 import time
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,25 @@ def pin_plan(cores: list[int]) -> dict[str, Any]:
             "note": f"not pinned: {len(cores)} usable core(s), fewer than {MIN_CORES_TO_PIN} (one for the server "
                     "and the rest for the load generator); servers and load generator share the cores "
                     "(nats-server still runs with GOMAXPROCS=1)"}
+
+
+def workload_params(cores: list[int], plan: dict[str, Any]) -> dict[str, Any]:
+    """The load generator's settings that every run of the same workload shares (the ladder, `switch_repeat`):
+    publisher connections, reader processes (more where the plan leaves cores to the load generator), the
+    subscription radius of the no-PVS fallback, the server's flush bound and the seed."""
+    return {"publisher_connections": 4,
+            "reader_processes": 2 if len(cores) <= 4 else min(8, len(plan["loadgen_cores"]) - 1),
+            "radius_m": 500.0, "flush_ms": 10.0, "seed": 7}
+
+
+def pin_loadgen(plan: dict[str, Any]) -> Callable[[], None]:
+    """Move this process (and the reader processes it forks later) onto the load generator's cores when the plan
+    pins; returns what puts its affinity back."""
+    if not plan["pinned"]:
+        return lambda: None
+    own = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, plan["loadgen_cores"])
+    return lambda: os.sched_setaffinity(0, own)
 
 
 def usable_cores() -> list[int]:

@@ -119,3 +119,15 @@ def test_refinement_bisects_each_systems_bracket_geometrically():
     assert refinements({"ours": ours}) == {"ours": 7710}
     ours.append(_row(7710, 385_000, 386_000, 95.0))
     assert refinements({"ours": ours}) == {}  # 8410 / 7710 < 1.1: known closely enough
+
+
+def test_the_ladder_and_the_repeat_tool_share_one_workload():
+    """Both take the load generator's settings from `workload_params`: more readers where cores are spared for
+    the load generator, and the same seed, flush bound and connections everywhere."""
+    from sims.bench.switch_systems import pin_loadgen, workload_params
+
+    few, many = workload_params([0, 1], pin_plan([0, 1])), workload_params(list(range(16)), pin_plan(list(range(16))))
+    assert few["reader_processes"] == 2 and many["reader_processes"] == 8
+    assert {k: v for k, v in few.items() if k != "reader_processes"} == \
+        {k: v for k, v in many.items() if k != "reader_processes"}
+    pin_loadgen(pin_plan([0, 1]))()  # not pinned: nothing to move or put back
