@@ -17,7 +17,15 @@ from entitynet.client.lateral import near_index
 from entitynet.client.modes import AREA
 from entitynet.client.motion import AreaModel, Model, NetworkModel
 from entitynet.client.network import NetView
-from entitynet.client.occupation import Occupation, make_occupation, occupy, occupy_area, wire_validity
+from entitynet.client.occupation import (
+    LOOKAHEAD,
+    Occupation,
+    lookahead_for,
+    make_occupation,
+    occupy,
+    occupy_area,
+    wire_validity,
+)
 from entitynet.client.path import Path, follow
 from entitynet.client.placement import ring_distance
 from entitynet.client.route import Route
@@ -57,7 +65,8 @@ class Coverage:
     estimate (world-frame baselines), widened by `lateral` metres where the entity may be elsewhere."""
 
     def __init__(self, net: NetView, etype: EntityType, route: Route, *, body: float, margin: float,
-                 accuracy: float, lateral: float, lookahead: float, max_validity: float, heartbeat: float) -> None:
+                 accuracy: float, lateral: float, lookahead: float | None, max_validity: float,
+                 heartbeat: float) -> None:
         self.net = net
         self.etype = etype
         self.route = route
@@ -111,8 +120,11 @@ class Coverage:
         known = self.route.known_until(path, s)
         travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
         # at a dead end the model halts at the path's end: nothing ahead to enter, no front period
+        look = self.lookahead
+        if look is None:  # the default: sized by the model along a route, else up to the next choice of way
+            look = lookahead_for(v, a, et.vmax) if self.has_route else LOOKAHEAD
         occ = occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
-                     lookahead=self.lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel,
+                     lookahead=look, max_validity=min(self.max_validity, self.heartbeat), travel=travel,
                      dead_end_at_path_end=path.edges[-1] == trk.dead_end)
         back = None
         if v == 0.0 and not self.has_route and self.body == 0.0 and isinstance(ghost, NetworkModel):
@@ -126,9 +138,13 @@ class Coverage:
                     cells.append(c)
             occ = Occupation(tuple(cells), min(occ.validity, back.validity), occ.front_period, occ.aft_period,
                              occ.cover_start, occ.cover_end)
-        if self.lateral > 0.0 and not self.has_route:
+        if self.lateral > 0.0:
+            # with a route, only the route's own ways: where it turns back on itself (a tram's terminal
+            # triangle, a bus loop) the way back lies within GPS noise of the way on, and the tracker may hold
+            # the wrong one for a while (issue 20: the largest share of the vehicles' occupation error)
             extra = self._lateral_cells(trk, path, s, occ.cover_end - s,
-                                        None if back is None else back.cover_end - back.cover_start)
+                                        None if back is None else back.cover_end - back.cover_start,
+                                        only=self.route.edge_ids if self.has_route else None)
             cells = list(occ.cells)
             for c in extra:
                 if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
@@ -150,11 +166,12 @@ class Coverage:
                       lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
 
     def _lateral_cells(self, trk: NetworkTracker, path: Path, s: float, ahead: float,
-                       behind: float | None = None) -> list[int]:
+                       behind: float | None = None, only: frozenset[int] | None = None) -> list[int]:
         """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may
         be on a parallel way (the other sidewalk) rather than the one it was placed on. Each such edge is
         covered from `behind` metres behind the projected point (default: the margin and the body) to `ahead`
-        metres on, in the direction of travel."""
+        metres on, in the direction of travel. `only`: the edges that may be candidates (a route's); then no
+        area is."""
         net, placer = self.net, trk.placer
         near = near_index(placer)
         x, y = path.xy(s)
@@ -170,7 +187,7 @@ class Coverage:
         out: list[int] = []
         # every way near the position, connected or not (footways drawn twice, a few metres apart)
         for e in near.edges_near(x, y, self.lateral):
-            if e == e_cur or e in on_path:
+            if e == e_cur or e in on_path or (only is not None and e not in only):
                 continue
             f = placer.project_on(x, y, e)
             if f.distance > self.lateral:
@@ -184,6 +201,8 @@ class Coverage:
             for a0, b0, c in net.pieces(e, 1):
                 if b0 >= lo and a0 <= hi and c not in out:
                     out.append(c)
+        if only is not None:
+            return out
         for area in placer.areas_near(x, y, self.lateral):  # an area next to the way: maybe inside it
             if near.within_ring(area, x, y, self.lateral):
                 c = net.area_cell[area]

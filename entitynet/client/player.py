@@ -82,7 +82,6 @@ class Player:
         self.max_validity = max_validity
         self.off_network_timeout = off_network_timeout
         self.estimate = estimate
-        lookahead = LOOKAHEAD if lookahead is None else lookahead  # without a route `occupy` stops at a choice
         lateral = 2.0 * accuracy if lateral is None else float(lateral)
         self.net: NetView | None = netview(topo) if topo is not None else None
         self.route = Route(self.net, route, stops)
@@ -94,7 +93,8 @@ class Player:
         self.coverage: Coverage | None = None
         if self.net is not None:
             self.tracker = NetworkTracker(
-                self.net, et, self.route, body=self.body, margin=self.margin, lookahead=lookahead,
+                self.net, et, self.route, body=self.body, margin=self.margin,
+                lookahead=LOOKAHEAD if lookahead is None else lookahead,  # the way kept ahead
                 off_network=off_network, lateral=lateral, route_margin=route_margin,
                 filter_q=et.jerk_q if filter_q is None else float(filter_q),
                 filter_accel=et.accel if filter_accel is None else bool(filter_accel),
