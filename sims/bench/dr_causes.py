@@ -106,8 +106,8 @@ def causes(topo, dataset: str = "vehicles", lookahead: float | None = None, prog
         bad_by_type[ent.etype] += counts["bad"] - b0
     total, bad = counts.pop("samples"), counts.pop("bad")
     episodes.sort(key=lambda e: -e["samples"])
-    return {"params": {"dataset": dataset, "entities": len(ents), "lookahead_m": "default" if lookahead is None else lookahead,
-                       "sample_s": SAMPLE},
+    look = "default" if lookahead is None else lookahead
+    return {"params": {"dataset": dataset, "entities": len(ents), "lookahead_m": look, "sample_s": SAMPLE},
             "occupation_error": bad / total if total else None,
             "occupation_error_by_type": {k: bad_by_type[k] / n for k, n in by_type.items() if n},
             "bad_samples_by_cause": dict(counts.most_common()),
