@@ -77,6 +77,11 @@ class Occupation:
 make_occupation = maker(Occupation)  # Occupation(...) without the frozen dataclass __init__ (once per publish)
 
 
+def with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
+    """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
+    return make_occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
 def certain_end(path: Path, s_front: float, networks: int, known_until: float) -> float:
     """How far along `path` the entity's way is certain: to the first choice node beyond `known_until`
     (after the front), plus the stretch every branch stays in the cell at that node."""

@@ -40,6 +40,7 @@ from entitynet.protocol import Publish, Unpublish
 
 __all__ = ["MODELS", "FixRejected", "Player", "placer_for"]
 
+
 _make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
 
 
@@ -261,8 +262,8 @@ class Player:
             payload, ghost = encode_quantized(plane_model(self.model, self.etype, t, *self._plane(), area,
                                                           self.ghost, from_ghost, stop_at))
         self.rules.published()
-        self.ghost = ghost
-        occ = self.occupation = self.coverage.occupation(t, ghost, trk, self.estimate_xy) if trk else None
+        old, self.ghost = self.ghost, ghost
+        occ = self.occupation = self.coverage.placed(reason, t, ghost, old, trk, self.estimate_xy) if trk else None
         self.pub_t = t
         self.seq += 1
         self.published = True
