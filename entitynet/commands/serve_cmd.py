@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from entitynet.cli import CommandError
+from entitynet.commands.options import port
 
 
 def register(sub) -> None:
@@ -13,11 +14,14 @@ def register(sub) -> None:
     p.add_argument("--topology", metavar="FILE", required=True,
                    help="topology artifact: the server learns its digest and cell count from it")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=7400, help="TCP port (default 7400; 0 = any free port)")
-    p.add_argument("--ws-port", type=int, metavar="PORT", help="also listen for WebSocket clients here")
-    p.add_argument("--metrics-port", type=int, metavar="PORT", help="serve Prometheus /metrics here")
-    p.add_argument("--http-port", type=int, metavar="PORT",
-                   help="serve the browser viewer (and /metrics) here; needs --ws-port (docs/viewer.md)")
+    p.add_argument("--port", type=port(), default=7400, help="TCP port (default 7400; 0 = any free port)")
+    p.add_argument("--ws-port", type=port(), metavar="PORT",
+                   help="also listen for WebSocket clients here (0 = any free port, logged)")
+    p.add_argument("--metrics-port", type=port(), metavar="PORT",
+                   help="serve Prometheus /metrics here (0 = any free port, logged)")
+    p.add_argument("--http-port", type=port(), metavar="PORT",
+                   help="serve the browser viewer (and /metrics) here; needs --ws-port (0 = any free port, logged; "
+                        "docs/viewer.md)")
     p.add_argument("--tls-cert", metavar="PEM", help="TLS certificate chain (with --tls-key)")
     p.add_argument("--tls-key", metavar="PEM", help="TLS private key")
     p.add_argument("--open", action="store_true",
@@ -68,16 +72,28 @@ def run(args: argparse.Namespace) -> int:
         config.cluster = cluster_config_from(args)
     try:
         trio.run(serve_until_signal, config)
-    except ConfigError as exc:
-        raise CommandError(str(exc)) from None
-    except OSError as exc:
-        raise CommandError(f"cannot listen: {exc}") from None
-    except BaseExceptionGroup as group:
-        bind = group.subgroup(lambda e: isinstance(e, OSError))
-        if bind is None:
-            raise
-        first = bind
-        while isinstance(first, BaseExceptionGroup):
-            first = first.exceptions[0]
-        raise CommandError(f"cannot listen: {first}") from None
+    except BaseExceptionGroup as group:  # raised inside the server's nurseries: the first user-facing cause
+        raise CommandError(_first_failure(group)) from None
+    except (ConfigError, OSError) as exc:
+        raise CommandError(_message(exc)) from None
     return 0
+
+
+def _message(exc: BaseException) -> str:
+    from entitynet.server import ConfigError
+
+    return str(exc) if isinstance(exc, ConfigError) else f"cannot listen: {exc}"
+
+
+def _first_failure(group: BaseExceptionGroup) -> str:
+    """The message of the first ConfigError (a ListenError names its option and port) or OSError in a group;
+    anything else is a bug and keeps its traceback."""
+    from entitynet.server import ConfigError
+
+    found = group.subgroup(lambda e: isinstance(e, (ConfigError, OSError)))
+    if found is None:
+        raise group
+    first: BaseException = found
+    while isinstance(first, BaseExceptionGroup):
+        first = first.exceptions[0]
+    return _message(first)

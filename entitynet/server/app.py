@@ -35,7 +35,7 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server import fdlimit, logs
-from entitynet.server.config import ConfigError, ServerConfig
+from entitynet.server.config import ConfigError, ServerConfig, check_ports
 from entitynet.server.http import HttpLimits, HttpServer, Router
 from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
@@ -99,6 +99,7 @@ class Server(WritingMixin):
     """One shard server. Start it with `await nursery.start(serve, config)` or `entitynet serve`."""
 
     def __init__(self, config: ServerConfig):
+        check_ports(config)
         self.config = config
         self.clock = config.clock
         self.tokens = None if config.open_mode else TokenWatch(config)  # revocations close connections
