@@ -85,3 +85,12 @@ def port(*, zero: str | None = "any free port", special: Mapping[float, str] | N
 
 #: a random seed: any non-negative integer numpy and `random` take
 SEED = bounded_int(0, 2**32 - 1)
+
+#: a length in metres of a map's geometry (street width, cell length, view distance): above 0, at most 100 km
+METRES = bounded_float(0.0, 100_000.0, lo_open=True)
+
+#: a local coordinate in metres (relative to an artifact's origin): finite and within 10,000 km
+LOCAL_COORDINATE = bounded_float(-1e7, 1e7)
+
+#: the most switchboards (regions) one cluster map may have
+MAX_SHARDS = 256

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from entitynet.cli import CommandError
-from entitynet.commands.options import port
+from entitynet.commands.options import bounded_float, port
 
 
 def register(sub) -> None:
@@ -29,14 +29,17 @@ def register(sub) -> None:
     from entitynet.commands.users_cmd import add_users_db_option
 
     add_users_db_option(p, "token store, alias --db (default: see `entitynet users`)")
-    p.add_argument("--flush-ms", type=float, default=10.0,
+    p.add_argument("--flush-ms", type=bounded_float(0, 1000), default=10.0,
                    help="longest wait of news for a flush, under load (default 10 ms; an idle server flushes sooner)")
-    p.add_argument("--flush-min-ms", type=float, default=0.0,
-                   help="shortest time between two flushes (default 0: flush whenever the server is idle)")
-    p.add_argument("--gc-full-every", type=float, default=300.0, metavar="S",
+    p.add_argument("--flush-min-ms", type=bounded_float(0, 1000), default=0.0,
+                   help="shortest time between two flushes, at most --flush-ms (default 0: flush whenever the "
+                        "server is idle)")
+    p.add_argument("--gc-full-every", type=bounded_float(1, 86400, special={0: "Python's own policy"}),
+                   default=300.0, metavar="S",
                    help="run Python's full garbage collection only every S seconds instead of whenever the heap "
                         "grows (default 300; 0 = Python's own policy; docs/switch.md)")
-    p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
+    p.add_argument("--grace", type=bounded_float(0, 3600), default=5.0,
+                   help="seconds an entity outlives its validity (default 5, at most 3600)")
     p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")
     from entitynet.commands.cluster_cmd import add_cluster_options
 
@@ -56,8 +59,7 @@ def run(args: argparse.Namespace) -> int:
     if logging.getLogger().level > logging.INFO:
         logging.getLogger("entitynet.server").setLevel(logging.INFO)
     logs.use_json(args.log_json)
-    if not (args.flush_ms >= 0 and args.flush_min_ms >= 0 and args.grace >= 0 and args.gc_full_every >= 0):
-        raise CommandError("--flush-ms, --flush-min-ms, --grace and --gc-full-every must be >= 0")
+    check_options(args)
     config = ServerConfig(
         host=args.host, port=args.port, ws_port=args.ws_port, metrics_port=args.metrics_port,
         http_port=args.http_port,
@@ -77,6 +79,16 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, OSError) as exc:
         raise CommandError(_message(exc)) from None
     return 0
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """What the options' ranges (checked by argparse) cannot say alone: --flush-min-ms is at most --flush-ms
+    (it was capped in silence), and the cluster options need --cluster (they were ignored in silence)."""
+    from entitynet.commands.cluster_cmd import check_cluster_only
+
+    if args.flush_min_ms > args.flush_ms:
+        raise CommandError(f"--flush-min-ms ({args.flush_min_ms:g}) cannot exceed --flush-ms ({args.flush_ms:g})")
+    check_cluster_only(args)
 
 
 def _message(exc: BaseException) -> str:
