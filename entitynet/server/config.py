@@ -56,6 +56,7 @@ class ServerConfig:
     open_mode: bool = False
     users_db: str | None = None  # None = entitynet.auth.default_db_path()
     auth_recheck: float = 1.0  # how often (s) to look for changes of the token store and re-check connections
+    auth_timeout: float = 2.0  # a token store read (off the loop) answers within this (s) or the login is refused
     flush_interval: float = 0.01  # news waits at most this long (s) for a flush: one write per connection per flush
     flush_min_interval: float = 0.0  # ... and flushes (as soon as the loop is idle) are at least this far apart
     gc_full_every: float | None = None  # full garbage collections only this often (s); None = Python's (gcpolicy)
