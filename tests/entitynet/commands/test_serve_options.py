@@ -58,3 +58,18 @@ def test_the_core_refuses_a_grace_that_never_ends(grace):
 
     with pytest.raises(ValueError, match="grace_s"):
         SwitchConfig(n_cells=1, digest="d", grace_s=grace)
+
+
+def test_serve_with_a_damaged_token_store_stops_at_start(town_path, tmp_path, capsys):
+    """A store whose data pages are damaged (the header opens) is found at start, not at the first HELLO."""
+    from entitynet.auth import TokenStore
+    from tests.entitynet.server.test_token_store import corrupt_index
+
+    db = tmp_path / "users.sqlite"
+    store = TokenStore(db)
+    store.add_user("alice")
+    store.close()
+    corrupt_index(str(db))
+    assert main(["serve", "--topology", str(town_path), "--users-db", str(db), "--port", "0"]) == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("entitynet: error: token store") and "damaged" in line
