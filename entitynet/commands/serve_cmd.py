@@ -56,8 +56,9 @@ def run(args: argparse.Namespace) -> int:
 
     from entitynet.server import ConfigError, ServerConfig, logs, serve_until_signal
 
-    if logging.getLogger().level > logging.INFO:
+    if logging.getLogger().level > logging.INFO:  # the server's and the cluster link's events are shown
         logging.getLogger("entitynet.server").setLevel(logging.INFO)
+        logging.getLogger("entitynet.cluster").setLevel(logging.INFO)
     logs.use_json(args.log_json)
     check_options(args)
     config = ServerConfig(
