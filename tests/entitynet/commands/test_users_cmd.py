@@ -90,10 +90,12 @@ def test_a_read_only_store_is_one_error_line(tmp_path_factory, action, capsys):
     db = _store(folder)
     os.chmod(db, 0o444)
     os.chmod(folder, 0o555)  # nor can a journal be created beside it
-    for parent in folder.parents:  # pytest's base folder is private to its owner: let `nobody` reach the store
+    opened: dict = {}  # pytest's base folder is private to its owner: let `nobody` through it for this test
+    for parent in folder.parents:
         if parent == parent.parent or not str(parent).startswith(str(tmp_path_factory.getbasetemp().parent)):
             break
-        os.chmod(parent, os.stat(parent).st_mode | stat.S_IXOTH)
+        opened[parent] = os.stat(parent).st_mode
+        os.chmod(parent, opened[parent] | stat.S_IXOTH)
     try:
         if os.geteuid() == 0:
             code, err = _run_as_nobody(["users", "--db", db, *action])
@@ -101,6 +103,8 @@ def test_a_read_only_store_is_one_error_line(tmp_path_factory, action, capsys):
             code, err = main(["users", "--db", db, *action]), capsys.readouterr().err
     finally:
         os.chmod(folder, 0o755)
+        for parent, mode in opened.items():
+            os.chmod(parent, stat.S_IMODE(mode))
     assert code == 2, err
     _one_error(err, db)
     assert "readonly" in err or "read-only" in err or "unable to open" in err
