@@ -97,9 +97,9 @@ def register(sub) -> None:
     csub = p.add_subparsers(dest="cluster_command", metavar="ACTION", required=True)
     up = csub.add_parser("up", help="start nats-server nodes and K switchboards on loopback")
     up.add_argument("--shards", type=bounded_int(1, 64),
-                     default=2, metavar="K", help="switchboards, one per region (default 2)")
+                    default=2, metavar="K", help="switchboards, one per region (default 2)")
     up.add_argument("--nats-nodes", type=bounded_int(1, 16),
-                     default=1, metavar="N", help="nats-server nodes (default 1)")
+                    default=1, metavar="N", help="nats-server nodes (default 1)")
     up.add_argument("--topology", metavar="FILE", help="artifact (default: the bundled Helsinki map)")
     up.add_argument("--duration", type=positive_seconds(), help="stop after this many seconds (default: until Ctrl-C)")
     up.add_argument("--state", default=str(DEFAULT_STATE), help=f"state file (default {DEFAULT_STATE})")
@@ -108,7 +108,7 @@ def register(sub) -> None:
     st.add_argument("--nats", metavar="URLS", help="NATS servers (default: from the state file of `cluster up`)")
     st.add_argument("--state", default=str(DEFAULT_STATE))
     st.add_argument("--listen", type=bounded_float(0.1, 3600),
-                     default=1.5, metavar="S", help="how long to listen (default 1.5 s)")
+                    default=1.5, metavar="S", help="how long to listen (default 1.5 s)")
     st.add_argument("--json", action="store_true")
     st.set_defaults(func=cmd_status)
 
