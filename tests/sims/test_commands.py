@@ -27,8 +27,9 @@ def test_bench_rejects_an_unknown_suite(capsys):
 
 
 def test_demo_checks_its_numbers(capsys):
-    assert main(["demo", "--entities", "0"]) == 2
-    assert "--entities must be at least 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:  # a usage error: refused while parsing (entitynet/commands/options.py)
+        main(["demo", "--entities", "0"])
+    assert info.value.code == 2 and "argument --entities: expected an integer from 1" in capsys.readouterr().err
 
 
 def test_demo_refuses_a_missing_schedule_and_a_bad_start(capsys, tmp_path):
