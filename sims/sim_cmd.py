@@ -72,6 +72,22 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def sim_args(**overrides) -> argparse.Namespace:
+    """`entitynet sim`'s options as its parser sets them by default, with `overrides` (names of its options).
+
+    Why through the parser: a preset (`entitynet demo --shards K`) that wrote out its own Namespace missed every
+    option added to `sim` after it (`--measure-share` crashed the demo); an override that names no option of
+    `sim` is a TypeError here, not an AttributeError deep inside the run."""
+    parser = argparse.ArgumentParser(prog="entitynet")
+    register(parser.add_subparsers())
+    args = parser.parse_args(["sim"])
+    for name, value in overrides.items():
+        if not hasattr(args, name):
+            raise TypeError(f"entitynet sim has no option {name!r}")
+        setattr(args, name, value)
+    return args
+
+
 def run(args: argparse.Namespace) -> int:
     """Check the options (clear usage errors before anything loads), load the topology and schedule, run the
     shell and write the JSON report; 0 on success."""
