@@ -106,13 +106,14 @@ def _load(args):
     if not Path(args.gtfs).exists():
         raise _command_error(f"GTFS feed {args.gtfs} not found")
     from proxies.routes import cached_routes
-    from proxies.schedule import ScheduleError
 
     t0 = time.perf_counter()
     try:
         book = cached_routes(topo, args.gtfs, say=_say)
-    except ScheduleError as exc:
+    except ValueError as exc:  # the feed's readers' errors (GtfsError, ScheduleError) are ValueErrors
         raise _command_error(str(exc)) from None
+    except OSError as exc:  # a folder, a file that cannot be read
+        raise _command_error(f"cannot read GTFS feed {args.gtfs}: {exc.strerror or exc}") from None
     _say(f"{len(book.routes)} trips on {len({id(r) for r in book.routes.values()})} routes over the map, "
          f"{len(book.stops)} stops ({time.perf_counter() - t0:.1f} s)")
     if not book.routes:
