@@ -69,3 +69,14 @@ def test_children_are_launched_with_the_safe_path(tmp_path, decoy_folder):
 
     out = subprocess.run(entitynet_argv("--version"), cwd=decoy_folder, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout.startswith("entitynet "), out.stdout + out.stderr
+
+
+def test_a_nats_server_that_dies_at_start_shows_its_last_error_lines(tmp_path, monkeypatch):
+    from entitynet.cluster import natsd
+
+    fake = tmp_path / "nats-server"
+    fake.write_text("#!/bin/sh\necho 'nats: listen on 127.0.0.1 failed: permission denied' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    monkeypatch.setattr(natsd, "nats_server_binary", lambda: str(fake))
+    with pytest.raises(RuntimeError, match="exited with 1; the end of .*nats-0.log:\nnats: listen on .* failed"):
+        natsd.NatsCluster(1, log_dir=tmp_path).start(timeout=10)
