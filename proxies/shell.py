@@ -100,6 +100,11 @@ class ProxyShell:
         self.last_error: str | None = None
         self.ready = trio.Event()  # set after the first good poll
 
+    def counts(self) -> dict:
+        """Its vehicles by mode and the stops they served, in the shape of the simulation's counts: the demo runs
+        the proxy as a part that publishes into its server, and its summary adds these to its own."""
+        return {"entities": self.fleet.by_mode(), "stops_served": self.fleet.stops_served()}
+
     def to_local(self, lon: float, lat: float) -> tuple[float, float]:
         """Map a reported lon/lat into the artifact's local frame (VehicleLocation, GTFS-rt positions)."""
         p = self._proj.to_local(np.array([lon]), np.array([lat]))[0]

@@ -19,6 +19,8 @@ async def test_transit_vehicles_reach_the_server(line_topo, line_book, line_feed
                 while (server.metrics.registry.get_sample_value("entitynet_entities") or 0) < 3:  # as the server counts
                     await trio.sleep(0.05)
             assert len(shell.fleet.vehicles) >= 3
+            counts = shell.counts()  # what the demo's summary adds to the simulation's entities
+            assert counts["entities"] == {"tram": len(shell.fleet.vehicles)} and counts["stops_served"] >= 0
             n.cancel_scope.cancel()
     assert any(line.startswith("transit: replay of") for line in lines)
 
