@@ -225,10 +225,13 @@ def run_replay(args) -> int:
     elif args.topology:
         import numpy as np
 
-        from topology.artifact import load
+        from topology.artifact import ArtifactError, load
         from topology.projection import LocalProjection
 
-        topo = load(args.topology)
+        try:
+            topo = load(args.topology)
+        except (ArtifactError, OSError, ValueError) as exc:
+            raise _command_error(f"cannot load topology {args.topology}: {exc}") from None
         x0, y0, x1, y1 = topo.meta["bounds"]
         ll = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"])).to_wgs84(
             np.array([[x0, y0], [x1, y1]], dtype=np.float64))

@@ -58,8 +58,8 @@ def run_demo_command(args: argparse.Namespace) -> int:
     for name in ("entities", "viewers", "connections"):
         if getattr(args, name) < (0 if name == "viewers" else 1):
             raise CommandError(f"--{name} must be at least {0 if name == 'viewers' else 1}")
-    if args.transit is not None and not Path(args.transit).exists():
-        raise CommandError(f"GTFS feed {args.transit} not found")
+    if args.transit is not None and not Path(args.transit).is_file():
+        raise CommandError(f"GTFS feed {args.transit} not found (no such file)")
     if args.gtfs not in (None, "none") and not Path(args.gtfs).is_file():
         raise CommandError(f"{args.gtfs}: cannot read the feed (no such file)")
     if args.duration is not None and not args.duration > 0:

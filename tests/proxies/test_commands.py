@@ -12,9 +12,13 @@ def test_the_proxy_command_is_registered_through_the_entry_point_group():
     assert args.proxy_command == "replay" and callable(args.func)
 
 
-def test_proxy_errors_are_clean(tmp_path, capsys):
+def test_proxy_errors_are_clean(tmp_path, capsys, line_feed):
     assert cli.main(["proxy", "replay", "--gtfs", str(tmp_path / "missing.zip"), "--port", "0"]) == 2
     assert "entitynet: error: cannot read GTFS feed" in capsys.readouterr().err
+    garbage = tmp_path / "garbage.enttopo"
+    garbage.write_bytes(b"not an artifact")
+    assert cli.main(["proxy", "replay", "--gtfs", str(line_feed), "--topology", str(garbage), "--port", "0"]) == 2
+    assert "entitynet: error: cannot load topology" in capsys.readouterr().err
 
 
 def test_an_unreadable_feed_is_a_clean_error(tmp_path, capsys, line_topo):

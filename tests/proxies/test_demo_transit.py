@@ -30,3 +30,24 @@ def test_demo_command_refuses_a_missing_feed(tmp_path, capsys):
 
     assert cli.main(["demo", "--transit", str(tmp_path / "nope.zip"), "--duration", "1"]) == 2
     assert "GTFS feed" in capsys.readouterr().err
+
+
+def test_demo_command_refuses_a_folder_as_feed(tmp_path, capsys):
+    from entitynet import cli
+
+    assert cli.main(["demo", "--transit", str(tmp_path), "--duration", "1"]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+async def test_an_unreadable_feed_is_the_commands_error(line_topo, tmp_path, monkeypatch):
+    """A --transit feed that is no GTFS zip ends the demo with one line (a CommandError, which the CLI prints
+    even from inside the demo's nursery), not a traceback."""
+    import pytest
+
+    from entitynet.cli import CommandError
+
+    monkeypatch.setenv("ENTITYNET_CACHE", str(tmp_path))
+    garbage = tmp_path / "garbage.zip"
+    garbage.write_text("not a zip\n")
+    with pytest.raises(CommandError, match="--transit .*garbage.zip.*not a readable GTFS zip"):
+        await run_transit(line_topo, ("127.0.0.1", 1), garbage, lambda m: None)
