@@ -114,13 +114,14 @@ def _load(args):
     if not Path(args.gtfs).exists():
         raise _command_error(f"GTFS feed {args.gtfs} not found")
     from proxies.routes import cached_routes
-    from proxies.schedule import ScheduleError
 
     t0 = time.perf_counter()
     try:
         book = cached_routes(topo, args.gtfs, say=_say)
-    except ScheduleError as exc:
+    except ValueError as exc:  # the feed's readers' errors (GtfsError, ScheduleError) are ValueErrors
         raise _command_error(str(exc)) from None
+    except OSError as exc:  # a folder, a file that cannot be read
+        raise _command_error(f"cannot read GTFS feed {args.gtfs}: {exc.strerror or exc}") from None
     _say(f"{len(book.routes)} trips on {len({id(r) for r in book.routes.values()})} routes over the map, "
          f"{len(book.stops)} stops ({time.perf_counter() - t0:.1f} s)")
     if not book.routes:
@@ -232,10 +233,13 @@ def run_replay(args) -> int:
     elif args.topology:
         import numpy as np
 
-        from topology.artifact import load
+        from topology.artifact import ArtifactError, load
         from topology.projection import LocalProjection
 
-        topo = load(args.topology)
+        try:
+            topo = load(args.topology)
+        except (ArtifactError, OSError, ValueError) as exc:
+            raise _command_error(f"cannot load topology {args.topology}: {exc}") from None
         x0, y0, x1, y1 = topo.meta["bounds"]
         ll = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"])).to_wgs84(
             np.array([[x0, y0], [x1, y1]], dtype=np.float64))

@@ -66,8 +66,8 @@ def run_demo_command(args: argparse.Namespace) -> int:
     for name in ("entities", "viewers", "connections"):
         if getattr(args, name) < (0 if name == "viewers" else 1):
             raise CommandError(f"--{name} must be at least {0 if name == 'viewers' else 1}")
-    if args.transit is not None and not Path(args.transit).exists():
-        raise CommandError(f"GTFS feed {args.transit} not found")
+    if args.transit is not None and not Path(args.transit).is_file():
+        raise CommandError(f"GTFS feed {args.transit} not found (no such file)")
     if args.gtfs not in (None, "none") and not Path(args.gtfs).is_file():
         raise CommandError(f"{args.gtfs}: cannot read the feed (no such file)")
     if args.duration is not None and not args.duration > 0:
@@ -79,11 +79,10 @@ def run_demo_command(args: argparse.Namespace) -> int:
             raise CommandError("--transit does not combine with --shards (the transit proxy publishes to one server)")
         from sims import sim_cmd
 
-        return sim_cmd.run(argparse.Namespace(
-            entities=args.entities, car_share=0.3, viewers=args.viewers, gtfs=args.gtfs, date=None,
-            start=args.start, duration=args.duration, speed=1.0, tick_hz=2.0, server=None, token="",
+        return sim_cmd.run(sim_cmd.sim_args(
+            entities=args.entities, viewers=args.viewers, gtfs=args.gtfs, start=args.start, duration=args.duration,
             connections=args.connections, radius=args.no_pvs, seed=args.seed, summary_every=args.summary_every,
-            report=args.report, shards=args.shards, nats_nodes=args.nats_nodes, topology=None))
+            report=args.report, shards=args.shards, nats_nodes=args.nats_nodes))
     start = time.perf_counter()
 
     def say(msg: str) -> None:

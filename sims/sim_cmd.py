@@ -82,6 +82,22 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def sim_args(**overrides) -> argparse.Namespace:
+    """`entitynet sim`'s options as its parser sets them by default, with `overrides` (names of its options).
+
+    Why through the parser: a preset (`entitynet demo --shards K`) that wrote out its own Namespace missed every
+    option added to `sim` after it (`--measure-share` crashed the demo); an override that names no option of
+    `sim` is a TypeError here, not an AttributeError deep inside the run."""
+    parser = argparse.ArgumentParser(prog="entitynet")
+    register(parser.add_subparsers())
+    args = parser.parse_args(["sim"])
+    for name, value in overrides.items():
+        if not hasattr(args, name):
+            raise TypeError(f"entitynet sim has no option {name!r}")
+        setattr(args, name, value)
+    return args
+
+
 def run(args: argparse.Namespace) -> int:
     """Check the options (clear usage errors before anything loads), load the topology and schedule, run the
     shell and write the JSON report; 0 on success."""
@@ -145,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         shard_at = shard_locator(topo, regions)
     sim = Sim(topo, config, schedule, shards=args.shards or 1, shard_at=shard_at)
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
-        f"{len(sim.viewers)} viewers subscribing by {sim.subscribe_by}, ticks at {config.tick_hz:g} Hz, "
+        f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path), say)
@@ -217,4 +233,20 @@ def load_feed(gtfs: str | None, topo, date: str | None, seed: int, start: float,
     n_run = len(schedule.running_at(start))
     say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
         f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
+    if not schedule.departures:
+        say(f"warning: {no_departures_reason(feed.name, schedule)}; the run has no scheduled trams or buses")
     return schedule
+
+
+def no_departures_reason(name: str, schedule) -> str:
+    """Why a feed put no departure on the map, from its read report: a feed of another city (its trips in
+    service all run off the map) reads differently from a day without service. Why a warning of its own: "0
+    departures over the map" went by unnoticed in the middle of the start-up lines."""
+    report = schedule.report
+    off_map = int(report.get("skipped:trip_off_map", 0))
+    if off_map:
+        return (f"the feed {name} does not overlap the map: none of its {off_map} trams' and buses' trips in "
+                "service runs over it (a feed of another city?)")
+    if report.get("skipped:not_in_service", 0):
+        return f"no tram or bus trip of {name} is in service on {schedule.service_date or 'the chosen day'}"
+    return f"the feed {name} has no tram or bus trip that runs over the map"

@@ -38,3 +38,13 @@ def test_demo_refuses_a_missing_schedule_and_a_bad_start(capsys, tmp_path):
     with pytest.raises(SystemExit):
         main(["demo", "--start", "8h"])
     assert "service-day time" in capsys.readouterr().err
+
+
+def test_sim_args_are_the_sim_parsers_defaults_and_refuse_unknown_names():
+    """A preset of `sim` gets every option `sim` has (new ones included) and cannot name one it lacks."""
+    from sims.sim_cmd import sim_args
+
+    args = sim_args(entities=7)
+    assert (args.entities, args.measure_share, args.speed, args.server) == (7, 0.25, 1.0, None)
+    with pytest.raises(TypeError, match="no option 'nonesuch'"):
+        sim_args(nonesuch=1)
