@@ -69,14 +69,16 @@ class Coverage:
         self.has_route = bool(route)
         self.body, self.margin, self.accuracy, self.lateral = body, margin, accuracy, lateral
         self.lookahead, self.max_validity, self.heartbeat = lookahead, max_validity, heartbeat
-        self.hold = PlacementHold(lateral)  # a place that rests on one fix: a wider cover for a few seconds
+        # a place that rests on one fix: a wider cover for a few seconds, for walkers and cyclists (no body), whose
+        # network has the ways a few metres apart (sidewalks, footways drawn twice); it did not help cars
+        self.hold = PlacementHold(lateral if etype.length == 0.0 else None)
 
     def placed(self, reason: str, t: float, ghost: Model, old: Model | None, trk: NetworkTracker,
                estimate_xy: Callable[[], tuple[float, float]]) -> Occupation | None:
         """The occupation of a publish for `reason` (`old`: the ghost it replaces): `occupation`, with the
         placement hold's wider cover while a place rests on one fix (hold.py)."""
         hold = self.hold
-        if reason in ("first", "jump"):
+        if hold.active and reason in ("first", "jump"):
             hold.placed(reason, t, cells_under(self.net, old, t, self.body, self.margin))
         occ = self.occupation(t, ghost, trk, estimate_xy, hold.lateral_at(t))
         return hold.widen(occ, t) if occ is not None else None

@@ -6,7 +6,8 @@ one it walked (5 m RMS noise, beyond the 2 x accuracy lateral cover): outside it
 until the next fixes put it back (issue 20). For JUMP_HOLD seconds after such a placement the other ways are
 listed PLACED_WIDENING times as far, and after a jump also the cells under the body where the entity was
 tracked before it. Measured (bench sim's PVS run, seed 7): holds of 0 / 3 / 5 / 7 / 10 s gave stale ghosts of
-0.045 / 0.021 / 0.013 / 0.011 / 0.012 % for 0 / +0.8 / +1.2 / +1.5 / +2.1 % street deliveries.
+0.045 / 0.021 / 0.013 / 0.011 / 0.012 % for 0 / +0.8 / +1.2 / +1.5 / +2.1 % street deliveries. For walkers
+and cyclists only (cars' few stale samples did not change): 0.015 % for +0.8 %.
 """
 
 from __future__ import annotations
@@ -25,17 +26,19 @@ PLACED_WIDENING = 1.5
 
 
 class PlacementHold:
-    """One entity's hold: until when its place rests on one fix, and the cells it was tracked in before."""
+    """One entity's hold: until when its place rests on one fix, and the cells it was tracked in before.
+    `lateral` None: no hold (the entity's type does not need one)."""
 
-    def __init__(self, lateral: float) -> None:
-        self.lateral = PLACED_WIDENING * lateral  # the lateral cover while held
+    def __init__(self, lateral: float | None) -> None:
+        self.active = lateral is not None
+        self.lateral = PLACED_WIDENING * (lateral or 0.0)  # the lateral cover while held
         self.cells: tuple[int, ...] = ()
         self.until = -math.inf
 
     def placed(self, reason: str, t: float, before: tuple[int, ...]) -> None:
         """A publish for `reason` at `t`: a first placement or a jump starts a hold (`before`: the cells under the
         body where the entity was tracked until now)."""
-        if reason in ("first", "jump"):
+        if self.active and reason in ("first", "jump"):
             self.cells = before if reason == "jump" else ()
             self.until = t + JUMP_HOLD
 

@@ -21,11 +21,11 @@ def test_a_first_placement_and_a_jump_keep_the_wider_cover_for_the_hold_only():
     topo = parallel(gap=12.0, length=600.0)  # 12 m apart: beyond 2 x 5 m, within 3 x 5 m
     assert 2.0 * 5.0 < 12.0 <= PLACED_WIDENING * 2.0 * 5.0
     south, north = _cells(topo, 0), _cells(topo, 1)
-    p = Player(topo, 1, "car", accuracy=5.0, threshold=5.0)
+    p = Player(topo, 1, "pedestrian", accuracy=5.0, threshold=5.0)
     pubs = []
-    for i in range(30):  # east at 8 m/s on the southern street, then (i >= 15) on the northern one
+    for i in range(30):  # east at 1.4 m/s on the southern way, then (i >= 15) on the northern one
         y = 0.0 if i < 15 else 12.0
-        for m in p.feed(50.0 + 8.0 * i, y + (1.0 if i % 2 else -1.0), float(i)):
+        for m in p.feed(50.0 + 1.4 * i, y + (1.0 if i % 2 else -1.0), float(i)):
             pubs.append((float(i), dict(p.stats), set(m.cells)))
     first_t, _stats, first_cells = pubs[0]
     assert first_cells & north, "the first placement rests on one fix: the street 12 m away is listed"
@@ -38,3 +38,12 @@ def test_a_first_placement_and_a_jump_keep_the_wider_cover_for_the_hold_only():
     assert all(c & south and c & north for c in held), "where it was tracked stays listed during the hold"
     later = [c for t, c in jumps if t >= t_jump + JUMP_HOLD]
     assert later and all(not c & south for c in later), "and is dropped once the hold is over"
+
+
+def test_a_car_has_no_hold():
+    """Cars' roads are not drawn twice a few metres apart as footways are: their first placement lists the usual
+    2 x accuracy only (the hold did not change the cars' stale ghosts in the simulation)."""
+    topo = parallel(gap=12.0, length=600.0)
+    p = Player(topo, 1, "car", accuracy=5.0, threshold=5.0)
+    (m,) = p.feed(50.0, 1.0, 0.0)
+    assert not set(m.cells) & _cells(topo, 1)
