@@ -57,8 +57,9 @@ def _cpu_of(proc):
 
 
 def run_one(system: System, topo, artifact: Path, schedule, p: RunParams, exes: dict, cell_boxes, log_dir: Path,
-            progress) -> dict:
-    """Start the system's broker, run it, stop the broker; the run's figures plus the broker's version."""
+            progress, seen_at=None) -> dict:
+    """Start the system's broker, run it, stop the broker; the run's figures plus the broker's version
+    (`seen_at`: the measure's yardstick, see `run_system`)."""
     from sims.bench.e2e_transports import MqttTransport, OursTransport, RedisTransport
 
     if system.transport == "mqtt":
@@ -67,7 +68,7 @@ def run_one(system: System, topo, artifact: Path, schedule, p: RunParams, exes: 
         with mosquitto(exes["mosquitto"], log_dir, progress) as (proc, port, version):
             rep = run_system(topo, schedule, system, p, lambda on: MqttTransport(
                 port, p.publishers, p.viewers, on, proc=proc, timeout=p.timeout_s), cell_boxes, progress,
-                _cpu_of(proc))
+                _cpu_of(proc), seen_at)
             rep["broker"] = version
             return rep
     from sims.bench.switch_systems import started
@@ -84,7 +85,7 @@ def run_one(system: System, topo, artifact: Path, schedule, p: RunParams, exes: 
         else:
             def connect(on):
                 return RedisTransport(port, p.publishers, p.viewers, on, proc=proc, timeout=p.timeout_s)
-        rep = run_system(topo, schedule, system, p, connect, cell_boxes, progress, _cpu_of(proc))
+        rep = run_system(topo, schedule, system, p, connect, cell_boxes, progress, _cpu_of(proc), seen_at)
         rep["broker"] = sp.get("redis_version", "entitynet serve (this checkout)")
         return rep
 

@@ -63,6 +63,7 @@ class RunParams:
     publishers: int = 4
     measure_after: float = 5.0
     timeout_s: float = 10.0
+    transit: bool = True  # the schedule's trams and buses (given a schedule)
 
 
 class PeriodicFeed:
@@ -176,17 +177,20 @@ class _Seen:
 
 
 def run_system(topo, schedule, system: System, p: RunParams, connect, cell_boxes=None, progress=None,
-               server_cpu=None) -> dict:
+               server_cpu=None, seen_at=None) -> dict:
     """Run one system for `p.seconds` simulated seconds; its figures. `connect(on_message)` opens the
     transport (MQTT/Redis: `on_message(viewer, topic, payload, size)`; ours: `on_message(viewer, msg, size)`);
     `cell_boxes`: the boxes of each cell (the "pvs-boxes" subscription); `server_cpu()`: the broker's CPU
-    seconds so far, read when the ticks start and end (its start-up and our connecting are left out)."""
+    seconds so far, read when the ticks start and end (its start-up and our connecting are left out);
+    `seen_at(x, y, z)`: the cells a camera can see, the measure's yardstick (default: the PVS; a map without
+    one, as in the tests, gives a distance cut here)."""
     ours = system.transport == "entitynet"
     cfg = SimConfig(entities=p.entities, viewers=p.viewers, connections=p.publishers, tick_hz=p.tick_hz,
                     seed=p.seed, subscribe="radius" if system.subscribe == "radius" else "pvs",
-                    radius=p.radius_m, client_model=system.client_model, measure_after=p.measure_after)
+                    radius=p.radius_m, client_model=system.client_model, measure_after=p.measure_after,
+                    transit=p.transit and schedule is not None)
     sim = Sim(topo, cfg, schedule)
-    pvs_at = pvs_cells_at(topo)
+    pvs_at = seen_at or pvs_cells_at(topo)
     if pvs_at is None:
         raise ValueError("the end-to-end benchmark needs a topology with a PVS")
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
