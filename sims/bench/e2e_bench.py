@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import statistics
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,11 @@ SYSTEMS = (
 #: the figures whose repetitions are checked against the +-15 % stability target
 STABLE = ("messages_per_viewer_s", "bytes_per_viewer_s", "server_cpu_ms_per_viewer_s", "error_p95_m")
 STABILITY = 0.15
+#: the systems also run idle (same viewers, cameras, subscriptions and barrier, no entities): what the broker
+#: spends on the lock step and the viewers' subscriptions alone, so the per-message cost can be told apart
+IDLE = ("entitynet", "mqtt-disc", "redis-disc")
+#: idle runs do per tick what the real ones do, so they can run faster than real time
+IDLE_SPEED = 4.0
 
 
 def _fail(msg: str):
@@ -98,7 +104,8 @@ def summarise(runs: dict[str, list[dict]]) -> dict[str, Any]:
         s: dict[str, Any] = {"repetitions": len(reps)}
         for key in ("messages_per_viewer_s", "bytes_per_viewer_s", "server_cpu_ms_per_viewer_s", "error_mean_m",
                     "error_p95_m", "error_max_m", "missed_visibility", "stale_ghost_fraction", "loadgen_cpu_share",
-                    "subscriptions_mean", "tick_lateness_p99_ms", "malformed_payloads"):
+                    "subscriptions_mean", "tick_lateness_p99_ms", "malformed_payloads",
+                    "server_cpu_idle_ms_per_viewer_s", "server_cpu_net_ms_per_viewer_s"):
             vals = [r[key] for r in reps if r.get(key) is not None]
             if not vals:
                 s[key] = None
@@ -124,6 +131,10 @@ def targets(summary: dict, runs: dict[str, list[dict]]) -> dict[str, Any]:
             if a["bytes_per_viewer_s"] else None,
             "server_cpu_ratio_mosquitto_over_ours": b["server_cpu_ms_per_viewer_s"] / a["server_cpu_ms_per_viewer_s"]
             if a["server_cpu_ms_per_viewer_s"] else None,
+            "server_cpu_net_ratio_mosquitto_over_ours":
+                b["server_cpu_net_ms_per_viewer_s"] / a["server_cpu_net_ms_per_viewer_s"]
+                if a.get("server_cpu_net_ms_per_viewer_s") and b.get("server_cpu_net_ms_per_viewer_s") is not None
+                else None,
             "error_p95_ours_m": a["error_p95_m"], "error_p95_mqtt_m": b["error_p95_m"]})
     med = lambda k: statistics.median([r[k] for r in per_rep if r[k] is not None]) if per_rep else None  # noqa: E731
     b_ratio, c_ratio = med("bytes_ratio_mqtt_over_ours"), med("server_cpu_ratio_mosquitto_over_ours")
@@ -134,6 +145,7 @@ def targets(summary: dict, runs: dict[str, list[dict]]) -> dict[str, Any]:
         "error_p95_equal_or_lower_met": e_ours is not None and e_mq is not None and e_ours <= e_mq,
         "server_cpu_ratio_mosquitto_over_ours": c_ratio,
         "server_cpu_target_5x_met": c_ratio is not None and c_ratio >= 5.0,
+        "server_cpu_net_of_idle_ratio_mosquitto_over_ours": med("server_cpu_net_ratio_mosquitto_over_ours"),
         "every_system_stable_15pct": all(s["stable"] for s in summary.values()),
     }
 
@@ -145,10 +157,11 @@ def run(args, progress) -> dict[str, Any]:
     from sims.bench.switch_systems import find_exe
     from sims.engine.schedule import BUNDLED_FEED, load_schedule
 
-    try:
-        import paho.mqtt  # noqa: F401
-    except ImportError:
-        raise _fail("bench e2e needs paho-mqtt: pip install -e '.[bench]'") from None
+    for module, pkg in (("paho.mqtt", "paho-mqtt"), ("redis", "redis")):
+        try:
+            __import__(module)
+        except ImportError:
+            raise _fail(f"bench e2e needs {pkg}: pip install -e '.[bench]'") from None
     exes = {}
     for name, pkg in (("mosquitto", "mosquitto"), ("redis-server", "redis-server")):
         exe, how = find_exe(name, pkg, progress)
@@ -183,6 +196,15 @@ def run(args, progress) -> dict[str, Any]:
                          f"messages per viewer-s, server {rep['server_cpu_ms_per_viewer_s']:.2f} ms CPU per "
                          f"viewer-s, error p95 {rep['error_p95_m'] or float('nan'):.1f} m, missed "
                          f"{100 * rep['missed_visibility']:.1f} %")
+                if system.name in IDLE:
+                    idle = run_one(system, topo, artifact, schedule, replace(p, entities=0, transit=False,
+                                                                             speed=IDLE_SPEED),
+                                   exes, boxes, Path(tmp), progress)
+                    rep["server_cpu_idle_ms_per_viewer_s"] = idle["server_cpu_ms_per_viewer_s"]
+                    rep["server_cpu_net_ms_per_viewer_s"] = (rep["server_cpu_ms_per_viewer_s"]
+                                                             - idle["server_cpu_ms_per_viewer_s"])
+                    progress(f"  {system.name} idle: server {idle['server_cpu_ms_per_viewer_s']:.2f} ms CPU per "
+                             "viewer-s")
     summary = summarise(runs)
     tg = targets(summary, runs)
     out = getattr(args, "out", None)
