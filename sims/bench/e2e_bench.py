@@ -157,7 +157,7 @@ def run(args, progress) -> dict[str, Any]:
     from sims.bench.switch_systems import find_exe
     from sims.engine.schedule import BUNDLED_FEED, load_schedule
 
-    for module, pkg in (("paho.mqtt", "paho-mqtt"), ("redis", "redis")):
+    for module, pkg in (("gmqtt", "gmqtt"), ("redis", "redis")):
         try:
             __import__(module)
         except ImportError:

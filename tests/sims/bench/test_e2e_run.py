@@ -15,7 +15,7 @@ from sims.bench.e2e_run import RunParams, System
 from sims.bench.e2e_transports import MqttTransport, OursTransport, RedisTransport, TransportError
 from sims.engine.viewers import radius_cells_at
 
-pytest.importorskip("paho.mqtt")
+pytest.importorskip("gmqtt")
 
 
 def _exe(name: str) -> str | None:
