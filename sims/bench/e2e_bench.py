@@ -2,6 +2,8 @@
 
 Systems (all on the same seeded world, cameras and truth; `sims.bench.e2e_run` runs one):
 - `entitynet`: honest clients (dead reckoning), PVS subscriptions, `entitynet serve` as its own process.
+- `entitynet-3m`: the same with a 3 m drift threshold instead of the default (the GPS accuracy, 5 m): more
+  updates for a smaller error, a second point of ours on the error-against-bytes plot.
 - `entitynet-radius`, `entitynet-periodic`: ablations: a 500 m radius instead of the PVS; a standing position
   every second (the client core's periodic model) instead of dead reckoning.
 - `mqtt-disc`, `mqtt-pvs`: mosquitto, HFP style: each entity publishes a GPS fix once a second to a topic ending
@@ -25,6 +27,7 @@ from sims.bench.e2e_run import RunParams, System, run_system
 
 SYSTEMS = (
     System("entitynet", "entitynet", "pvs"),
+    System("entitynet-3m", "entitynet", "pvs", threshold=3.0),
     System("entitynet-radius", "entitynet", "radius"),
     System("entitynet-periodic", "entitynet", "pvs", client_model="periodic"),
     System("mqtt-disc", "mqtt", "disc"),
@@ -105,7 +108,8 @@ def summarise(runs: dict[str, list[dict]]) -> dict[str, Any]:
         for key in ("messages_per_viewer_s", "bytes_per_viewer_s", "server_cpu_ms_per_viewer_s", "error_mean_m",
                     "error_p95_m", "error_max_m", "missed_visibility", "stale_ghost_fraction", "loadgen_cpu_share",
                     "subscriptions_mean", "tick_lateness_p99_ms", "malformed_payloads",
-                    "server_cpu_idle_ms_per_viewer_s", "server_cpu_net_ms_per_viewer_s"):
+                    "server_cpu_idle_ms_per_viewer_s", "server_cpu_net_ms_per_viewer_s",
+                    "server_cpu_us_per_delivered"):
             vals = [r[key] for r in reps if r.get(key) is not None]
             if not vals:
                 s[key] = None

@@ -18,15 +18,18 @@ def plot(summary: dict, path: Path, progress) -> None:
         progress("matplotlib not installed: no plot")
         return
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for name, s in summary.items():
+    markers = "osD^v<>ph*"
+    for k, (name, s) in enumerate(summary.items()):
         x, y = s["bytes_per_viewer_s"], s["error_p95_m"]
         if x is None or y is None:
             continue
         xs, ys = s.get("bytes_per_viewer_s_runs", [x]), s.get("error_p95_m_runs", [y])
         ours = name.startswith("entitynet")
         ax.errorbar([x], [y], xerr=[[x - min(xs)], [max(xs) - x]], yerr=[[y - min(ys)], [max(ys) - y]],
-                    fmt="o" if ours else "s", color="tab:blue" if ours else "tab:red", capsize=3)
-        ax.annotate(name, (x, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
+                    fmt=markers[k % len(markers)], color=("tab:blue", "tab:cyan", "tab:green", "tab:olive",
+                                                          "tab:red", "tab:orange", "tab:purple")[k % 7],
+                    capsize=3, markersize=8, label=name + ("" if ours and "periodic" not in name else " (1 Hz)"))
+    ax.legend(fontsize=8, loc="best")
     ax.set_xscale("log")
     ax.set_xlabel("bytes delivered per viewer-second (log)")
     ax.set_ylabel("viewer position error p95 (m)")

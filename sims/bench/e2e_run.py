@@ -40,12 +40,14 @@ from topology.projection import LocalProjection
 @dataclass(frozen=True)
 class System:
     """One system of the comparison: its transport ("entitynet", "mqtt", "redis"), how viewers subscribe
-    ("pvs", "radius" for ours; "disc" or "pvs-boxes" for the grid systems) and our clients' model."""
+    ("pvs", "radius" for ours; "disc" or "pvs-boxes" for the grid systems), our clients' model and their
+    drift threshold (None: the client core's default, the GPS accuracy)."""
 
     name: str
     transport: str
     subscribe: str
     client_model: str = "network"
+    threshold: float | None = None
 
 
 @dataclass(frozen=True)
@@ -187,7 +189,8 @@ def run_system(topo, schedule, system: System, p: RunParams, connect, cell_boxes
     ours = system.transport == "entitynet"
     cfg = SimConfig(entities=p.entities, viewers=p.viewers, connections=p.publishers, tick_hz=p.tick_hz,
                     seed=p.seed, subscribe="radius" if system.subscribe == "radius" else "pvs",
-                    radius=p.radius_m, client_model=system.client_model, measure_after=p.measure_after,
+                    radius=p.radius_m, client_model=system.client_model, threshold=system.threshold,
+                    measure_after=p.measure_after,
                     transit=p.transit and schedule is not None)
     sim = Sim(topo, cfg, schedule)
     pvs_at = seen_at or pvs_cells_at(topo)
@@ -329,11 +332,13 @@ def _loop(sim, system, p, transport, feed, tallies, eid_to_agent, owner, latest,
             progress(f"  {system.name}: {k / p.tick_hz:.0f} of {p.seconds:g} simulated s")
     cpu, wall, srv = time.process_time() - cpu0, time.monotonic() - wall0, server_cpu() - srv0
     viewer_s = len(viewers) * p.seconds
+    delivered = sum(t.messages for t in tallies)
     lat = np.array(late) if late else np.zeros(1)
     tv = measure.summary()
     return {
         "system": system.name, "transport": system.transport, "subscribe": system.subscribe,
         "client_model": system.client_model if ours else "periodic 1 Hz (HFP-like JSON, last position shown)",
+        "threshold_m": system.threshold,
         "messages_per_viewer_s": sum(t.messages for t in tallies) / viewer_s,
         "bytes_per_viewer_s": sum(t.bytes for t in tallies) / viewer_s,
         "malformed_payloads": sum(t.bad for t in tallies),
@@ -344,6 +349,7 @@ def _loop(sim, system, p, transport, feed, tallies, eid_to_agent, owner, latest,
         "stale_ghost_fraction": tv["all"]["stale_ghost_fraction"], "truth_vs_viewer": tv,
         "entities_on_map": len(sim.world.agents),
         "server_cpu_s": srv, "server_cpu_ms_per_viewer_s": 1000.0 * srv / viewer_s,
+        "server_cpu_us_per_delivered": 1e6 * srv / delivered if delivered else None,
         "loadgen_cpu_s": cpu, "wall_s": wall, "viewer_seconds": viewer_s,
         "loadgen_cpu_share": cpu / wall if wall > 0 else None,
         "tick_lateness_p50_ms": float(np.percentile(lat, 50) * 1000),
