@@ -17,6 +17,7 @@ fresh broker each run. Figures per run, their medians and spread, and the issue'
 
 from __future__ import annotations
 
+import os
 import statistics
 import tempfile
 from dataclasses import replace
@@ -48,6 +49,13 @@ def _fail(msg: str):
     from entitynet.cli import CommandError
 
     return CommandError(msg)
+
+
+def _loadavg() -> list[float] | None:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None
 
 
 def _cpu_of(proc):
@@ -188,6 +196,7 @@ def run(args, progress) -> dict[str, Any]:
     progress("grid boxes of every visibility cell (the mqtt-pvs subscription)")
     boxes = cell_boxes(topo)
     runs: dict[str, list[dict]] = {s.name: [] for s in SYSTEMS}
+    load_before = _loadavg()
     with tempfile.TemporaryDirectory(prefix="entitynet-e2e-") as tmp:
         for r in range(reps):
             order = SYSTEMS[r % len(SYSTEMS):] + SYSTEMS[:r % len(SYSTEMS)]
@@ -209,6 +218,7 @@ def run(args, progress) -> dict[str, Any]:
                                                              - idle["server_cpu_ms_per_viewer_s"])
                     progress(f"  {system.name} idle: server {idle['server_cpu_ms_per_viewer_s']:.2f} ms CPU per "
                              "viewer-s")
+    load_after = _loadavg()
     summary = summarise(runs)
     tg = targets(summary, runs)
     out = getattr(args, "out", None)
@@ -239,5 +249,6 @@ def run(args, progress) -> dict[str, Any]:
         "notes": ["Measured on a shared 2-core VM while other helpers' jobs loaded it; CPU figures are "
                   "per-process counters (psutil) over the ticks only, medians of alternated repetitions.",
                   "Lock step: every tick's messages reach every viewer (a per-system barrier) before the truth is "
-                  "sampled, so the error figures do not depend on how the machine scheduled the run."],
+                  "sampled, so the error figures do not depend on how the machine scheduled the run.",
+                  f"Machine load average (1, 5, 15 min) at the start {load_before} and the end {load_after}."],
     }
