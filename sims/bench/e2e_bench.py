@@ -51,6 +51,17 @@ def _fail(msg: str):
     return CommandError(msg)
 
 
+def _guarded(system: System, *args, **kw) -> dict:
+    """`run_one(system, *args)`; a broker that dies, refuses or stops answering becomes a clear error naming the
+    system (the brokers are stopped on the way out by their context managers)."""
+    from sims.bench.e2e_transports import TransportError
+
+    try:
+        return run_one(system, *args, **kw)
+    except (TransportError, RuntimeError) as exc:
+        raise _fail(f"bench e2e: {system.name}: {exc}") from None
+
+
 def _loadavg() -> list[float] | None:
     try:
         return [round(x, 2) for x in os.getloadavg()]
@@ -202,7 +213,7 @@ def run(args, progress) -> dict[str, Any]:
             order = SYSTEMS[r % len(SYSTEMS):] + SYSTEMS[:r % len(SYSTEMS)]
             for system in order:
                 progress(f"repetition {r + 1}/{reps}: {system.name}")
-                rep = run_one(system, topo, artifact, schedule, p, exes, boxes, Path(tmp), progress)
+                rep = _guarded(system, topo, artifact, schedule, p, exes, boxes, Path(tmp), progress)
                 rep["repetition"] = r + 1
                 runs[system.name].append(rep)
                 progress(f"  {system.name}: {rep['bytes_per_viewer_s']:.0f} B and {rep['messages_per_viewer_s']:.1f} "
@@ -210,9 +221,9 @@ def run(args, progress) -> dict[str, Any]:
                          f"viewer-s, error p95 {rep['error_p95_m'] or float('nan'):.1f} m, missed "
                          f"{100 * rep['missed_visibility']:.1f} %")
                 if system.name in IDLE:
-                    idle = run_one(system, topo, artifact, schedule, replace(p, entities=0, transit=False,
-                                                                             speed=IDLE_SPEED),
-                                   exes, boxes, Path(tmp), progress)
+                    idle = _guarded(system, topo, artifact, schedule,
+                                    replace(p, entities=0, transit=False, speed=IDLE_SPEED), exes, boxes, Path(tmp),
+                                    progress)
                     rep["server_cpu_idle_ms_per_viewer_s"] = idle["server_cpu_ms_per_viewer_s"]
                     rep["server_cpu_net_ms_per_viewer_s"] = (rep["server_cpu_ms_per_viewer_s"]
                                                              - idle["server_cpu_ms_per_viewer_s"])

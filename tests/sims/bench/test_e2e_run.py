@@ -94,3 +94,18 @@ def test_a_broker_dying_mid_run_is_an_error_not_a_hang(name, cls, helsinki, hels
     with pytest.raises(TransportError):
         _run(BY_NAME[name], helsinki, helsinki_path, tmp_path)
     assert time.monotonic() - t0 < 10 + P.timeout_s
+
+
+def test_the_suite_reports_a_broker_failure_as_a_command_error(helsinki, helsinki_path, tmp_path, monkeypatch):
+    from entitynet.cli import CommandError
+    from sims.bench import e2e_bench
+
+    _needs(BY_NAME["mqtt-disc"])
+
+    def refused(self, *a, **kw):
+        raise TransportError("cannot reach mosquitto: connection refused")
+
+    monkeypatch.setattr(MqttTransport, "__init__", refused)
+    with pytest.raises(CommandError, match="mqtt-disc: cannot reach mosquitto"):
+        e2e_bench._guarded(BY_NAME["mqtt-disc"], helsinki, helsinki_path, None, P, EXES, None, tmp_path,
+                           lambda m: None, seen_at=radius_cells_at(helsinki, 300.0))
