@@ -123,3 +123,16 @@ def test_malformed_position_reports_are_refused_and_good_ones_decoded(helsinki):
             dec.decode(bad)
         with pytest.raises(ValueError):  # cached: refused again, not re-parsed into something else
             dec.decode(bad)
+
+
+@pytest.mark.parametrize("missing", ["gmqtt", "redis"])
+def test_the_suite_names_a_missing_client_library(missing, monkeypatch):
+    import argparse
+    import sys
+
+    from entitynet.cli import CommandError
+    from sims.bench import e2e_bench
+
+    monkeypatch.setitem(sys.modules, missing, None)  # import fails as if not installed
+    with pytest.raises(CommandError, match=f"needs {missing}.*bench"):
+        e2e_bench.run(argparse.Namespace(quick=True, out=None, topology=None), lambda m: None)
