@@ -53,6 +53,9 @@ class SimConfig:
     measure_after: float = 2.0  # s: the start, when every entity appears at once before its first fix, is not sampled
     threshold: float | None = None  # the client core's drift threshold (None: its default)
     core: str = "fleet"  # the honest clients' core: "fleet" (vectorised, the same messages) or "player"
+    #: the honest clients' model: "network" (dead reckoning on the street network) or "periodic" (a standing
+    #: position every fix interval: the ablation `bench e2e` compares with)
+    client_model: str = "network"
 
     def __post_init__(self) -> None:
         problems = []
@@ -76,6 +79,8 @@ class SimConfig:
             problems.append(f"measure share must be within (0, 1], got {self.measure_share}")
         if self.core not in ("fleet", "player"):
             problems.append(f"core must be 'fleet' or 'player', got {self.core!r}")
+        if self.client_model not in ("network", "periodic"):
+            problems.append(f"client model must be 'network' or 'periodic', got {self.client_model!r}")
         if problems:
             raise ValueError("; ".join(problems))
 
@@ -94,7 +99,7 @@ class Sim:
         self.fleet = Fleet(self.world, config.connections, fix_interval=config.fix_interval,
                            gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold,
                            shards=shards, shard_at=shard_at,  # shards: `connections` to each, by where entities are
-                           core=config.core)
+                           core=config.core, model=config.client_model)
         #: how the viewers subscribe: "pvs", or "radius" (asked for, or the map has no PVS to subscribe by)
         self.subscribe_by = config.subscribe
         if cells_at is None:
