@@ -104,6 +104,9 @@ def clean(raw: RawMap, params: CleanParams | None = None) -> Network:
         layer = w.layer + (1 if w.bridge and w.layer == 0 else 0) - (1 if w.tunnel and w.layer == 0 else 0)
         ways.append((w.way_id, xy, ids, w.networks, layer))
     if not ways:
+        if raw.ways:  # there were ways, but all their points coincide: say that, not "no way of a network"
+            raise ValueError(f"the map has no streets: its {len(raw.ways)} ways of the modelled networks all have "
+                             "zero length (every point of each sits at one place)")
         raise ValueError("the map has no streets: no way of any modelled network (pedestrian, vehicle, tram)")
 
     # --- 2. node identity: shared OSM node ids join, except interior nodes shared across layers
