@@ -82,6 +82,7 @@ class Shell:
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
         self.published = 0
         self.publishers: list[Connection] = []
+        self._part_states: list[Any] = []  # what each part's task_status.started gave (see `counts`)
         self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
         self._frozen = sim.now  # the clock while paused
 
@@ -132,7 +133,7 @@ class Shell:
                 for c in pubs + views:
                     await clients.start(c.run)
                 for part in cfg.parts:
-                    await clients.start(part, address)
+                    self._part_states.append(await clients.start(part, address))
                 task_status.started(self.server)
                 stop = trio.Event()
                 clients.start_soon(self._signals, stop)
@@ -276,11 +277,28 @@ class Shell:
         self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
 
     # ---- output ----------------------------------------------------------------------------------------------
+    def part_counts(self) -> list[dict]:
+        """The counts of the parts whose started value has a `counts()` (the demo's transit proxy: its trams and
+        buses by mode and the stops they served). Why: the parts publish into the same server as the simulation,
+        so the viewers see their entities; a summary of only the simulation's truth showed no tram or bus."""
+        return [state.counts() for state in self._part_states if callable(getattr(state, "counts", None))]
+
+    def counts(self) -> dict:
+        """The simulation's counts with the parts' entities and stops served added in."""
+        c = self.sim.counts()
+        entities = dict(c["entities"])
+        for pc in self.part_counts():
+            for kind, n in pc.get("entities", {}).items():
+                entities[kind] = entities.get(kind, 0) + int(n)
+            c["stops_served"] += int(pc.get("stops_served", 0))
+        c["entities"] = dict(sorted(entities.items()))
+        return c
+
     def summary_line(self, wall_dt: float) -> str:
         """The live one-line summary: rates over the last `wall_dt` wall seconds (the window restarts here),
         collisions, viewer error and a progress bar when running faster than real time."""
         sim = self.sim
-        c = sim.counts()
+        c = self.counts()
         deliveries = sum(v.deliveries for v in sim.viewers)
         d_del = deliveries - self._window["deliveries"]
         d_pub = self._window["published"]
@@ -305,12 +323,16 @@ class Shell:
         sim = self.sim
         return (f"[{sim.ticks * sim.dt:6.0f}s] stopped after {sim.ticks * sim.dt:.0f} simulated s: "
                 f"{self.published} updates published, {sum(v.deliveries for v in sim.viewers)} deliveries to "
-                f"viewers, {sim.world.counters['stops_served']} bus and tram stops served")
+                f"viewers, {self.counts()['stops_served']} bus and tram stops served")
 
     def report(self) -> dict:
         """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps.
         Against an external server truth-vs-viewer is not measured (its entity ids cannot be mapped back)."""
         rep = self.sim.report()
+        parts = self.part_counts()
+        if parts:  # every entity the viewers saw, the parts' too; each part's own figures beside
+            c = self.counts()
+            rep["entities"], rep["stops_served"], rep["parts"] = c["entities"], c["stops_served"], parts
         lat = np.array(self.lateness) if self.lateness else np.zeros(1)
         rep["realtime"] = {
             "speed": self.config.speed, "ticks": self.sim.ticks,

@@ -40,6 +40,7 @@ from entitynet.protocol import Publish, Unpublish
 
 __all__ = ["MODELS", "FixRejected", "Player", "placer_for"]
 
+
 _make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
 
 
@@ -82,7 +83,6 @@ class Player:
         self.max_validity = max_validity
         self.off_network_timeout = off_network_timeout
         self.estimate = estimate
-        lookahead = LOOKAHEAD if lookahead is None else lookahead  # without a route `occupy` stops at a choice
         lateral = 2.0 * accuracy if lateral is None else float(lateral)
         self.net: NetView | None = netview(topo) if topo is not None else None
         self.route = Route(self.net, route, stops)
@@ -94,7 +94,8 @@ class Player:
         self.coverage: Coverage | None = None
         if self.net is not None:
             self.tracker = NetworkTracker(
-                self.net, et, self.route, body=self.body, margin=self.margin, lookahead=lookahead,
+                self.net, et, self.route, body=self.body, margin=self.margin,
+                lookahead=LOOKAHEAD if lookahead is None else lookahead,  # the way kept ahead
                 off_network=off_network, lateral=lateral, route_margin=route_margin,
                 filter_q=et.jerk_q if filter_q is None else float(filter_q),
                 filter_accel=et.accel if filter_accel is None else bool(filter_accel),
@@ -262,8 +263,8 @@ class Player:
             payload, ghost = encode_quantized(plane_model(self.model, self.etype, t, *self._plane(), area,
                                                           self.ghost, from_ghost, stop_at))
         self.rules.published()
-        self.ghost = ghost
-        occ = self.occupation = self.coverage.occupation(t, ghost, trk, self.estimate_xy) if trk else None
+        old, self.ghost = self.ghost, ghost
+        occ = self.occupation = self.coverage.placed(reason, t, ghost, old, trk, self.estimate_xy) if trk else None
         self.pub_t = t
         self.seq += 1
         self.published = True

@@ -136,9 +136,21 @@ class NetworkTracker:
         i = self.route.first.get(de, self.route.first.get((fix.index, -1)))
         if i is not None:
             de = self.route.edges[i]
-        self.path = Path(self.net, [de])
-        self.recent_s.clear()
         s = self.net.dist_of(de, fix.offset)
+        behind: list = []
+        if i is not None:
+            # the body (and its margin) reaches back past the edge's start: the route says which way it
+            # came, so the path starts far enough back for the occupation to list the cells under the aft
+            # (a tram re-placed just past a node otherwise publishes no cell for most of its length)
+            need, j = self.body + self.margin - s, i
+            while need > 0.0 and j > 0:
+                j -= 1
+                behind.append(self.route.edges[j])
+                need -= self.net.edge_len[self.route.edges[j][0]]
+            behind.reverse()
+        self.path = Path(self.net, behind + [de])
+        s += self.path.cum[len(behind)]
+        self.recent_s.clear()
         self.kf = Kinematic1D(s, t, r, q=self.filter_q, accel=self.filter_accel)
         self.pending = (-1, 0)
         self.dead_end = None
