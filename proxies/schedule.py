@@ -128,8 +128,9 @@ def read_schedule(path: str | FsPath, *, modes: tuple[str, ...] = ("tram", "bus"
     if bbox is not None:
         x0, y0, x1, y1 = bbox
         inside = {sid for sid, (_n, lon, lat) in stops.items() if x0 <= lon <= x1 and y0 <= lat <= y1}
-    trips = [t for t in timetable.trips.values()
-             if t.mode in modes and (inside is None or inside.intersection(t.stop_ids))]
+    # in the order of stop_times.txt (the local origin is the mean of their first stops: the same bits as before)
+    trips = [t for t in (timetable.trips.get(tid) for tid in feed.stop_times)
+             if t is not None and t.mode in modes and (inside is None or inside.intersection(t.stop_ids))]
     if not trips:
         raise ScheduleError("no trips of " + "/".join(modes) + (" inside the area" if bbox else ""))
     lon0 = float(np.mean([stops[t.stop_ids[0]][1] for t in trips]))

@@ -163,10 +163,9 @@ class Player:
              speed_accuracy: float = 0.5) -> list[Publish | Unpublish]:
         """One GPS fix (local metres, seconds). Returns the messages to send now (usually none).
 
-        `speed` (m/s) and `heading` (degrees clockwise from north: the course over ground) are the receiver's
-        Doppler velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per
-        axis (m/s). Optional: without them the speed comes from differences of positions, which at 5 m GPS
-        and 1 Hz is about ten times noisier."""
+        `speed` (m/s) and `heading` (degrees clockwise from north: the course over ground) are the receiver's Doppler
+        velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per axis (m/s).
+        Optional: without them the speed comes from differences of positions, about ten times noisier at 5 m, 1 Hz."""
         acc = self.accuracy if accuracy is None else float(accuracy)
         check_fix(x, y, t, acc, self.last_t)
         vel = velocity(speed, heading, speed_accuracy)
