@@ -54,6 +54,7 @@ class ShellConfig:
     http_port: int | None = None  # the in-process server also serves the browser viewer here (0: any free port)
     #: started with the server's address once the clients are connected (`await nursery.start(part, address)`)
     parts: tuple[Callable[..., Awaitable[object]], ...] = ()
+    behind_warn_every: float = 30.0  # wall seconds between two warnings that the run is behind real time
 
 
 class Shell:
@@ -72,6 +73,9 @@ class Shell:
         self.paused = False
         self.lateness: list[float] = []
         self.behind = 0
+        self._win_late: list[float] = []  # this summary window's tick lateness (s) and ticks behind
+        self._win_behind = 0
+        self._warned_at = -math.inf  # wall time of the last "behind real time" warning
         self.gap_s = 0.0
         self.outages = 0
         self.server = None
@@ -199,8 +203,13 @@ class Shell:
             late = t - due
             if sim.ticks >= cfg.warmup_ticks:
                 self.lateness.append(late)
+                self._win_late.append(late)
                 if late > period:
                     self.behind += 1
+                    self._win_behind += 1
+                    if t - self._warned_at >= cfg.behind_warn_every:
+                        self._warned_at = t
+                        self.say(self.behind_warning(late))
             down = sum(1 for c in pubs + views if not c.session.connected)
             if down:
                 self.gap_s += sim.dt
@@ -294,6 +303,24 @@ class Shell:
         c["entities"] = dict(sorted(entities.items()))
         return c
 
+    def behind_warning(self, late: float) -> str:
+        """The warning that the run does not keep real time, and what to do about it (said once, then every
+        `behind_warn_every` wall seconds while it lasts)."""
+        sim = self.sim
+        return (f"[{sim.ticks * sim.dt:6.0f}s] warning: behind real time (this tick {1000 * late:.0f} ms late, "
+                f"{self.behind} ticks behind so far): the figures still hold for simulated time, but the load "
+                "is not what the options asked for; try fewer viewers (--viewers), fewer entities, a smaller "
+                "--measure-share or a slower --speed")
+
+    def _lateness_text(self) -> str:
+        """This window's tick lateness for the summary line (and the window restarts)."""
+        late, behind = self._win_late, self._win_behind
+        self._win_late, self._win_behind = [], 0
+        if not late:
+            return "late n/a"
+        text = f"late p99 {1000 * float(np.percentile(late, 99)):.0f} ms"
+        return text + (f", {behind} of {len(late)} ticks behind" if behind else "")
+
     def summary_line(self, wall_dt: float) -> str:
         """The live one-line summary: rates over the last `wall_dt` wall seconds (the window restarts here),
         collisions, viewer error and a progress bar when running faster than real time."""
@@ -310,7 +337,7 @@ class Shell:
         line = (f"[{sim.ticks * sim.dt:6.0f}s] entities {sum(c['entities'].values())} ({ents}) | "
                 f"updates {d_pub / wall_dt:6.1f}/s | deliveries {d_del / wall_dt:7.1f}/s | collisions avoided "
                 f"{col['avoided']} accepted {col['accepted']} deleted {col['deleted']} | viewer error {err}, "
-                f"missed {100 * tv['missed_visibility']:.1f}%")
+                f"missed {100 * tv['missed_visibility']:.1f}% | {self._lateness_text()}")
         if self.config.cluster is not None:
             line += " | " + self.config.cluster.summary()
         if self.config.duration and self.config.speed > 1.0:

@@ -155,3 +155,52 @@ async def test_the_parts_trams_and_buses_are_in_the_summary_and_the_report(tmp_p
     assert "4 bus and tram stops served" in lines[-1]
     assert rep["entities"]["tram"] == 2 and rep["entities"]["bus"] == 1 and rep["stops_served"] == 4
     assert rep["parts"] == [ProxyLike().counts()]
+
+
+async def test_a_run_behind_real_time_says_so_once_per_interval_and_in_the_summary(tmp_path):
+    """A tick that takes longer than the tick period: the live summary shows the lateness, and a warning says
+    the run is behind and what to do, once and then again only after `behind_warn_every` wall seconds."""
+    import time as wall
+
+    from topology.artifact import save
+
+    topo = grid()
+    path = tmp_path / "grid.enttopo"
+    save(topo, path)
+    lines: list[str] = []
+    sim = Sim(topo, SimConfig(entities=3, viewers=1, connections=1, tick_hz=10.0, transit=False, start=0.0,
+                              subscribe="radius"))
+    step = sim.step
+
+    def slow_step():
+        wall.sleep(0.15)  # each tick 0.15 s of work at a 0.1 s period: behind from the start
+        return step()
+
+    sim.step = slow_step
+    shell = Shell(sim, ShellConfig(duration=2.5, speed=1.0, summary_every=0.5, artifact=path, keys=False,
+                                   behind_warn_every=1.5), lines.append)
+    with trio.fail_after(60):
+        rep = await shell.run()
+    warnings = [line for line in lines if "warning: behind real time" in line]
+    assert 1 <= len(warnings) <= 3, lines  # about 3.8 wall s of ticks: at most one warning per 1.5 s
+    assert "--viewers" in warnings[0] and "--speed" in warnings[0]
+    summaries = [line for line in lines if "collisions avoided" in line]
+    assert summaries and all("late p99" in line for line in summaries)
+    assert any("ticks behind" in line for line in summaries)
+    assert rep["realtime"]["ticks_behind"] > 0
+
+
+async def test_a_run_that_keeps_real_time_gives_no_warning(tmp_path):
+    from topology.artifact import save
+
+    topo = grid()
+    path = tmp_path / "grid.enttopo"
+    save(topo, path)
+    lines: list[str] = []
+    sim = Sim(topo, SimConfig(entities=3, viewers=1, connections=1, tick_hz=2.0, transit=False, start=0.0,
+                              subscribe="radius"))
+    shell = Shell(sim, ShellConfig(duration=2.0, speed=1.0, summary_every=0.5, artifact=path, keys=False,
+                                   warmup_ticks=1), lines.append)
+    with trio.fail_after(60):
+        await shell.run()
+    assert not [line for line in lines if "warning: behind" in line]
