@@ -163,13 +163,14 @@ class Player:
              speed_accuracy: float = 0.5) -> list[Publish | Unpublish]:
         """One GPS fix (local metres, seconds). Returns the messages to send now (usually none).
 
-        `speed` (m/s) and `heading` (degrees clockwise from north: the course over ground) are the receiver's
-        Doppler velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per
-        axis (m/s). Optional: without them the speed comes from differences of positions, which at 5 m GPS
-        and 1 Hz is about ten times noisier."""
+        `speed` (m/s) and `heading` (degrees clockwise from north: the course over ground) are the receiver's Doppler
+        velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per axis (m/s).
+        Optional: without them the speed comes from differences of positions, about ten times noisier at 5 m, 1 Hz."""
         acc = self.accuracy if accuracy is None else float(accuracy)
         check_fix(x, y, t, acc, self.last_t)
         vel = velocity(speed, heading, speed_accuracy)
+        if self.last_t is not None and self.rules.note_interval(t - self.last_t) and self.tracker is not None:
+            self.tracker.follow_cadence(self.rules.interval)
         self.last_t = t
         self.rules.halted = False
         self.measured = (x, y, t)
@@ -203,9 +204,8 @@ class Player:
         return [self._publish(t, reason)]
 
     def tick(self, now: float) -> list[Publish | Unpublish]:
-        """Time passes without a fix: re-publish when the validity period or the heartbeat runs out; `max_gap`
-        seconds after the last fix publish the guess standing where it got to then, and `lost_after` seconds
-        after it unpublish (a later fix publishes afresh)."""
+        """Time passes without a fix: re-publish when the validity or the heartbeat runs out; a gap limit after the
+        last fix (rules.py) publish the guess standing, `lost_after` after it unpublish (a fix publishes afresh)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
         if self.last_t is not None and now < self.last_t:
