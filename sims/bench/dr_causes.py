@@ -104,7 +104,7 @@ def causes(topo, dataset: str = "vehicles", lookahead: float | None = None, prog
         episodes += _episodes(topo, ent, lookahead, counts)
         by_type[ent.etype] += counts["samples"] - n0
         bad_by_type[ent.etype] += counts["bad"] - b0
-    total, bad = counts.pop("samples"), counts.pop("bad")
+    total, bad = counts.pop("samples", 0), counts.pop("bad", 0)
     episodes.sort(key=lambda e: -e["samples"])
     look = "default" if lookahead is None else lookahead
     return {"params": {"dataset": dataset, "entities": len(ents), "lookahead_m": look, "sample_s": SAMPLE},
