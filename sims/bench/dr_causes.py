@@ -18,7 +18,6 @@ as one. Deterministic: the datasets and the noise are `bench dr`'s.
 from __future__ import annotations
 
 import argparse
-import json
 import random
 import zlib
 from collections import Counter
@@ -28,6 +27,7 @@ import numpy as np
 from entitynet.client.player import Player
 from entitynet.protocol import Publish
 from sims.bench.dr_data import MAIN_PEDESTRIANS, SAMPLE, SHARED, Entity, pedestrians, vehicles
+from sims.bench.report import print_json
 from sims.mobility import gps
 
 SEED = 20260221  # bench dr's: the same entities in the same order
@@ -133,11 +133,7 @@ def main(argv: list[str] | None = None) -> None:
 
         topo, _ = bundled_topology(with_pvs=False)
     rep = causes(topo, a.dataset, a.lookahead, progress=lambda msg: None)
-    text = json.dumps(rep, indent=2)
-    if a.out:
-        with open(a.out, "w") as f:
-            f.write(text + "\n")
-    print(text)
+    print_json(rep, a.out)
 
 
 if __name__ == "__main__":

@@ -157,19 +157,24 @@ async def test_the_parts_trams_and_buses_are_in_the_summary_and_the_report(tmp_p
     assert rep["parts"] == [ProxyLike().counts()]
 
 
-async def test_a_run_behind_real_time_says_so_once_per_interval_and_in_the_summary(tmp_path):
-    """A tick that takes longer than the tick period: the live summary shows the lateness, and a warning says
-    the run is behind and what to do, once and then again only after `behind_warn_every` wall seconds."""
-    import time as wall
-
+def _small_run(tmp_path, tick_hz: float):
+    """Three entities and a viewer on the small grid, its artifact saved for the in-process server."""
     from topology.artifact import save
 
     topo = grid()
     path = tmp_path / "grid.enttopo"
     save(topo, path)
+    return Sim(topo, SimConfig(entities=3, viewers=1, connections=1, tick_hz=tick_hz, transit=False, start=0.0,
+                               subscribe="radius")), path
+
+
+async def test_a_run_behind_real_time_says_so_once_per_interval_and_in_the_summary(tmp_path):
+    """A tick that takes longer than the tick period: the live summary shows the lateness, and a warning says
+    the run is behind and what to do, once and then again only after `behind_warn_every` wall seconds."""
+    import time as wall
+
+    sim, path = _small_run(tmp_path, tick_hz=10.0)
     lines: list[str] = []
-    sim = Sim(topo, SimConfig(entities=3, viewers=1, connections=1, tick_hz=10.0, transit=False, start=0.0,
-                              subscribe="radius"))
     step = sim.step
 
     def slow_step():
@@ -191,14 +196,8 @@ async def test_a_run_behind_real_time_says_so_once_per_interval_and_in_the_summa
 
 
 async def test_a_run_that_keeps_real_time_gives_no_warning(tmp_path):
-    from topology.artifact import save
-
-    topo = grid()
-    path = tmp_path / "grid.enttopo"
-    save(topo, path)
+    sim, path = _small_run(tmp_path, tick_hz=2.0)
     lines: list[str] = []
-    sim = Sim(topo, SimConfig(entities=3, viewers=1, connections=1, tick_hz=2.0, transit=False, start=0.0,
-                              subscribe="radius"))
     shell = Shell(sim, ShellConfig(duration=2.0, speed=1.0, summary_every=0.5, artifact=path, keys=False,
                                    warmup_ticks=1), lines.append)
     with trio.fail_after(60):
