@@ -290,7 +290,14 @@ class Shell:
         """The counts of the parts whose started value has a `counts()` (the demo's transit proxy: its trams and
         buses by mode and the stops they served). Why: the parts publish into the same server as the simulation,
         so the viewers see their entities; a summary of only the simulation's truth showed no tram or bus."""
-        return [state.counts() for state in self._part_states if callable(getattr(state, "counts", None))]
+        out = []
+        for state in self._part_states:
+            counts = getattr(state, "counts", None)
+            pc = counts() if callable(counts) else None
+            # a part of another kind may have a counts() of another shape: only {"entities": {kind: n}, ...}
+            if isinstance(pc, dict) and isinstance(pc.get("entities", {}), dict):
+                out.append(pc)
+        return out
 
     def counts(self) -> dict:
         """The simulation's counts with the parts' entities and stops served added in."""
