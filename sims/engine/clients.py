@@ -24,15 +24,14 @@ import numpy as np
 from entitynet import protocol as P
 from entitynet.client import FixRejected, Player
 from entitynet.client.fleet import FleetCore
-from sims.engine.agents import Agent
-from sims.engine.world import World
+from sims.engine.source import Body, Truth
 from sims.mobility.gps import GPS_SIGMA, gps
 
 
 class Fleet:
     """Every live entity's `Player`; `step(now)` returns the messages to send, one list per connection."""
 
-    def __init__(self, world: World, connections: int = 4, *, fix_interval: float = 1.0,
+    def __init__(self, world: Truth, connections: int = 4, *, fix_interval: float = 1.0,
                  gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None,
                  shards: int = 1, shard_at: Callable[[float, float], int] | None = None, core: str = "fleet"):
         if core not in ("fleet", "player"):
@@ -67,7 +66,7 @@ class Fleet:
         home = self.home.get(entity)
         return entity % self.connections if home is None else home
 
-    def add(self, a: Agent) -> None:
+    def add(self, a: Body) -> None:
         """Give a new entity its client core. Scheduled vehicles get their route and stops a priori; the first fix
         is phased by id (golden ratio) so fixes spread over the interval instead of all landing on one tick."""
         route, stops = (), ()
