@@ -73,7 +73,9 @@ class Fleet:
         if a.stops or a.label:  # a scheduled vehicle knows its route and stops a priori
             route = a.route.edges
             stops = [a.route.edge_offset(st.s) for st in a.stops]
-        self.players[a.id] = Player(self.world.topo, a.id, a.name, accuracy=self.gps_sigma, route=route,
+        # a source may give an entity its own body (a SUMO tram's length as its parts): `etype` over the name
+        etype = getattr(a, "etype", None) or a.name
+        self.players[a.id] = Player(self.world.topo, a.id, etype, accuracy=self.gps_sigma, route=route,
                                     stops=stops, threshold=self.threshold)
         if self.shard_at is not None:  # by where it is: its first PUBLISH then needs no REDIRECT
             x, y = a.xy()

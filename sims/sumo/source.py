@@ -1,0 +1,281 @@
+"""A SUMO scenario as `Sim`'s mobility source, stepped in process through libsumo.
+
+Why libsumo and not TraCI: the same API without a socket round trip per call; at thousands of entities a
+step reads every position, and a TraCI call per entity per step would cost more than SUMO's own step.
+
+Each tick SUMO advances one step of the tick's length (its `--step-length` is set to the simulation's tick),
+then every vehicle and every walking person is read: position and heading, converted into our local
+coordinates (the net's own projection and offset, read from its `<location>`, to the artifact's CRS and
+origin). A vehicle becomes an entity by its vehicle class (passenger, taxi, delivery, truck...: car; bus,
+coach: bus; tram, rail_urban: tram; bicycle, scooter: cyclist); a person walking: pedestrian. A person riding
+a vehicle is not an entity of its own while it rides (the vehicle is); classes without an entity type here
+(subway, rail, ship) are skipped and counted. The scenario's time 0 (its `begin`) stands for the run's `start`
+(service-day seconds).
+
+A scenario whose network does not overlap the topology artifact is refused with a clear error before the
+first step.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+import warnings
+from collections import Counter
+from pathlib import Path
+from xml.etree.ElementTree import iterparse
+
+import numpy as np
+
+from sims.sumo import SumoError, missing
+from sims.sumo.truth import SumoEntity, SumoWorld
+
+#: SUMO vehicle class -> our entity type (None: not an entity here, counted as skipped)
+VCLASS_TYPES = {
+    "passenger": "car", "private": "car", "taxi": "car", "emergency": "car", "authority": "car", "army": "car",
+    "vip": "car", "delivery": "car", "truck": "car", "trailer": "car", "motorcycle": "car", "moped": "car",
+    "evehicle": "car", "custom1": "car", "custom2": "car", "hov": "car",
+    "bus": "bus", "coach": "bus",
+    "tram": "tram", "rail_urban": "tram",
+    "bicycle": "cyclist", "scooter": "cyclist",
+}
+#: the share of the network's bounding box that must lie on the artifact's map
+MIN_OVERLAP = 0.05
+
+
+class SumoSource:
+    """Steps a SUMO scenario (`sumocfg`) and keeps its truth (`world`, a `SumoWorld`); see the module docstring."""
+
+    def __init__(self, topo, sumocfg: str | Path, *, start: float, step: float, seed: int = 1,
+                 extra_args: tuple[str, ...] = ()):
+        err = missing()
+        if err:
+            raise SumoError(err)
+        cfg = Path(sumocfg)
+        if not cfg.is_file():
+            raise SumoError(f"{cfg}: no such SUMO configuration")
+        if not (0.001 <= step <= 10.0):
+            raise SumoError(f"the step must be within 1 ms..10 s, got {step!r}")
+        self.topo = topo
+        self.cfg = cfg
+        self.step_len = step
+        self.seed = seed
+        self.extra_args = tuple(extra_args)
+        self.world = SumoWorld(topo, start)
+        self.start_time = start
+        net = net_file(cfg)
+        self.to_local = local_converter(net, topo)
+        check_overlap(net, topo, self.to_local)
+        self.ids: dict[str, int] = {}  # SUMO id -> our entity id (live ones)
+        self.kind: dict[str, str] = {}  # SUMO id -> "v" (vehicle) or "p" (person)
+        self._next = 1
+        self.skipped: Counter = Counter()
+        self.sumo_s = 0.0  # wall seconds inside SUMO's own step
+        self.read_s = 0.0  # wall seconds reading positions
+        self.vehicle_s = 0.0  # simulated vehicle-seconds and person-seconds stepped
+        self.person_s = 0.0
+        self._t0 = 0.0
+        self._running = False
+
+    # ---- the source ------------------------------------------------------------------------------------------
+    def start(self) -> list[SumoEntity]:
+        """Load the scenario into libsumo (one per process), and the entities on the map at its begin."""
+        import libsumo
+
+        args = ["sumo", "-c", str(self.cfg), "--step-length", f"{self.step_len:g}", "--seed", str(self.seed),
+                "--no-step-log", "true", "--no-warnings", "true", *self.extra_args]
+        try:
+            libsumo.start(args)
+        except Exception as exc:  # libsumo raises its own TraCIException / FatalTraCIError
+            raise SumoError(f"SUMO cannot load {self.cfg}: {exc}") from None
+        self._running = True
+        self._t0 = libsumo.simulation.getTime()
+        return self._read()
+
+    def step(self, dt: float) -> list[SumoEntity]:
+        """One SUMO step of `dt` (the tick; SUMO steps in its own step length up to there); the new entities."""
+        import libsumo
+
+        if not dt > 0.0:
+            raise ValueError(f"a step must move time forward, got dt={dt!r}")
+        t = time.perf_counter()
+        libsumo.simulationStep(libsumo.simulation.getTime() + dt)
+        self.sumo_s += time.perf_counter() - t
+        return self._read()
+
+    def _read(self) -> list[SumoEntity]:
+        import libsumo
+
+        t0 = time.perf_counter()
+        sim = libsumo.simulation
+        w = self.world
+        vehicles = libsumo.vehicle.getIDList()
+        all_persons = libsumo.person.getIDList()
+        persons = [p for p in all_persons if not libsumo.person.getVehicle(p)]
+        now_ids = set(vehicles)
+        now_ids.update(persons)
+        gone = [s for s in self.ids if s not in now_ids]
+        riding = set(all_persons) if gone else set()
+        for sid in gone:
+            why = "boarded" if sid in riding else "arrived"
+            w.remove(self.ids.pop(sid), why)
+            self.kind.pop(sid, None)
+        new: list[SumoEntity] = []
+        live_v = [v for v in vehicles if v in self.ids or self._admit(v, "v", new)]
+        live_p = [p for p in persons if p in self.ids or self._admit(p, "p", new)]
+        pos = [libsumo.vehicle.getPosition(v) for v in live_v] + [libsumo.person.getPosition(p) for p in live_p]
+        ang = [libsumo.vehicle.getAngle(v) for v in live_v] + [libsumo.person.getAngle(p) for p in live_p]
+        if pos:
+            xy = self.to_local(np.asarray(pos, np.float64))
+            heading = np.radians(90.0 - np.asarray(ang, np.float64))  # SUMO: degrees clockwise from north
+            for sid, (x, y), h in zip(live_v + live_p, xy.tolist(), heading.tolist(), strict=True):
+                e = w.agents[self.ids[sid]]
+                e.x, e.y, e.heading = x, y, h
+        self.vehicle_s += len(live_v) * self.step_len
+        self.person_s += len(live_p) * self.step_len
+        w.counters["teleports"] += sim.getStartingTeleportNumber()
+        w.counters["collisions"] += sim.getCollidingVehiclesNumber()
+        w.counters["stops_served"] += sim.getStopEndingVehiclesNumber()
+        w.moved(self.start_time + sim.getTime() - self._t0)
+        self.read_s += time.perf_counter() - t0
+        return new
+
+    def _admit(self, sid: str, kind: str, new: list[SumoEntity]) -> bool:
+        """A SUMO vehicle or person seen for the first time: an entity of its type, or skipped and counted."""
+        import libsumo
+
+        if kind == "p":
+            name, length = "pedestrian", 0.0
+        else:
+            vclass = libsumo.vehicle.getVehicleClass(sid)
+            name = VCLASS_TYPES.get(vclass)
+            if name is None:
+                if sid not in self.kind:
+                    self.skipped[vclass] += 1
+                    self.kind[sid] = "skipped"
+                return False
+            length = libsumo.vehicle.getLength(sid)
+        e = SumoEntity(self.world, self._next, sid, name, length)
+        self._next += 1
+        self.ids[sid] = e.id
+        self.kind[sid] = kind
+        self.world.add(e)
+        new.append(e)
+        return True
+
+    def report(self) -> dict:
+        """SUMO's section of the report: the scenario, skipped classes, positions off our network, where SUMO's
+        time went (its own step, reading positions) and the simulated vehicle- and person-seconds."""
+        w = self.world
+        return {"source": "sumo", "sumocfg": str(self.cfg), "step_length_s": self.step_len,
+                "skipped_vehicle_classes": dict(self.skipped), "off_network": w.off_network(),
+                "teleports": w.counters["teleports"], "collisions": w.counters["collisions"],
+                "sumo_step_s": self.sumo_s, "read_s": self.read_s,
+                "vehicle_seconds": self.vehicle_s, "person_seconds": self.person_s}
+
+    def close(self) -> None:
+        """Close libsumo's simulation (so another can start in this process); safe to call twice."""
+        if self._running:
+            import libsumo
+
+            self._running = False
+            try:
+                libsumo.close()
+            except Exception:  # noqa: BLE001 - already closed by SUMO itself (end of the scenario)
+                pass
+
+
+# ---- the scenario's files ------------------------------------------------------------------------------------
+def net_file(cfg: Path) -> Path:
+    """The network file a .sumocfg names (relative to the configuration's folder); a SumoError when missing."""
+    try:
+        for _ev, el in iterparse(cfg):
+            if el.tag in ("net-file", "n"):
+                net = Path(el.get("value", ""))
+                net = net if net.is_absolute() else cfg.parent / net
+                if not net.is_file():
+                    raise SumoError(f"{cfg}: its network {net} does not exist")
+                return net
+    except SyntaxError as exc:  # ParseError
+        raise SumoError(f"{cfg}: not a SUMO configuration ({exc})") from None
+    raise SumoError(f"{cfg}: names no net-file")
+
+
+def net_location(net: Path) -> dict[str, str]:
+    """The network's `<location>` (netOffset, convBoundary, projParameter), read without loading the net."""
+    try:
+        for _ev, el in iterparse(net):
+            if el.tag == "location":
+                return dict(el.attrib)
+            if el.tag in ("edge", "junction"):
+                break
+    except SyntaxError as exc:
+        raise SumoError(f"{net}: not a SUMO network ({exc})") from None
+    raise SumoError(f"{net}: a SUMO network without <location> (cannot tell where it lies)")
+
+
+def _pair(text: str) -> tuple[float, ...]:
+    vals = tuple(float(v) for v in re.split(r"[ ,]+", text.strip()))
+    if not all(math.isfinite(v) for v in vals):
+        raise ValueError(text)
+    return vals
+
+
+def local_converter(net: Path, topo):
+    """SUMO x/y (n, 2) -> our local x/y: undo the net's offset, reproject from its projection to the artifact's
+    CRS, subtract the artifact's origin. A net without a projection ("!") is taken as already local."""
+    loc = net_location(net)
+    proj = loc.get("projParameter", "!").strip()
+    try:
+        ox, oy = _pair(loc.get("netOffset", "0,0"))[:2]
+    except ValueError:
+        raise SumoError(f"{net}: bad netOffset {loc.get('netOffset')!r}") from None
+    if proj in ("", "!"):
+        return lambda xy: np.asarray(xy, np.float64).reshape(-1, 2)
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            tf = Transformer.from_crs(CRS.from_user_input(proj), CRS.from_user_input(topo.meta["crs"]),
+                                      always_xy=True)
+    except CRSError as exc:
+        raise SumoError(f"{net}: its projection {proj!r} is unknown here ({exc})") from None
+    cx, cy = topo.meta["origin"]
+
+    def convert(xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        x, y = tf.transform(xy[:, 0] - ox, xy[:, 1] - oy)
+        return np.column_stack([np.asarray(x) - cx, np.asarray(y) - cy])
+
+    return convert
+
+
+def check_overlap(net: Path, topo, to_local) -> float:
+    """The share of the network's bounding box on the artifact's map; a SumoError that says where each lies
+    when it is below MIN_OVERLAP (a scenario of another city)."""
+    loc = net_location(net)
+    try:
+        x0, y0, x1, y1 = _pair(loc.get("convBoundary", ""))[:4]
+    except ValueError:
+        raise SumoError(f"{net}: bad convBoundary {loc.get('convBoundary')!r}") from None
+    corners = to_local(np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]]))
+    if not np.isfinite(corners).all():
+        raise SumoError(f"{net}: its boundary does not project into the map's CRS {topo.meta['crs']}")
+    a0, b0 = corners.min(axis=0)
+    a1, b1 = corners.max(axis=0)
+    m0, n0 = topo.node_xy.min(axis=0)
+    m1, n1 = topo.node_xy.max(axis=0)
+    ix = max(0.0, min(a1, m1) - max(a0, m0))
+    iy = max(0.0, min(b1, n1) - max(b0, n0))
+    area = max((a1 - a0) * (b1 - b0), 1e-9)
+    share = ix * iy / area
+    if share < MIN_OVERLAP:
+        raise SumoError(
+            f"the SUMO scenario's network ({net.name}: local x {a0:.0f}..{a1:.0f}, y {b0:.0f}..{b1:.0f} m in "
+            f"{topo.meta['crs']} around the map's origin) does not overlap the topology's map (x {m0:.0f}..{m1:.0f},"
+            f" y {n0:.0f}..{n1:.0f} m): {share:.0%} of it lies on the map. Use a scenario of this map's city (e.g. "
+            "`entitynet sumo scenario`) or build a topology of the scenario's city (`entitynet topology build`)")
+    return share
