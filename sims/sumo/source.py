@@ -77,10 +77,14 @@ class SumoSource:
         self.person_s = 0.0
         self._t0 = 0.0
         self._running = False
+        self.ended_at: float | None = None  # the world's time when SUMO ended the scenario (its end, or empty)
+        self._load()
 
-    # ---- the source ------------------------------------------------------------------------------------------
-    def start(self) -> list[SumoEntity]:
-        """Load the scenario into libsumo (one per process), and the entities on the map at its begin."""
+    def _load(self) -> None:
+        """Load the scenario into libsumo (one simulation per process) now, so that a scenario SUMO refuses is
+        a clear error before the run starts; closed at exit if nobody closes it."""
+        import atexit
+
         import libsumo
 
         args = ["sumo", "-c", str(self.cfg), "--step-length", f"{self.step_len:g}", "--seed", str(self.seed),
@@ -91,6 +95,11 @@ class SumoSource:
             raise SumoError(f"SUMO cannot load {self.cfg}: {exc}") from None
         self._running = True
         self._t0 = libsumo.simulation.getTime()
+        atexit.register(self.close)
+
+    # ---- the source ------------------------------------------------------------------------------------------
+    def start(self) -> list[SumoEntity]:
+        """The entities on the map at the scenario's begin."""
         return self._read()
 
     def step(self, dt: float) -> list[SumoEntity]:
@@ -99,10 +108,26 @@ class SumoSource:
 
         if not dt > 0.0:
             raise ValueError(f"a step must move time forward, got dt={dt!r}")
+        if self.ended_at is not None:
+            self.world.moved(self.world.now + dt)
+            return []
         t = time.perf_counter()
-        libsumo.simulationStep(libsumo.simulation.getTime() + dt)
+        try:
+            libsumo.simulationStep(libsumo.simulation.getTime() + dt)
+        except Exception as exc:  # noqa: BLE001 - SUMO ended the scenario (its end time): the map empties
+            self._end(f"{exc}".strip() or "ended")
+            self.world.moved(self.world.now + dt)
+            return []
         self.sumo_s += time.perf_counter() - t
         return self._read()
+
+    def _end(self, why: str) -> None:
+        """SUMO has ended: every entity leaves (their clients unpublish), the clock runs on without them."""
+        self.ended_at = self.world.now
+        self.end_reason = why
+        for sid in list(self.ids):
+            self.world.remove(self.ids.pop(sid), "scenario ended")
+        self.close()
 
     def _read(self) -> list[SumoEntity]:
         import libsumo
@@ -172,7 +197,7 @@ class SumoSource:
                 "skipped_vehicle_classes": dict(self.skipped), "off_network": w.off_network(),
                 "teleports": w.counters["teleports"], "collisions": w.counters["collisions"],
                 "sumo_step_s": self.sumo_s, "read_s": self.read_s,
-                "vehicle_seconds": self.vehicle_s, "person_seconds": self.person_s}
+                "vehicle_seconds": self.vehicle_s, "person_seconds": self.person_s, "ended_at": self.ended_at}
 
     def close(self) -> None:
         """Close libsumo's simulation (so another can start in this process); safe to call twice."""
