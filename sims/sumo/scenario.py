@@ -9,8 +9,8 @@ coordinates and a SUMO edge lies on our street (tests/sims/sumo/test_scenario.py
 Demand: cars and pedestrians on SUMO's randomTrips.py (seeded), and the bus and tram lines that netconvert
 reads from the map's route relations (`--ptline-output`, routes along OSM's ways, stops from OSM) turned into
 flows by ptlines2flows.py, each line's period set from the bundled GTFS feed (through the project's one GTFS
-reader, `sims.engine.schedule`): the number of its departures over the map in the scenario's window. A line
-the feed does not run in that window is left out; subway and train lines are left out (underground or not on
+reader, `sims.engine.schedule`): the number of its departures over the map in the scenario's window (at least
+the hour from its start). A line the feed does not run in that window is left out; subway and train lines are left out (underground or not on
 our networks). What is not there: GTFS trips' own timetables and shapes (SUMO's gtfs2pt.py maps them, at the
 cost of pandas and a routing pass per trip); the lines run at the feed's frequency on OSM's routes.
 
@@ -26,6 +26,7 @@ import os
 import shutil
 import subprocess
 import sys
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -174,7 +175,9 @@ def netconvert(home: str, topo, osm: Path, out: Path, bbox: tuple[float, float, 
     """SUMO's OSM import in the artifact's CRS, shifted by minus its origin (SUMO x/y = our local x/y)."""
     from pyproj import CRS
 
-    proj4 = CRS.from_user_input(topo.meta["crs"]).to_proj4()
+    with warnings.catch_warnings():  # "may lose projection information": a UTM zone's proj4 string is exact
+        warnings.simplefilter("ignore")
+        proj4 = CRS.from_user_input(topo.meta["crs"]).to_proj4()
     ox, oy = topo.meta["origin"]
     types = ",".join(str(Path(home) / "data" / "typemap" / t)
                      for t in ("osmNetconvert.typ.xml", "osmNetconvertPedestrians.typ.xml"))
@@ -202,7 +205,8 @@ def transit_flows(home: str, topo, config: ScenarioConfig, out: Path) -> bool:
     _tool(home, "ptlines2flows.py", "-n", "net.net.xml", "-l", "ptlines.xml", "-s", "stops.add.xml", "-o",
           "pt.rou.xml", "-b", "0", "-e", f"{dur:g}", "-p", "600", "--use-osm-routes", "--ignore-errors",
           "--seed", str(config.seed), "--multistart", cwd=out)
-    counts = gtfs_departures(topo, config.start, config.start + dur)
+    window = max(dur, 3600.0)  # a short scenario takes its frequencies from the hour it starts in
+    counts = gtfs_departures(topo, config.start, config.start + window)
     tree = ET.parse(out / "pt.rou.xml")
     root = tree.getroot()
     kept = 0
@@ -214,7 +218,7 @@ def transit_flows(home: str, topo, config: ScenarioConfig, out: Path) -> bool:
             root.remove(flow)
             continue
         # the feed's departures count both directions; ptlines2flows made one flow per direction
-        flow.set("period", f"{max(2.0 * dur / n, 60.0):.1f}")
+        flow.set("period", f"{max(2.0 * window / n, 60.0):.1f}")
         kept += 1
     tree.write(out / "pt.rou.xml", encoding="UTF-8", xml_declaration=True)
     return kept > 0

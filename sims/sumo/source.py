@@ -42,6 +42,8 @@ VCLASS_TYPES = {
 }
 #: the share of the network's bounding box that must lie on the artifact's map
 MIN_OVERLAP = 0.05
+#: the source whose scenario libsumo holds now (one per process)
+_loaded: SumoSource | None = None
 
 
 class SumoSource:
@@ -87,6 +89,9 @@ class SumoSource:
 
         import libsumo
 
+        global _loaded
+        if _loaded is not None:  # libsumo holds one simulation per process: the newer source replaces the older
+            _loaded.close()
         args = ["sumo", "-c", str(self.cfg), "--step-length", f"{self.step_len:g}", "--seed", str(self.seed),
                 "--no-step-log", "true", "--no-warnings", "true", *self.extra_args]
         try:
@@ -94,6 +99,7 @@ class SumoSource:
         except Exception as exc:  # libsumo raises its own TraCIException / FatalTraCIError
             raise SumoError(f"SUMO cannot load {self.cfg}: {exc}") from None
         self._running = True
+        _loaded = self
         self._t0 = libsumo.simulation.getTime()
         atexit.register(self.close)
 
@@ -201,10 +207,13 @@ class SumoSource:
 
     def close(self) -> None:
         """Close libsumo's simulation (so another can start in this process); safe to call twice."""
+        global _loaded
         if self._running:
             import libsumo
 
             self._running = False
+            if _loaded is self:
+                _loaded = None
             try:
                 libsumo.close()
             except Exception:  # noqa: BLE001 - already closed by SUMO itself (end of the scenario)
