@@ -10,9 +10,10 @@ Demand: cars and pedestrians on SUMO's randomTrips.py (seeded), and the bus and 
 reads from the map's route relations (`--ptline-output`, routes along OSM's ways, stops from OSM) turned into
 flows by ptlines2flows.py, each line's period set from the bundled GTFS feed (through the project's one GTFS
 reader, `sims.engine.schedule`): the number of its departures over the map in the scenario's window (at least
-the hour from its start). A line the feed does not run in that window is left out; subway and train lines are left out (underground or not on
-our networks). What is not there: GTFS trips' own timetables and shapes (SUMO's gtfs2pt.py maps them, at the
-cost of pandas and a routing pass per trip); the lines run at the feed's frequency on OSM's routes.
+the hour from its start). A line the feed does not run in that window is left out; subway and train lines are
+left out (underground, or not on our networks). What is not there: GTFS trips' own timetables and shapes
+(SUMO's gtfs2pt.py maps them, at the cost of pandas and a routing pass per trip); the lines run at the feed's
+frequency on OSM's routes.
 
 The scenario is cached under the user cache folder (`entitynet.topology_cache.cache_dir()/sumo`), keyed by the
 map, the artifact's projection, the SUMO version, this module's source and the parameters.

@@ -79,7 +79,8 @@ class SumoSource:
         self.person_s = 0.0
         self._t0 = 0.0
         self._running = False
-        self.ended_at: float | None = None  # the world's time when SUMO ended the scenario (its end, or empty)
+        self.ended_at: float | None = None  # the world's time when the scenario ended (its end time)
+        self.end_reason: str | None = None
         self._load()
 
     def _load(self) -> None:
@@ -106,6 +107,8 @@ class SumoSource:
     # ---- the source ------------------------------------------------------------------------------------------
     def start(self) -> list[SumoEntity]:
         """The entities on the map at the scenario's begin."""
+        if not self._running:
+            raise SumoError(f"the SUMO scenario {self.cfg} was closed (libsumo runs one scenario per process)")
         return self._read()
 
     def step(self, dt: float) -> list[SumoEntity]:
@@ -114,13 +117,20 @@ class SumoSource:
 
         if not dt > 0.0:
             raise ValueError(f"a step must move time forward, got dt={dt!r}")
+        if self.ended_at is None and not self._running:  # closed (or replaced by a newer source): never step
+            self._end("closed")  # the libsumo simulation that may be loaded now is another source's
         if self.ended_at is not None:
+            self.world.moved(self.world.now + dt)
+            return []
+        end = libsumo.simulation.getEndTime()  # -1: none given
+        if 0 <= end <= libsumo.simulation.getTime() + 1e-9:
+            self._end("the scenario's end time")
             self.world.moved(self.world.now + dt)
             return []
         t = time.perf_counter()
         try:
             libsumo.simulationStep(libsumo.simulation.getTime() + dt)
-        except Exception as exc:  # noqa: BLE001 - SUMO ended the scenario (its end time): the map empties
+        except Exception as exc:  # noqa: BLE001 - SUMO ended the scenario itself: the map empties
             self._end(f"{exc}".strip() or "ended")
             self.world.moved(self.world.now + dt)
             return []
@@ -203,7 +213,8 @@ class SumoSource:
                 "skipped_vehicle_classes": dict(self.skipped), "off_network": w.off_network(),
                 "teleports": w.counters["teleports"], "collisions": w.counters["collisions"],
                 "sumo_step_s": self.sumo_s, "read_s": self.read_s,
-                "vehicle_seconds": self.vehicle_s, "person_seconds": self.person_s, "ended_at": self.ended_at}
+                "vehicle_seconds": self.vehicle_s, "person_seconds": self.person_s, "ended_at": self.ended_at,
+                "end_reason": self.end_reason}
 
     def close(self) -> None:
         """Close libsumo's simulation (so another can start in this process); safe to call twice."""

@@ -14,7 +14,7 @@ from sims.sumo import SumoError
 from sims.sumo.scenario import ScenarioConfig, bundled_scenario, scenario_dir
 from sims.sumo.truth import place_points
 from tests.sims.sumo.conftest import NEEDS_SUMO
-from topology.networks import PEDESTRIAN, TRAM, VEHICLE
+from topology.networks import TRAM, VEHICLE
 
 
 def _lane_midpoints(net, vclass: str) -> np.ndarray:
