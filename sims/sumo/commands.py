@@ -14,6 +14,9 @@ from pathlib import Path
 
 from entitynet.cli import CommandError
 
+#: seconds SUMO runs the bundled scenario alone before the run (it starts with empty streets)
+BUNDLED_WARMUP_S = 300.0
+
 
 def _bbox(text: str) -> tuple[float, float, float, float]:
     try:
@@ -109,9 +112,12 @@ def sumo_source(topo, sumocfg: str | None, config, say):
     from sims.sumo.source import SumoSource
 
     try:
-        if sumocfg is None:
+        warmup = 0.0
+        if sumocfg is None:  # it starts empty: SUMO fills the streets alone first
             sumocfg = bundled_scenario(topo, ScenarioConfig(start=config.start, seed=config.seed), say)
-            say(f"SUMO scenario of the bundled map: {sumocfg}")
-        return SumoSource(topo, sumocfg, start=config.start, step=1.0 / config.tick_hz, seed=config.seed)
+            warmup = BUNDLED_WARMUP_S
+            say(f"SUMO scenario of the bundled map: {sumocfg} (SUMO runs {warmup:g} s alone first)")
+        return SumoSource(topo, sumocfg, start=config.start, step=1.0 / config.tick_hz, seed=config.seed,
+                          warmup=warmup)
     except SumoError as exc:
         raise CommandError(str(exc)) from None

@@ -10,7 +10,8 @@ origin). A vehicle becomes an entity by its vehicle class (passenger, taxi, deli
 coach: bus; tram, rail_urban: tram; bicycle, scooter: cyclist); a person walking: pedestrian. A person riding
 a vehicle is not an entity of its own while it rides (the vehicle is); classes without an entity type here
 (subway, rail, ship) are skipped and counted. The scenario's time 0 (its `begin`) stands for the run's `start`
-(service-day seconds).
+(service-day seconds); with a `warmup`, SUMO first runs that many seconds alone (a scenario that starts
+empty fills its streets) and the run's start is the end of the warm-up.
 
 A scenario whose network does not overlap the topology artifact is refused with a clear error before the
 first step.
@@ -50,7 +51,7 @@ class SumoSource:
     """Steps a SUMO scenario (`sumocfg`) and keeps its truth (`world`, a `SumoWorld`); see the module docstring."""
 
     def __init__(self, topo, sumocfg: str | Path, *, start: float, step: float, seed: int = 1,
-                 extra_args: tuple[str, ...] = ()):
+                 warmup: float = 0.0, extra_args: tuple[str, ...] = ()):
         err = missing()
         if err:
             raise SumoError(err)
@@ -59,6 +60,9 @@ class SumoSource:
             raise SumoError(f"{cfg}: no such SUMO configuration")
         if not (0.001 <= step <= 10.0):
             raise SumoError(f"the step must be within 1 ms..10 s, got {step!r}")
+        if not (0.0 <= warmup <= 86400.0):
+            raise SumoError(f"the warm-up must be within 0..86400 s, got {warmup!r}")
+        self.warmup = warmup
         self.topo = topo
         self.cfg = cfg
         self.step_len = step
@@ -101,6 +105,8 @@ class SumoSource:
             raise SumoError(f"SUMO cannot load {self.cfg}: {exc}") from None
         self._running = True
         _loaded = self
+        if self.warmup > 0:  # SUMO runs alone first, so the run starts on a filled map (its time 0 is after it)
+            libsumo.simulationStep(libsumo.simulation.getTime() + self.warmup)
         self._t0 = libsumo.simulation.getTime()
         atexit.register(self.close)
 
