@@ -10,8 +10,8 @@
   ours, with the same mix of cars and pedestrians (SUMO's scenario after a warm-up of SUMO alone, and our
   world with its counts): updates per entity-minute, viewer error, missed visibility.
 - `realtime`: how many SUMO entities (cars and walkers, topped up to a target) the honest clients keep in real
-  time over loopback sockets with the server in this process, and where a tick's time goes (SUMO's step,
-  reading positions, the rest: clients, server, viewers).
+  time over loopback sockets with the server in this process, and where a tick's time goes (this process's CPU
+  time per tick: SUMO's step, reading positions, the rest: clients, server, viewers, measure).
 """
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from sims.sumo.scenario import write_config
+
+#: walk routes routed once from the scenario's random walk trips (the top-up draws from these)
+WALK_ROUTES = 300
 
 
 class TopUp:
@@ -42,9 +45,15 @@ class TopUp:
                 libsumo.route.add(rid, r.get("edges").split())
                 self.routes.append(rid)
         if walkers and (folder / "peds.rou.xml").exists():
-            for w in ET.parse(folder / "peds.rou.xml").getroot().iter("walk"):
-                edges = (w.get("edges") or "").split() or [w.get("from"), w.get("to")]
-                if all(edges):
+            for w in list(ET.parse(folder / "peds.rou.xml").getroot().iter("walk"))[:WALK_ROUTES]:
+                edges = (w.get("edges") or "").split()
+                if not edges and w.get("from") and w.get("to"):  # a walk trip: SUMO routes it once here
+                    try:
+                        stages = libsumo.simulation.findIntermodalRoute(w.get("from"), w.get("to"))
+                    except libsumo.TraCIException:
+                        continue
+                    edges = list(stages[0].edges) if len(stages) == 1 else []
+                if edges:
                     self.walks.append(edges)
         self._n = 0
 
@@ -65,10 +74,7 @@ class TopUp:
                 edges = self.rng.choice(self.walks)
                 pid = f"tp{self._n}"
                 libsumo.person.add(pid, edges[0], 0.0)
-                if len(edges) > 1:
-                    libsumo.person.appendWalkingStage(pid, edges, -1.0)
-                else:
-                    libsumo.person.appendWaitingStage(pid, 30.0)
+                libsumo.person.appendWalkingStage(pid, edges, 0.5 * libsumo.lane.getLength(f"{edges[-1]}_0"))
 
 
 def _cfg_without_demand(folder: Path, duration: float) -> Path:
@@ -211,18 +217,22 @@ def realtime(topo, artifact: Path, folder: Path, entities: int, seconds: float, 
         sim = Sim(topo, cfg, source=src)
         shell = Shell(sim, ShellConfig(duration=seconds + warm_ticks * sim.dt, speed=1.0, summary_every=1e9,
                                        artifact=artifact, keys=False, warmup_ticks=warm_ticks), lambda m: None)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         rep = trio.run(shell.run)
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         src.close()
     rt = rep["realtime"]
+    ticks = max(rt["ticks"], 1)
     ok = rt["tick_lateness_p99_ms"] < 1000.0 * sim.dt and rt["ticks_behind"] == 0
     m = rep["mobility"]
     return {"entities": entities, "on_map": sum(rep["entities"].values()), "by_type": rep["entities"],
             "viewers": viewers, "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"], "ticks_behind": rt["ticks_behind"],
-            "ok": ok, "wall_s": wall, "sumo_step_share": m["sumo_step_s"] / wall, "sumo_read_share": m["read_s"] / wall,
-            "off_network": m["off_network"]}
+            "ok": ok, "wall_s": wall, "cpu_s": cpu, "cpu_share_of_wall": cpu / wall,
+            "ms_per_tick": {"cpu_all": 1000 * cpu / ticks, "sumo_step": 1000 * m["sumo_step_s"] / ticks,
+                            "sumo_read": 1000 * m["read_s"] / ticks,
+                            "rest": 1000 * (cpu - m["sumo_step_s"] - m["read_s"]) / ticks},
+            "sumo_step_share": m["sumo_step_s"] / cpu if cpu else None, "off_network": m["off_network"]}
 
 
 def bench_rows(topo, artifact: Path, schedule, quick: bool, progress) -> dict:
@@ -256,7 +266,7 @@ def bench_rows(topo, artifact: Path, schedule, quick: bool, progress) -> dict:
         trial = realtime(topo, artifact, folder, n, 6.0 if quick else 20.0, max(10, min(n // 10, 100)))
         trials.append(trial)
         progress(f"  SUMO real time, {n} entities: lateness p99 {trial['tick_lateness_p99_ms']:.0f} ms, behind "
-                 f"{trial['ticks_behind']}, SUMO step {100 * trial['sumo_step_share']:.0f}% of the wall time -> "
+                 f"{trial['ticks_behind']}, SUMO step {100 * trial['sumo_step_share']:.0f}% of the CPU time -> "
                  f"{'ok' if trial['ok'] else 'not real time'}")
         if not trial["ok"]:
             break
@@ -264,3 +274,52 @@ def bench_rows(topo, artifact: Path, schedule, quick: bool, progress) -> dict:
     out["realtime_trials"] = trials
     out["entities_realtime_max"] = max((t["entities"] for t in trials if t["ok"]), default=0)
     return out
+
+
+def client_split(topo, folder: Path, entities: int, seconds: float, car_share: float = 0.3) -> dict:
+    """Where a tick goes at `entities` SUMO cars and walkers (topped up) with only the honest clients behind
+    them (no server, no viewers): CPU ms per 0.5 s tick of SUMO's step, reading positions, and the clients'
+    fleet step (GPS fixes, client cores, messages). Their sum against the tick says whether SUMO and our clients
+    alone keep real time at that size on one core."""
+    import libsumo
+
+    from sims.engine.sim import Sim, SimConfig
+    from sims.sumo.source import SumoSource
+
+    cfg = SimConfig(entities=0, viewers=0, seed=11, transit=False)
+    cars = round(entities * car_share)
+    src = SumoSource(topo, _cfg_without_demand(folder, 1e6), start=cfg.start, step=1.0 / cfg.tick_hz, seed=11)
+    top = TopUp(folder, cars, entities - cars, seed=11)
+    spent = {"sumo_step": 0.0, "sumo_read": 0.0, "clients": 0.0}
+    on_map = []
+    try:
+        for _ in range(60):  # fill the map (insertions queue at the fringe)
+            top()
+            libsumo.simulationStep(libsumo.simulation.getTime() + 0.5)
+        sim = Sim(topo, cfg, source=src)
+        sim.start()
+        for _ in range(int(10 / sim.dt)):  # the first fixes' placements (shapely) are the start, not the steady state
+            top()
+            sim.step()
+        n = int(seconds / sim.dt)
+        for _ in range(n):
+            top()
+            t = time.process_time()
+            libsumo.simulationStep(libsumo.simulation.getTime() + sim.dt)
+            t1 = time.process_time()
+            for e in src._read():
+                sim.fleet.add(e)
+            t2 = time.process_time()
+            sim.fleet.step(src.world.now)
+            t3 = time.process_time()
+            spent["sumo_step"] += t1 - t
+            spent["sumo_read"] += t2 - t1
+            spent["clients"] += t3 - t2
+            on_map.append(len(src.world.agents))
+    finally:
+        src.close()
+    ms = {k: 1000 * v / n for k, v in spent.items()}
+    total = sum(ms.values())
+    return {"entities": entities, "mean_on_map": sum(on_map) / len(on_map), "by_type": dict(src.world.by_type()),
+            "ms_per_tick": ms, "total_ms_per_tick": total, "tick_ms": 1000 * sim.dt,
+            "realtime_on_one_core": total < 1000 * sim.dt}

@@ -4,7 +4,8 @@ Why libsumo and not TraCI: the same API without a socket round trip per call; at
 step reads every position, and a TraCI call per entity per step would cost more than SUMO's own step.
 
 Each tick SUMO advances one step of the tick's length (its `--step-length` is set to the simulation's tick),
-then every vehicle and every walking person is read: position and heading, converted into our local
+then every vehicle and every walking person is read (through libsumo's subscriptions: one call for all of
+them, not a call per entity and value): position and heading, converted into our local
 coordinates (the net's own projection and offset, read from its `<location>`, to the artifact's CRS and
 origin). A vehicle becomes an entity by its vehicle class (passenger, taxi, delivery, truck...: car; bus,
 coach: bus; tram, rail_urban: tram; bicycle, scooter: cyclist); a person walking: pedestrian. A person riding
@@ -83,6 +84,7 @@ class SumoSource:
         self.person_s = 0.0
         self._t0 = 0.0
         self._running = False
+        self._subscribed = False  # whether the first read has subscribed to everyone on the map
         self.ended_at: float | None = None  # the world's time when the scenario ended (its end time)
         self.end_reason: str | None = None
         self._load()
@@ -151,33 +153,53 @@ class SumoSource:
             self.world.remove(self.ids.pop(sid), "scenario ended")
         self.close()
 
+    def _subscribe(self) -> None:
+        """Subscribe to the position, heading (and a person's vehicle) of every vehicle and person that set off
+        since the last read (all of them on the first read): one call per step then reads them all. A person
+        SUMO has loaded but who has not set off yet (waiting for its departure) is not on the map."""
+        import libsumo
+
+        sim = libsumo.simulation
+        if self._subscribed:
+            vehicles, persons = sim.getDepartedIDList(), sim.getDepartedPersonIDList()
+        else:
+            self._subscribed = True
+            vehicles = libsumo.vehicle.getIDList()
+            persons = [p for p in libsumo.person.getIDList()
+                       if libsumo.person.getStage(p, 0).type != libsumo.STAGE_WAITING_FOR_DEPART]
+        for v in vehicles:
+            libsumo.vehicle.subscribe(v, (libsumo.VAR_POSITION, libsumo.VAR_ANGLE))
+        for p in persons:
+            libsumo.person.subscribe(p, (libsumo.VAR_POSITION, libsumo.VAR_ANGLE, libsumo.VAR_VEHICLE))
+
     def _read(self) -> list[SumoEntity]:
         import libsumo
 
         t0 = time.perf_counter()
         sim = libsumo.simulation
         w = self.world
-        vehicles = libsumo.vehicle.getIDList()
-        all_persons = libsumo.person.getIDList()
-        persons = [p for p in all_persons if not libsumo.person.getVehicle(p)]
-        now_ids = set(vehicles)
-        now_ids.update(persons)
-        gone = [s for s in self.ids if s not in now_ids]
-        riding = set(all_persons) if gone else set()
+        self._subscribe()
+        pos_k, ang_k, veh_k = libsumo.VAR_POSITION, libsumo.VAR_ANGLE, libsumo.VAR_VEHICLE
+        # libsumo keeps results of vehicles and persons gone (and of a closed simulation's): only the live ones
+        vids, pids = set(libsumo.vehicle.getIDList()), set(libsumo.person.getIDList())
+        vres = {k: r for k, r in libsumo.vehicle.getAllSubscriptionResults().items() if k in vids}
+        pres = {k: r for k, r in libsumo.person.getAllSubscriptionResults().items() if k in pids}
+        walking = {p: r for p, r in pres.items() if not r.get(veh_k)}
+        gone = [s for s in self.ids if s not in vres and s not in walking]
         for sid in gone:
-            why = "boarded" if sid in riding else "arrived"
-            w.remove(self.ids.pop(sid), why)
+            w.remove(self.ids.pop(sid), "boarded" if sid in pres else "arrived")
             self.kind.pop(sid, None)
         new: list[SumoEntity] = []
-        live_v = [v for v in vehicles if v in self.ids or self._admit(v, "v", new)]
-        live_p = [p for p in persons if p in self.ids or self._admit(p, "p", new)]
-        pos = [libsumo.vehicle.getPosition(v) for v in live_v] + [libsumo.person.getPosition(p) for p in live_p]
-        ang = [libsumo.vehicle.getAngle(v) for v in live_v] + [libsumo.person.getAngle(p) for p in live_p]
-        if pos:
-            xy = self.to_local(np.asarray(pos, np.float64))
-            heading = np.radians(90.0 - np.asarray(ang, np.float64))  # SUMO: degrees clockwise from north
+        live_v = [v for v in vres if v in self.ids or self._admit(v, "v", new)]
+        live_p = [p for p in walking if p in self.ids or self._admit(p, "p", new)]
+        rows = [vres[v] for v in live_v] + [walking[p] for p in live_p]
+        if rows:
+            xy = self.to_local(np.array([r[pos_k] for r in rows], np.float64))
+            # SUMO: degrees clockwise from north
+            heading = np.radians(90.0 - np.array([r[ang_k] for r in rows], np.float64))
+            agents, ids = w.agents, self.ids
             for sid, (x, y), h in zip(live_v + live_p, xy.tolist(), heading.tolist(), strict=True):
-                e = w.agents[self.ids[sid]]
+                e = agents[ids[sid]]
                 e.x, e.y, e.heading = x, y, h
         self.vehicle_s += len(live_v) * self.step_len
         self.person_s += len(live_p) * self.step_len
