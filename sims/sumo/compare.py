@@ -127,12 +127,54 @@ def step_cost(topo, folder: Path, cars: int, seconds: float, dt: float = 0.5, sl
                     vsec["ours"] += len(ours.world.agents) * dt
     finally:
         src.close()
+    split = _our_split(ours, dt, per_slice)
     us = {k: 1e6 * spent[k] / vsec[k] if vsec[k] else None for k in ("sumo", "ours")}
     return {"cars": cars, "simulated_s_each": slices * per_slice * dt, "step_s": dt,
             "mean_cars": {k: vsec[k] / (slices * per_slice * dt) for k in vsec},
             "cpu_us_per_vehicle_s": us, "sumo_read_us_per_vehicle_s": 1e6 * spent["sumo_read"] / vsec["sumo"]
             if vsec["sumo"] else None,
-            "ours_vs_sumo": us["ours"] / us["sumo"] if us["sumo"] and us["ours"] else None}
+            "ours_vs_sumo": us["ours"] / us["sumo"] if us["sumo"] and us["ours"] else None,
+            "ours_split_share": split}
+
+
+def _our_split(ours, dt: float, ticks: int) -> dict:
+    """Where our world's step goes, as shares of its time over `ticks` more steps: the body index (every body
+    on its edges), each entity's decision (leader search, junction requests, IDM), the moves and timeouts after
+    it, and the population's replacements (`decide_leader` and `decide_crossing` are parts of `decide`). Instance
+    wrappers with a clock each (they add a little to each part)."""
+    w = ours.world
+    acc = dict.fromkeys(("body_index", "decide", "after_move", "population", "decide_leader", "decide_crossing"),
+                        0.0)
+
+    def wrap(obj, name: str, key: str) -> None:
+        f = getattr(obj, name)
+
+        def timed(*a, **k):
+            t = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[key] += time.process_time() - t
+
+        setattr(obj, name, timed)
+
+    wrap(w, "_body_index", "body_index")
+    wrap(w, "_decide", "decide")
+    wrap(w, "_after_move", "after_move")
+    wrap(ours.population, "step", "population")
+    wrap(w, "_leader", "decide_leader")  # inside `decide`
+    wrap(w, "_crossing", "decide_crossing")  # inside `decide`
+    t0 = time.process_time()
+    for _ in range(ticks):
+        ours.step(dt)
+    total = time.process_time() - t0
+    for obj, name in ((w, "_body_index"), (w, "_decide"), (w, "_after_move"), (ours.population, "step"),
+                      (w, "_leader"), (w, "_crossing")):
+        delattr(obj, name)
+    out = {k: v / total for k, v in acc.items()} if total > 0 else dict(acc)
+    top = ("body_index", "decide", "after_move", "population")
+    out["rest"] = 1.0 - sum(out[k] for k in top) if total > 0 else None
+    return out
 
 
 def _drive(sim, seconds: float, warmup: float) -> dict:
