@@ -268,7 +268,10 @@ class World:
             line = sn - JUNCTION_RADIUS
             if line > ahead:  # beyond sight, or behind this lane's leader
                 return None
-            if self.crossings.request(n, a.id, self._movement(a, sn, k), now):
+            move = a.movements.get(k)  # the same every time it asks (its route and lane do not change)
+            if move is None:
+                move = a.movements[k] = self._movement(a, sn, k)
+            if self.crossings.request(n, a.id, move, now):
                 a.held.add(n)
                 continue
             return Obstacle(max(line, a.s), 0.0, "crossing", n, s0=0.5)
