@@ -279,8 +279,9 @@ def realtime(topo, artifact: Path, folder: Path, entities: int, seconds: float, 
 
 def bench_rows(topo, artifact: Path, schedule, quick: bool, progress) -> dict:
     """The SUMO rows of `entitynet bench sim`: step cost per vehicle-second (SUMO against ours, same cars, same
-    map), the end-to-end figures on SUMO's motion and ours, and the real-time ladder of SUMO entities (the
-    last one step up from 1,000 entities, doubling, until a trial fails; one small trial with `--quick`).
+    map), the end-to-end figures on SUMO's motion and ours, the real-time ladder of SUMO entities (from 250,
+    doubling, until a trial fails; one small trial with `--quick`) and where a tick goes with SUMO and the
+    clients alone at 10,000 entities (`client_split`; 500 with `--quick`).
     Without the [sumo] extra: a note saying why, and no figures."""
     from sims.sumo import SumoError, missing
     from sims.sumo.scenario import bundled_scenario
@@ -303,9 +304,9 @@ def bench_rows(topo, artifact: Path, schedule, quick: bool, progress) -> dict:
     out["end_to_end"] = end_to_end(topo, cfg, 15.0 if quick else 60.0, 8 if quick else 24,
                                    60.0 if quick else 300.0, schedule)
     trials = []
-    n = 200 if quick else 1000
-    while n <= (200 if quick else 16000):
-        trial = realtime(topo, artifact, folder, n, 6.0 if quick else 20.0, max(10, min(n // 10, 100)))
+    n = 200 if quick else 250
+    while n <= (200 if quick else 16000):  # viewers n / 10, as our world's ladder
+        trial = realtime(topo, artifact, folder, n, 6.0 if quick else 20.0, max(10, n // 10))
         trials.append(trial)
         progress(f"  SUMO real time, {n} entities: lateness p99 {trial['tick_lateness_p99_ms']:.0f} ms, behind "
                  f"{trial['ticks_behind']}, SUMO step {100 * trial['sumo_step_share']:.0f}% of the CPU time -> "
@@ -315,6 +316,9 @@ def bench_rows(topo, artifact: Path, schedule, quick: bool, progress) -> dict:
         n *= 2
     out["realtime_trials"] = trials
     out["entities_realtime_max"] = max((t["entities"] for t in trials if t["ok"]), default=0)
+    big = 500 if quick else 10000
+    progress(f"SUMO and the honest clients alone: where a tick goes at {big} entities")
+    out["client_split"] = client_split(topo, folder, big, 5.0 if quick else 20.0)
     return out
 
 
