@@ -103,9 +103,8 @@ def step_cost(topo, folder: Path, cars: int, seconds: float, dt: float = 0.5, sl
     warm = int(30.0 / dt)  # fill SUMO's map first (insertions queue at the fringe) and let ours settle
     try:
         src.start()
+        src.fast_forward(warm * dt, top)
         for _ in range(warm):
-            top()
-            libsumo.simulationStep(libsumo.simulation.getTime() + dt)
             ours.step(dt)
         per_slice = max(int(seconds / dt / slices), 1)
         for k in range(slices * 2):
@@ -250,12 +249,9 @@ def realtime(topo, artifact: Path, folder: Path, entities: int, seconds: float, 
         return orig(dt)
 
     src.step = step  # type: ignore[method-assign]
-    import libsumo
 
     try:
-        for _ in range(40):  # fill the map before the clock starts (insertions queue at the fringe)
-            top()
-            libsumo.simulationStep(libsumo.simulation.getTime() + 0.5)
+        src.fast_forward(20.0, top)  # fill the map before the clock starts (insertions queue at the fringe)
         sim = Sim(topo, cfg, source=src)
         shell = Shell(sim, ShellConfig(duration=seconds + warm_ticks * sim.dt, speed=1.0, summary_every=1e9,
                                        artifact=artifact, keys=False, warmup_ticks=warm_ticks), lambda m: None)
@@ -339,9 +335,7 @@ def client_split(topo, folder: Path, entities: int, seconds: float, car_share: f
     spent = {"sumo_step": 0.0, "sumo_read": 0.0, "clients": 0.0}
     on_map = []
     try:
-        for _ in range(60):  # fill the map (insertions queue at the fringe)
-            top()
-            libsumo.simulationStep(libsumo.simulation.getTime() + 0.5)
+        src.fast_forward(30.0, top)  # fill the map (insertions queue at the fringe)
         sim = Sim(topo, cfg, source=src)
         sim.start()
         for _ in range(int(10 / sim.dt)):  # the first fixes' placements (shapely) are the start, not the steady state

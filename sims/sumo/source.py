@@ -85,6 +85,7 @@ class SumoSource:
         self._t0 = 0.0
         self._running = False
         self._subscribed = False  # whether the first read has subscribed to everyone on the map
+        self._first: list[SumoEntity] = []  # the entities on the map at the load, handed over by `start`
         self.ended_at: float | None = None  # the world's time when the scenario ended (its end time)
         self.end_reason: str | None = None
         self._load()
@@ -107,17 +108,35 @@ class SumoSource:
             raise SumoError(f"SUMO cannot load {self.cfg}: {exc}") from None
         self._running = True
         _loaded = self
-        if self.warmup > 0:  # SUMO runs alone first, so the run starts on a filled map (its time 0 is after it)
-            libsumo.simulationStep(libsumo.simulation.getTime() + self.warmup)
         self._t0 = libsumo.simulation.getTime()
         atexit.register(self.close)
+        if self.warmup > 0:  # SUMO runs alone first, so the run starts on a filled map (its time 0 is after it)
+            self.fast_forward(self.warmup)
+        self._first = self._read()  # who is on the map now (the CLI's first line counts them)
+
+    def fast_forward(self, seconds: float, each_step=None) -> None:
+        """SUMO alone for `seconds`, without reading positions (what sets off is subscribed to as it goes), and
+        the world's clock does not move: to fill a scenario's streets before a run. `each_step()` runs before
+        each SUMO step (a demand top-up)."""
+        import libsumo
+
+        sim = libsumo.simulation
+        t0 = sim.getTime()
+        end = t0 + seconds
+        while sim.getTime() + 1e-9 < end:
+            if each_step is not None:
+                each_step()
+            libsumo.simulationStep(min(sim.getTime() + self.step_len, end))
+            self._subscribe()
+        self._t0 += sim.getTime() - t0
 
     # ---- the source ------------------------------------------------------------------------------------------
     def start(self) -> list[SumoEntity]:
         """The entities on the map at the scenario's begin."""
         if not self._running:
             raise SumoError(f"the SUMO scenario {self.cfg} was closed (libsumo runs one scenario per process)")
-        return self._read()
+        first, self._first = self._first, []
+        return first
 
     def step(self, dt: float) -> list[SumoEntity]:
         """One SUMO step of `dt` (the tick; SUMO steps in its own step length up to there); the new entities."""
