@@ -336,6 +336,18 @@ def local_converter(net: Path, topo):
     except CRSError as exc:
         raise SumoError(f"{net}: its projection {proj!r} is unknown here ({exc})") from None
     cx, cy = topo.meta["origin"]
+    # the same projection as ours (the bundled scenario's): a translation, checked over the map's extent
+    lo, hi = topo.node_xy.min(axis=0) - 1000.0, topo.node_xy.max(axis=0) + 1000.0
+    probe = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [lo[0], hi[1]], [hi[0], hi[1]], (lo + hi) / 2])
+    px, py = tf.transform(probe[:, 0] + cx, probe[:, 1] + cy)
+    shift = np.column_stack([np.asarray(px) - cx, np.asarray(py) - cy]) - probe
+    if np.isfinite(shift).all() and np.abs(shift - shift[0]).max() < 1e-3:
+        d = np.array([shift[0, 0] - ox - cx, shift[0, 1] - oy - cy])  # local = sumo - offset + shift - origin
+
+        def translate(xy: np.ndarray) -> np.ndarray:
+            return np.asarray(xy, np.float64).reshape(-1, 2) + d
+
+        return translate
 
     def convert(xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
