@@ -26,7 +26,7 @@ def test_step_cost_compares_the_same_number_of_cars(helsinki, small_scenario):
 
 @NEEDS_SUMO
 def test_end_to_end_runs_both_motions_with_the_same_mix(helsinki, small_scenario):
-    r = compare.end_to_end(helsinki, small_scenario, 10.0, 3, 30.0)
+    r = compare.end_to_end(helsinki, small_scenario, 8.0, 3, 20.0)
     s, o = r["sumo"], r["ours"]
     assert s["mean_entities"] > 0 and o["mean_entities"] > 0
     assert s["entities"].get("car", 0) + s["entities"].get("pedestrian", 0) > 0

@@ -44,7 +44,7 @@ def test_a_sumo_run_is_reproducible_and_measured_against_the_truth(helsinki, sma
         src = SumoSource(helsinki, small_scenario, start=cfg.start, step=1.0 / cfg.tick_hz, seed=cfg.seed)
         try:
             sim = Sim(helsinki, cfg, source=src)
-            rep = run_local(sim, 60.0)
+            rep = run_local(sim, 40.0)
             kinds = {a.name for a in sim.world.agents.values()}
             tram = [a for a in sim.world.agents.values() if a.name == "tram"]
         finally:
@@ -66,14 +66,16 @@ def test_a_sumo_run_is_reproducible_and_measured_against_the_truth(helsinki, sma
 @NEEDS_SUMO
 def test_the_scenario_ending_empties_the_map_and_the_clock_runs_on(helsinki, small_scenario):
     cfg = SimConfig(entities=0, viewers=2, seed=1, transit=False)
-    src = SumoSource(helsinki, small_scenario, start=cfg.start, step=1.0, seed=1)
+    src = SumoSource(helsinki, small_scenario, start=cfg.start, step=0.5, seed=1, warmup=100.0)
     try:
         sim = Sim(helsinki, cfg, source=src)
-        rep = run_local(sim, 130.0)  # the scenario is 120 s long
+        assert sim.now == cfg.start  # the warm-up is SUMO's alone: the run starts at its start
+        rep = run_local(sim, 30.0)  # the scenario is 120 s long: it ends 20 s into the run
     finally:
         src.close()
-    assert rep["mobility"]["ended_at"] is not None and sum(rep["entities"].values()) == 0
-    assert rep["sim_time_s"] == 130.0 and rep["clients"]["unpublished"] > 0
+    assert rep["mobility"]["ended_at"] == pytest.approx(cfg.start + 20.0, abs=0.6)
+    assert sum(rep["entities"].values()) == 0 and rep["mobility"]["end_reason"] == "the scenario's end time"
+    assert rep["sim_time_s"] == 30.0 and rep["clients"]["unpublished"] > 0
     with pytest.raises(ValueError, match="forward"):
         src.step(0.0)
 
