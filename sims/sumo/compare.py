@@ -363,3 +363,38 @@ def client_split(topo, folder: Path, entities: int, seconds: float, car_share: f
     return {"entities": entities, "mean_on_map": sum(on_map) / len(on_map), "by_type": dict(src.world.by_type()),
             "ms_per_tick": ms, "total_ms_per_tick": total, "tick_ms": 1000 * sim.dt,
             "realtime_on_one_core": total < 1000 * sim.dt}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m sims.sumo.compare {step-cost,realtime,split} N [SECONDS] [--repeat K]`: one figure of this
+    module on the bundled map and its cached SUMO scenario, as JSON lines (for repeated runs and sizes the bench
+    does not run)."""
+    import argparse
+    import json
+
+    from entitynet.topology_cache import bundled_topology
+    from sims.sumo.scenario import bundled_scenario
+
+    p = argparse.ArgumentParser(prog="python -m sims.sumo.compare")
+    p.add_argument("what", choices=("step-cost", "realtime", "split"))
+    p.add_argument("n", type=int, help="cars (step-cost) or entities (realtime, split)")
+    p.add_argument("seconds", type=float, nargs="?", default=60.0)
+    p.add_argument("--repeat", type=int, default=1)
+    a = p.parse_args(argv)
+    if not (0 < a.n <= 100000 and 0 < a.seconds <= 3600 and 0 < a.repeat <= 20):
+        p.error("need 0 < N <= 100000, 0 < SECONDS <= 3600, 0 < --repeat <= 20")
+    topo, artifact = bundled_topology()
+    folder = bundled_scenario(topo).parent
+    for _ in range(a.repeat):
+        if a.what == "step-cost":
+            r = step_cost(topo, folder, a.n, a.seconds)
+        elif a.what == "realtime":
+            r = realtime(topo, artifact, folder, a.n, a.seconds, max(10, a.n // 10))
+        else:
+            r = client_split(topo, folder, a.n, a.seconds)
+        print(json.dumps(r, default=float), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
