@@ -222,8 +222,13 @@ class SumoSource:
                 e.x, e.y, e.heading = x, y, h
         self.vehicle_s += len(live_v) * self.step_len
         self.person_s += len(live_p) * self.step_len
-        w.counters["teleports"] += sim.getStartingTeleportNumber()
-        w.counters["collisions"] += sim.getCollidingVehiclesNumber()
+        # the report's collision counters in SUMO's terms: a teleport is SUMO's way out of a jam (ours deletes
+        # after a deadlock timeout), a collision is one SUMO let happen (ours accepts one after a timeout)
+        tele, coll = sim.getStartingTeleportNumber(), sim.getCollidingVehiclesNumber()
+        w.counters["teleports"] += tele
+        w.counters["deleted"] += tele
+        w.counters["collisions"] += coll
+        w.counters["accepted"] += coll
         w.counters["stops_served"] += sim.getStopEndingVehiclesNumber()
         w.moved(self.start_time + sim.getTime() - self._t0)
         self.read_s += time.perf_counter() - t0
