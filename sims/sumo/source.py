@@ -1,7 +1,8 @@
 """A SUMO scenario as `Sim`'s mobility source, stepped in process through libsumo.
 
-Why libsumo and not TraCI: the same API without a socket round trip per call; at thousands of entities a
-step reads every position, and a TraCI call per entity per step would cost more than SUMO's own step.
+Why libsumo and not TraCI: the same API without a socket round trip per call and without a second process;
+measured on the bundled scenario (485 entities), a step and its reads took about half the time through libsumo
+(docs/sumo.md).
 
 Each tick SUMO advances one step of the tick's length (its `--step-length` is set to the simulation's tick),
 then every vehicle and every walking person is read (through libsumo's subscriptions: one call for all of
