@@ -244,16 +244,20 @@ class World:
         r = a.route
         best: Obstacle | None = None
         k = r.index(a.s)
+        behind = a.s - 0.01
         while k < len(r.edges) and r.cum[k] < ahead:
             e, d = r.edges[k]
             L = self.net.edge_len[e]
+            base = r.cum[k]
             for lo, hi, b, db in index.get(e, ()):
-                if b is a or not lanes_overlap(a, d, b, db):
+                if b is a:
                     continue
-                near = r.cum[k] + (lo if d > 0 else L - hi)
-                if near < a.s - 0.01 or near > ahead:  # behind the front, or overlapping it already
+                near = base + (lo if d > 0 else L - hi)
+                # behind the front, overlapping it already, beyond sight or no nearer than the best: the cheap
+                # tests first, the lanes' sideways overlap only for a candidate (the same leader either way)
+                if near < behind or near > ahead or (best is not None and near >= best.at):
                     continue
-                if best is None or near < best.at:
+                if lanes_overlap(a, d, b, db):
                     best = Obstacle(near, b.v if db == d else -b.v, "leader", b.id)
             if best is not None:
                 return best
