@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         from sims.sumo.commands import sumo_source
 
         source = sumo_source(topo, args.sumocfg, config, say)
-        config.transit = False
+        config.transit, config.entities = False, 0
     schedule = load_feed(args.gtfs, topo, args.date, args.seed, config.start, say) if config.transit else None
     regions = shard_at = None
     if args.shards:
