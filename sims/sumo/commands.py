@@ -105,6 +105,8 @@ def sumo_source(topo, sumocfg: str | None, config, say):
     once, cached); stepped at the simulation's tick. A clear CommandError for anything that cannot run."""
     from sims.sumo import SumoError, missing
 
+    if sumocfg is not None and not Path(sumocfg).is_file():  # the user's own mistake first
+        raise CommandError(f"{sumocfg}: no such SUMO configuration")
     err = missing()
     if err:
         raise CommandError(err)

@@ -54,12 +54,12 @@ class SumoSource:
 
     def __init__(self, topo, sumocfg: str | Path, *, start: float, step: float, seed: int = 1,
                  warmup: float = 0.0, extra_args: tuple[str, ...] = ()):
-        err = missing()
-        if err:
-            raise SumoError(err)
         cfg = Path(sumocfg)
         if not cfg.is_file():
             raise SumoError(f"{cfg}: no such SUMO configuration")
+        err = missing()
+        if err:
+            raise SumoError(err)
         if not (0.001 <= step <= 10.0):
             raise SumoError(f"the step must be within 1 ms..10 s, got {step!r}")
         if not (0.0 <= warmup <= 86400.0):
