@@ -1,8 +1,9 @@
 """Auth tokens mapped to user ids, in SQLite.
 
 Only a SHA-256 of each token is stored, so a leaked database does not leak usable tokens. Tokens are
-random (secrets.token_urlsafe); a user may hold several. Lookups are one indexed SELECT, cheap enough to run
-on the server's event loop at handshake time.
+random (secrets.token_urlsafe); a user may hold several. Lookups are one indexed SELECT; the server still
+runs them in a worker thread with a deadline (entitynet.server.tokens), since another process may hold the
+file locked and a damaged file raises: neither may hold or end the server.
 
 The file holds who may connect, so it is private to its owner: a new store is created 0600 (and the folder
 0700 when we create it); an existing store that others can read is reported with a warning, not changed.
@@ -61,15 +62,26 @@ class TokenStore:
     """Who may connect: token hashes -> user ids in one SQLite file, shared by `entitynet users` and
     the server (which polls `data_version` to see revocations made from another process)."""
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, timeout: float = 5.0):
+        """Open (creating if missing) the store; `timeout` is how long one statement waits for a lock another
+        process holds before it fails with "database is locked"."""
         self.path = Path(path)
         _create_private(self.path)
-        self._db = sqlite3.connect(str(self.path), check_same_thread=False)
+        self._db = sqlite3.connect(str(self.path), timeout=timeout, check_same_thread=False)
         self._db.execute(
             "CREATE TABLE IF NOT EXISTS tokens (hash TEXT PRIMARY KEY, user TEXT NOT NULL, created REAL NOT NULL)"
         )
         self._db.execute("CREATE INDEX IF NOT EXISTS tokens_user ON tokens(user)")
         self._db.commit()
+
+    def damage(self) -> str | None:
+        """What SQLite's quick check finds wrong with the file (None: nothing). A page of the data can be damaged
+        while the header still opens; a server checks at start rather than fail every login later."""
+        try:
+            rows = [str(r[0]) for r in self._db.execute("PRAGMA quick_check(5)")]
+        except sqlite3.DatabaseError as exc:
+            return str(exc)
+        return None if rows == ["ok"] else "; ".join(r.replace("\n", " ") for r in rows)
 
     def data_version(self) -> int:
         """SQLite's change counter: differs from the last value when another connection (another process, e.g.

@@ -74,22 +74,56 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Parse, set up logging, run the command; user errors become exit status 2 without a traceback."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    level = logging.WARNING - 10 * min(args.verbose, 2)
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    """Parse, set up logging, run the command; user errors become exit status 2 and Ctrl-C exit status 130,
+    each with one line on stderr and no traceback (also when they arrive inside an exception group, as they do
+    out of a trio nursery)."""
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        level = logging.WARNING - 10 * min(args.verbose, 2)
+        logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
         return int(args.func(args) or 0)
     except CommandError as exc:
-        print(f"entitynet: error: {exc}", file=sys.stderr)
-        return 2
+        return _command_failed(exc)
     except KeyboardInterrupt:
-        print("entitynet: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()
         return 0
+    except BaseExceptionGroup as group:
+        leaves = list(_leaves(group))
+        errors = [e for e in leaves if isinstance(e, CommandError)]
+        if errors:
+            return _command_failed(errors[0])
+        if any(isinstance(e, KeyboardInterrupt) for e in leaves) and all(
+                isinstance(e, KeyboardInterrupt) or _is_cancellation(e) for e in leaves):
+            return _interrupted()
+        raise  # a bug: its traceback is what a report needs
+
+
+def _command_failed(exc: CommandError) -> int:
+    print(f"entitynet: error: {exc}", file=sys.stderr)
+    return 2
+
+
+def _interrupted() -> int:
+    print("entitynet: interrupted", file=sys.stderr)
+    return 130
+
+
+def _leaves(exc: BaseException):
+    """The exceptions in `exc` and in the groups nested in it, groups themselves left out."""
+    if isinstance(exc, BaseExceptionGroup):
+        for inner in exc.exceptions:
+            yield from _leaves(inner)
+    else:
+        yield exc
+
+
+def _is_cancellation(exc: BaseException) -> bool:
+    """A trio or anyio task cancelled by the interrupt that stops the command (checked by name: the CLI does not
+    import trio for `--help`)."""
+    return type(exc).__name__ in ("Cancelled", "CancelledError")
 
 
 if __name__ == "__main__":

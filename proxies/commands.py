@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from entitynet.commands.options import SEED, bounded_float, port, positive_seconds
+
 log = logging.getLogger("proxies")
 
 
@@ -57,20 +59,24 @@ def register(sub) -> None:
     r = ps.add_parser("replay", help="serve SIRI StopMonitoring and GTFS-realtime from a GTFS schedule")
     r.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS zip")
     r.add_argument("--host", default="127.0.0.1")
-    r.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 = any free port)")
+    r.add_argument("--port", type=port(), default=8080, help="HTTP port (default 8080; 0 = any free port)")
     r.add_argument("--start", type=_hms, default=_hms("08:00:00"), metavar="HH:MM:SS",
                    help="service time at startup (default 08:00:00); runs with the wall clock")
-    r.add_argument("--delay-sigma", type=float, default=90.0, metavar="S", help="spread of initial delays")
-    r.add_argument("--step-sigma", type=float, default=20.0, metavar="S", help="delay change per stop")
-    r.add_argument("--granularity", type=float, default=60.0, metavar="S", help="ETA rounding (default 60 s)")
-    r.add_argument("--latency", type=float, default=0.0, metavar="S", help="seconds before every answer")
-    r.add_argument("--fault-rate", type=float, default=0.0, metavar="R", help="fraction of answers that fail")
+    r.add_argument("--delay-sigma", type=bounded_float(0, 3600),
+                   default=90.0, metavar="S", help="spread of initial delays")
+    r.add_argument("--step-sigma", type=bounded_float(0, 3600), default=20.0, metavar="S", help="delay change per stop")
+    r.add_argument("--granularity", type=positive_seconds(3600),
+                   default=60.0, metavar="S", help="ETA rounding (default 60 s)")
+    r.add_argument("--latency", type=bounded_float(0, 60), default=0.0, metavar="S", help="seconds before every answer")
+    r.add_argument("--fault-rate", type=bounded_float(0, 1),
+                   default=0.0, metavar="R", help="fraction of answers that fail")
     r.add_argument("--locations", action="store_true", help="include VehicleLocation in SIRI answers")
-    r.add_argument("--traced-bus-fraction", type=float, default=0.5, help="buses with a tracker (trams: all)")
+    r.add_argument("--traced-bus-fraction", type=bounded_float(0, 1),
+                   default=0.5, help="buses with a tracker (trams: all)")
     r.add_argument("--bbox", metavar="LON0,LAT0,LON1,LAT1", help="only trips stopping inside")
     r.add_argument("--topology", metavar="ART", help="only trips stopping on this map")
     r.add_argument("--truth", metavar="FILE.jsonl", help="record true positions here every second")
-    r.add_argument("--seed", type=int, default=1)
+    r.add_argument("--seed", type=SEED, default=1)
     r.set_defaults(func=run_replay)
 
 
@@ -79,12 +85,14 @@ def _common(p) -> None:
     p.add_argument("--token", default="", help="auth token for the server")
     p.add_argument("--topology", metavar="ART", help="topology artifact (default: the bundled Helsinki map)")
     p.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS schedule: routes and stops of the vehicles")
-    p.add_argument("--poll", type=float, default=20.0, metavar="S", help="seconds between polls (default 20)")
-    p.add_argument("--timeout", type=float, default=10.0, metavar="S", help="HTTP timeout (default 10)")
-    p.add_argument("--stale-after", type=float, default=300.0, metavar="S",
+    p.add_argument("--poll", type=bounded_float(0.5, 86400),
+                   default=20.0, metavar="S", help="seconds between polls (default 20)")
+    p.add_argument("--timeout", type=bounded_float(0, 600, lo_open=True),
+                   default=10.0, metavar="S", help="HTTP timeout (default 10)")
+    p.add_argument("--stale-after", type=positive_seconds(86400), default=300.0, metavar="S",
                    help="retire a vehicle without news for this long (default 300)")
-    p.add_argument("--metrics-port", type=int, metavar="PORT", help="serve Prometheus /metrics here")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
+    p.add_argument("--metrics-port", type=port(), metavar="PORT", help="serve Prometheus /metrics here")
+    p.add_argument("--duration", type=positive_seconds(), metavar="S", help="stop after this many seconds")
 
 
 def _say(msg: str) -> None:
@@ -106,13 +114,14 @@ def _load(args):
     if not Path(args.gtfs).exists():
         raise _command_error(f"GTFS feed {args.gtfs} not found")
     from proxies.routes import cached_routes
-    from proxies.schedule import ScheduleError
 
     t0 = time.perf_counter()
     try:
         book = cached_routes(topo, args.gtfs, say=_say)
-    except ScheduleError as exc:
+    except ValueError as exc:  # the feed's readers' errors (GtfsError, ScheduleError) are ValueErrors
         raise _command_error(str(exc)) from None
+    except OSError as exc:  # a folder, a file that cannot be read
+        raise _command_error(f"cannot read GTFS feed {args.gtfs}: {exc.strerror or exc}") from None
     _say(f"{len(book.routes)} trips on {len({id(r) for r in book.routes.values()})} routes over the map, "
          f"{len(book.stops)} stops ({time.perf_counter() - t0:.1f} s)")
     if not book.routes:
@@ -224,10 +233,13 @@ def run_replay(args) -> int:
     elif args.topology:
         import numpy as np
 
-        from topology.artifact import load
+        from topology.artifact import ArtifactError, load
         from topology.projection import LocalProjection
 
-        topo = load(args.topology)
+        try:
+            topo = load(args.topology)
+        except (ArtifactError, OSError, ValueError) as exc:
+            raise _command_error(f"cannot load topology {args.topology}: {exc}") from None
         x0, y0, x1, y1 = topo.meta["bounds"]
         ll = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"])).to_wgs84(
             np.array([[x0, y0], [x1, y1]], dtype=np.float64))

@@ -25,7 +25,10 @@ async def run_transit(topo, address: tuple[str, int], feed, say: Callable[[str],
     the simulation's, so that a viewer extrapolates them in the same time as the simulated entities).
     `task_status.started(shell)` once both listen."""
     if book is None:
-        book = await trio.to_thread.run_sync(lambda: cached_routes(topo, feed, say=say))
+        book = await trio.to_thread.run_sync(lambda: _routes(topo, feed, say))
+    if not book.routes:
+        say(f"warning: no trip of {feed} runs over the map: the feed does not overlap the map (a feed of another "
+            "city?); the demo has no trams or buses")
     world = ReplayWorld(book.schedule, granularity=60.0)
     service = ReplayService(world, ServiceClock.for_date(book.schedule.service_date), wall_service_clock(start),
                             ReplayConfig(port=0, latency=2.0))
@@ -38,3 +41,16 @@ async def run_transit(topo, address: tuple[str, int], feed, say: Callable[[str],
         say(f"transit: replay of {len(world.runs)} departures on http://127.0.0.1:{service.port}/siri, "
             f"SIRI proxy polling {len(book.stops)} stops every {poll:.0f} s")
         task_status.started(shell)
+
+
+def _routes(topo, feed, say: Callable[[str], None]) -> RouteBook:
+    """The feed's routes on the map; a feed that cannot be read is the command's error (one line, no traceback),
+    not a crash of the demo."""
+    from entitynet.cli import CommandError
+
+    try:
+        return cached_routes(topo, feed, say=say)
+    except ValueError as exc:  # the GTFS readers' errors
+        raise CommandError(f"--transit {feed}: {exc}") from None
+    except OSError as exc:
+        raise CommandError(f"--transit {feed}: cannot read the feed ({exc.strerror or exc})") from None

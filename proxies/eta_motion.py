@@ -66,6 +66,7 @@ class EtaMotion:
         self.standing = True
         self.last_obs: float | None = None
         self.creep_until = -math.inf
+        self.stops_served = 0  # stops it came to stand at (passing through one does not serve it)
 
     # ---- observations -------------------------------------------------------------------------------------
     def place(self, s: float, now: float, target: int) -> None:
@@ -210,6 +211,7 @@ class EtaMotion:
         self.v = 0.0
         self.standing = True
         self.dwell_until = None
+        self.stops_served += 1
 
     @property
     def finished(self) -> bool:

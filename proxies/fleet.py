@@ -42,6 +42,7 @@ class Counters:
     publishes: int = 0
     retired_stale: int = 0
     retired_done: int = 0
+    stops_served_retired: int = 0  # stops served by vehicles that have left (`Fleet.stops_served` adds the rest)
     vehicles_seen: set[str] = field(default_factory=set)
 
     @property
@@ -399,7 +400,22 @@ class Fleet:
 
     def _retire(self, ref: str) -> list[Unpublish]:
         veh = self.vehicles.pop(ref, None)
-        return veh.player.leave() if veh is not None else []
+        if veh is None:
+            return []
+        self.counters.stops_served_retired += veh.motion.stops_served
+        return veh.player.leave()
+
+    def stops_served(self) -> int:
+        """Stops the fleet's vehicles came to stand at, those that have left included (the demo's summary
+        counts them with the simulation's own buses and trams)."""
+        return self.counters.stops_served_retired + sum(v.motion.stops_served for v in self.vehicles.values())
+
+    def by_mode(self) -> dict[str, int]:
+        """Vehicles on the map by mode ("tram", "bus"), as the simulation counts its entities by type."""
+        out: dict[str, int] = {}
+        for veh in self.vehicles.values():
+            out[veh.route.mode] = out.get(veh.route.mode, 0) + 1
+        return out
 
     def ghost_xy(self, ref: str, now: float) -> tuple[float, float] | None:
         """Where a viewer sees the vehicle now (its published model extrapolated), or None."""

@@ -2,7 +2,8 @@
 path coordinates.
 
 `proxies.gtfs.match_shapes` matches each shape that runs over the map to a connected chain of directed edges;
-here every trip of the schedule (`proxies.schedule`) that uses a matched shape gets that chain as its route, and
+here every trip of the schedule (`proxies.schedule`) that uses a matched shape gets that chain as its route (a
+trip without a shape has the one made of its stops, matched from stop to stop: `topology.gtfs`), and
 each of its stops that lies along the chain (within `stop_snap` metres) its path coordinate `s`, never
 decreasing in the trip's stop order. The SIRI/GTFS-rt journey reference (`nmtoken(trip id)`, and `:start` for a
 frequency run) finds the trip.
@@ -16,7 +17,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from proxies.schedule import Pattern, Schedule, nmtoken, read_schedule
+from proxies.schedule import Pattern, Schedule, ScheduleError, nmtoken, read_schedule
 
 
 @dataclass
@@ -106,17 +107,23 @@ def _approach(pat: Pattern, k: int) -> float:
 def build_routes(topo, gtfs: str | FsPath, *, modes: tuple[str, ...] = ("tram", "bus"), stop_snap: float = 40.0,
                  schedule: Schedule | None = None, matched=None) -> RouteBook:
     """Match the feed's shapes onto `topo` and give every trip over the map its route and stops."""
-    from proxies.gtfs import match_shapes, read_feed
+    from proxies.gtfs import GtfsError, match_shapes, read_feed
     from topology.projection import LocalProjection
 
     proj = LocalProjection(topo.meta["crs"], tuple(topo.meta["origin"]))
+    feed = None
+    if matched is None or schedule is None:  # the feed read once, for the matching and the schedule
+        try:
+            feed = read_feed(gtfs, modes=modes)
+        except GtfsError as exc:
+            raise ScheduleError(f"cannot read GTFS feed: {exc}") from None
     if matched is None:
-        matched = match_shapes(read_feed(gtfs, modes=modes), topo, modes=modes)
+        matched = match_shapes(feed, topo, modes=modes)
     if schedule is None:
         x0, y0, x1, y1 = topo.meta["bounds"]
         ll = proj.to_wgs84(np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]], dtype=np.float64))
         bbox = (float(ll[:, 0].min()), float(ll[:, 1].min()), float(ll[:, 0].max()), float(ll[:, 1].max()))
-        schedule = read_schedule(gtfs, modes=modes, bbox=bbox)
+        schedule = read_schedule(gtfs, modes=modes, bbox=bbox, feed=feed)
     by_shape: dict[str, list] = {}
     for m in matched:
         by_shape.setdefault(m.shape_id, []).append(m)
@@ -168,7 +175,11 @@ def cached_routes(topo, gtfs: str | FsPath, *, modes: tuple[str, ...] = ("tram",
     h.update(topo.digest.encode())
     h.update(FsPath(gtfs).read_bytes())
     h.update(",".join(modes).encode())
-    for src in sorted(FsPath(__file__).parent.glob("*.py")):
+    import topology.gtfs
+    import topology.schedule
+
+    for src in [*sorted(FsPath(__file__).parent.glob("*.py")), FsPath(topology.gtfs.__file__),
+                FsPath(topology.schedule.__file__)]:  # this package's source and the feed's reader and model
         h.update(src.read_bytes())
     path = cache_dir() / f"routes-{h.hexdigest()[:16]}.pickle"
     if path.exists():

@@ -37,6 +37,10 @@ class ProxyMetrics:
         r = self.registry = CollectorRegistry()
         self.polls = Counter("entitynet_proxy_polls", "polls of the tracker", registry=r)
         self.errors = Counter("entitynet_proxy_errors", "failed polls by kind", ["kind"], registry=r)
+        self.request_errors = Counter("entitynet_proxy_request_errors", "failed requests of polls that went on with "
+                                      "their other requests, by kind", ["kind"], registry=r)
+        self.not_sent = Counter("entitynet_proxy_requests_not_sent", "requests left out of a poll once its "
+                                "failures had used up its time", registry=r)
         self.calls = Counter("entitynet_proxy_calls", "stop visits / positions received", registry=r)
         self.discarded = Counter("entitynet_proxy_calls_discarded", "received but not used", registry=r)
         self.vehicles = Gauge("entitynet_proxy_vehicles", "vehicles on the map", registry=r)
@@ -100,6 +104,11 @@ class ProxyShell:
         self.last_error: str | None = None
         self.ready = trio.Event()  # set after the first good poll
 
+    def counts(self) -> dict:
+        """Its vehicles by mode and the stops they served, in the shape of the simulation's counts: the demo runs
+        the proxy as a part that publishes into its server, and its summary adds these to its own."""
+        return {"entities": self.fleet.by_mode(), "stops_served": self.fleet.stops_served()}
+
     def to_local(self, lon: float, lat: float) -> tuple[float, float]:
         """Map a reported lon/lat into the artifact's local frame (VehicleLocation, GTFS-rt positions)."""
         p = self._proj.to_local(np.array([lon]), np.array([lat]))[0]
@@ -124,10 +133,10 @@ class ProxyShell:
             try:
                 with trio.fail_after(self.config.timeout * 3 + 5.0):
                     news = await trio.to_thread.run_sync(poller, abandon_on_cancel=True)
+                self.last_error = None  # a poll that went on past failed requests names them (`_partly_failed`)
                 for apply in news:  # the fleet is only touched on the trio thread
                     apply()
                 self.good_polls += 1
-                self.last_error = None
                 self.metrics.last_success.set(self.clock())
                 self.ready.set()
             except trio.TooSlowError:
@@ -144,6 +153,16 @@ class ProxyShell:
         self.metrics.errors.labels(kind).inc()
         self.last_error = kind
         log.warning("poll failed (%s): %.300s", kind, text)
+
+    def _partly_failed(self, failures: list[SiriError], not_sent: int, requests: int) -> None:
+        """A poll that used its good answers although some requests failed: each failure counted by kind."""
+        kinds = [error_kind(exc) for exc in failures]
+        for kind in kinds:
+            self.metrics.request_errors.labels(kind).inc()
+        self.metrics.not_sent.inc(not_sent)
+        self.last_error = ",".join(sorted(set(kinds)))
+        log.warning("poll went on past %d failed request(s) of %d (%s), %d not sent: %.300s", len(failures),
+                    requests, self.last_error, not_sent, failures[0] if failures else "")
 
     async def _tick_loop(self) -> None:
         last_pub = 0
@@ -166,13 +185,22 @@ class ProxyShell:
         stops = list(self.book.stops)
 
         def poll() -> list[Callable[[], None]]:
-            raws = client.fetch(stops)
+            fetched = client.fetch(stops)  # raises when every request failed: the poll failed
             received = self.clock()
-            news = []
-            for raw in raws:
-                d = parse_response(raw)  # all answers parse before any is used: a bad one fails the poll
+            news, failures = [], list(fetched.failures)
+            for raw in fetched.answers:
+                try:
+                    d = parse_response(raw)  # every answer parses before any is used
+                except SiriError as exc:  # an unusable answer is one more failed request
+                    failures.append(exc)
+                    continue
                 news.append(lambda d=d: self._count(len(d.calls), lambda: self.fleet.ingest(
                     d.calls, d.response_time, received, to_local=self.to_local)))
+            if failures and not news:
+                raise failures[0]
+            if failures or fetched.not_sent:
+                requests = len(fetched.answers) + len(fetched.failures) + fetched.not_sent
+                news.append(lambda: self._partly_failed(failures, fetched.not_sent, requests))
             return news
         return poll
 

@@ -15,6 +15,8 @@ Errors come out classified, so the shell can count them: `SoapFault`, `HttpError
 from __future__ import annotations
 
 import itertools
+import time
+from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from importlib import resources
 from pathlib import Path
@@ -45,6 +47,18 @@ class Timeout(SiriError):
 
 class Unreachable(SiriError):
     """No connection at all (DNS, refused, reset): the service or the network is down."""
+
+
+@dataclass
+class Fetched:
+    """One poll's outcome: the raw answers of the requests that succeeded, the classified error of each that
+    failed, and how many requests were not sent because the failures had used up the poll's time. Why not raise
+    at the first failure: with one request per stop (`--mode single`) a few failing stops stopped every poll
+    before the others were asked, so no poll ever completed."""
+
+    answers: list[bytes] = field(default_factory=list)
+    failures: list[SiriError] = field(default_factory=list)
+    not_sent: int = 0
 
 
 def default_wsdl() -> str:
@@ -122,22 +136,35 @@ class StopMonitoringClient:
         """How many requests one poll of `stops` takes in the chosen mode (reported at start-up)."""
         return (len(stops) + self.chunk - 1) // self.chunk if self.mode == "multiple" else len(stops)
 
-    def fetch(self, stops: list[str]) -> list[bytes]:
-        """The raw answers for `stops` (one per request). Raises the classified errors above."""
-        out = []
+    def fetch(self, stops: list[str]) -> Fetched:
+        """The raw answers for `stops` (one per request) and the classified failures of the requests that failed;
+        the other requests are sent all the same. Once failing requests have taken more than two timeouts, the
+        rest are not sent (a service that times out on every stop would hold one poll for a timeout per stop).
+        Raises the first failure when no request succeeded: the poll failed as a whole."""
         now = datetime.now(UTC)
         if self.mode == "multiple":
-            for i in range(0, len(stops), self.chunk):
-                filters = [{"MonitoringRef": s, "PreviewInterval": self.preview}
-                           for s in stops[i:i + self.chunk]]
-                req = {"RequestTimestamp": now, "MessageIdentifier": f"entitynet-{next(self._ids)}",
-                       "StopMonitoringFIlter": filters, "version": "2.0"}
-                out.append(self._call("GetMultipleStopMonitoring", now, req))
+            calls = [("GetMultipleStopMonitoring",
+                      {"RequestTimestamp": now, "MessageIdentifier": f"entitynet-{next(self._ids)}",
+                       "StopMonitoringFIlter": [{"MonitoringRef": s, "PreviewInterval": self.preview}
+                                                for s in stops[i:i + self.chunk]], "version": "2.0"})
+                     for i in range(0, len(stops), self.chunk)]
         else:
-            for s in stops:
-                req = {"RequestTimestamp": now, "PreviewInterval": self.preview,
-                       "MonitoringRef": s, "version": "2.0"}
-                out.append(self._call("GetStopMonitoring", now, req))
+            calls = [("GetStopMonitoring", {"RequestTimestamp": now, "PreviewInterval": self.preview,
+                                            "MonitoringRef": s, "version": "2.0"}) for s in stops]
+        out = Fetched()
+        failing_s, budget_s = 0.0, 2.0 * float(self.transport.operation_timeout or 0.0)
+        for k, (op, req) in enumerate(calls):
+            if out.failures and failing_s > budget_s:
+                out.not_sent = len(calls) - k
+                break
+            t0 = time.monotonic()
+            try:
+                out.answers.append(self._call(op, now, req))
+            except SiriError as exc:
+                out.failures.append(exc)
+                failing_s += time.monotonic() - t0
+        if out.failures and not out.answers:
+            raise out.failures[0]
         return out
 
     def _call(self, op: str, now: datetime, req: dict) -> bytes:
@@ -161,5 +188,5 @@ class StopMonitoringClient:
         return data
 
 
-__all__ = ["StopMonitoringClient", "DedupPlugin", "HttpError", "Timeout", "Unreachable", "SiriError", "SoapFault",
-           "default_wsdl", "SIRI"]
+__all__ = ["StopMonitoringClient", "Fetched", "DedupPlugin", "HttpError", "Timeout", "Unreachable", "SiriError",
+           "SoapFault", "default_wsdl", "SIRI"]

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from entitynet.cli import CommandError
+from entitynet.commands.options import SEED, bounded_int, port, positive_seconds
 
 
 # ---- entitynet demo ----------------------------------------------------------------------------------------
@@ -22,16 +23,21 @@ def register_demo(sub) -> None:
 
     p = sub.add_parser("demo", help="run a live city on loopback (a preset of `sim`): server, trams and buses on "
                                     "the bundled schedule, pedestrians and cars, PVS viewers, the 3D viewer")
-    p.add_argument("--entities", type=int, default=300, help="pedestrians and cars (default 300; trams and buses "
+    p.add_argument("--entities", type=bounded_int(1, 100_000),
+                   default=300, help="pedestrians and cars (default 300; trams and buses "
                                                              "come from the schedule on top)")
-    p.add_argument("--viewers", type=int, default=24, help="viewers subscribing by PVS (default 24)")
-    p.add_argument("--connections", type=int, default=4, help="connections carrying the entities (default 4)")
-    p.add_argument("--duration", type=float, help="stop after this many seconds (default: run until Ctrl-C)")
-    p.add_argument("--summary-every", type=float, default=5.0, metavar="S", help="summary interval (default 5 s)")
-    p.add_argument("--seed", type=int, default=1, help="random seed")
-    p.add_argument("--port", type=int, default=0, help="server TCP port (default: any free port)")
+    p.add_argument("--viewers", type=bounded_int(0, 100_000),
+                   default=24, help="viewers subscribing by PVS (default 24)")
+    p.add_argument("--connections", type=bounded_int(1, 1024),
+                   default=4, help="connections carrying the entities (default 4)")
+    p.add_argument("--duration", type=positive_seconds(),
+                   help="stop after this many seconds (default: run until Ctrl-C)")
+    p.add_argument("--summary-every", type=positive_seconds(86400),
+                   default=5.0, metavar="S", help="summary interval (default 5 s)")
+    p.add_argument("--seed", type=SEED, default=1, help="random seed")
+    p.add_argument("--port", type=port(), default=0, help="server TCP port (default: any free port)")
     p.add_argument("--no-pvs", action="store_true", help="use an artifact without PVS (subscribe by distance)")
-    p.add_argument("--http-port", type=int, default=8400, metavar="PORT",
+    p.add_argument("--http-port", type=port(special={-1: "no viewer"}), default=8400, metavar="PORT",
                    help="serve the 3D browser viewer here (default 8400; 0 = any free port; -1 = no viewer)")
     p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
                                                   "extract); 'none' for no transit")
@@ -40,9 +46,11 @@ def register_demo(sub) -> None:
     p.add_argument("--transit", metavar="GTFS", help="instead of the simulated schedule, trams and buses from this "
                    "GTFS feed through the SIRI replay producer and the transit proxy (needs the proxies package)")
     p.add_argument("--report", metavar="FILE.json", help="write the final JSON report here (default: stdout)")
-    p.add_argument("--shards", type=int, metavar="K", help="run on a local cluster of K switchboard processes and "
+    p.add_argument("--shards", type=bounded_int(1, 64),
+                   metavar="K", help="run on a local cluster of K switchboard processes and "
                    "nats-server (`entitynet sim --shards K` with the demo's numbers; no 3D viewer)")
-    p.add_argument("--nats-nodes", type=int, default=1, metavar="N", help="nats-server nodes with --shards (default 1)")
+    p.add_argument("--nats-nodes", type=bounded_int(1, 16),
+                   default=1, metavar="N", help="nats-server nodes with --shards (default 1)")
     p.set_defaults(func=run_demo_command)
 
 
@@ -58,8 +66,8 @@ def run_demo_command(args: argparse.Namespace) -> int:
     for name in ("entities", "viewers", "connections"):
         if getattr(args, name) < (0 if name == "viewers" else 1):
             raise CommandError(f"--{name} must be at least {0 if name == 'viewers' else 1}")
-    if args.transit is not None and not Path(args.transit).exists():
-        raise CommandError(f"GTFS feed {args.transit} not found")
+    if args.transit is not None and not Path(args.transit).is_file():
+        raise CommandError(f"GTFS feed {args.transit} not found (no such file)")
     if args.gtfs not in (None, "none") and not Path(args.gtfs).is_file():
         raise CommandError(f"{args.gtfs}: cannot read the feed (no such file)")
     if args.duration is not None and not args.duration > 0:
@@ -71,11 +79,10 @@ def run_demo_command(args: argparse.Namespace) -> int:
             raise CommandError("--transit does not combine with --shards (the transit proxy publishes to one server)")
         from sims import sim_cmd
 
-        return sim_cmd.run(argparse.Namespace(
-            entities=args.entities, car_share=0.3, viewers=args.viewers, gtfs=args.gtfs, date=None,
-            start=args.start, duration=args.duration, speed=1.0, tick_hz=2.0, server=None, token="",
+        return sim_cmd.run(sim_cmd.sim_args(
+            entities=args.entities, viewers=args.viewers, gtfs=args.gtfs, start=args.start, duration=args.duration,
             connections=args.connections, radius=args.no_pvs, seed=args.seed, summary_every=args.summary_every,
-            report=args.report, shards=args.shards, nats_nodes=args.nats_nodes, topology=None))
+            report=args.report, shards=args.shards, nats_nodes=args.nats_nodes))
     start = time.perf_counter()
 
     def say(msg: str) -> None:

@@ -80,7 +80,7 @@ async def run_demo(topo, artifact: Path, config: DemoConfig, say: Say = print, s
     transit = ("the schedule's trams and buses" if sim.config.transit else
                "trams and buses through the transit proxy" if config.transit else "no trams or buses")
     say(f"{config.entities} pedestrians and cars and {transit} over {config.connections} connections; "
-        f"{len(sim.viewers)} viewers subscribing by {sim.subscribe_by}")
+        f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}")
     return await shell.run(task_status=task_status)
 
 

@@ -54,6 +54,7 @@ class ShellConfig:
     http_port: int | None = None  # the in-process server also serves the browser viewer here (0: any free port)
     #: started with the server's address once the clients are connected (`await nursery.start(part, address)`)
     parts: tuple[Callable[..., Awaitable[object]], ...] = ()
+    behind_warn_every: float = 30.0  # wall seconds between two warnings that the run is behind real time
 
 
 class Shell:
@@ -72,6 +73,9 @@ class Shell:
         self.paused = False
         self.lateness: list[float] = []
         self.behind = 0
+        self._win_late: list[float] = []  # this summary window's tick lateness (s) and ticks behind
+        self._win_behind = 0
+        self._warned_at = -math.inf  # wall time of the last "behind real time" warning
         self.gap_s = 0.0
         self.outages = 0
         self.server = None
@@ -82,6 +86,7 @@ class Shell:
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
         self.published = 0
         self.publishers: list[Connection] = []
+        self._part_states: list[Any] = []  # what each part's task_status.started gave (see `counts`)
         self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
         self._frozen = sim.now  # the clock while paused
 
@@ -132,7 +137,7 @@ class Shell:
                 for c in pubs + views:
                     await clients.start(c.run)
                 for part in cfg.parts:
-                    await clients.start(part, address)
+                    self._part_states.append(await clients.start(part, address))
                 task_status.started(self.server)
                 stop = trio.Event()
                 clients.start_soon(self._signals, stop)
@@ -198,8 +203,13 @@ class Shell:
             late = t - due
             if sim.ticks >= cfg.warmup_ticks:
                 self.lateness.append(late)
+                self._win_late.append(late)
                 if late > period:
                     self.behind += 1
+                    self._win_behind += 1
+                    if t - self._warned_at >= cfg.behind_warn_every:
+                        self._warned_at = t
+                        self.say(self.behind_warning(late))
             down = sum(1 for c in pubs + views if not c.session.connected)
             if down:
                 self.gap_s += sim.dt
@@ -276,11 +286,46 @@ class Shell:
         self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
 
     # ---- output ----------------------------------------------------------------------------------------------
+    def part_counts(self) -> list[dict]:
+        """The counts of the parts whose started value has a `counts()` (the demo's transit proxy: its trams and
+        buses by mode and the stops they served). Why: the parts publish into the same server as the simulation,
+        so the viewers see their entities; a summary of only the simulation's truth showed no tram or bus."""
+        return [state.counts() for state in self._part_states if callable(getattr(state, "counts", None))]
+
+    def counts(self) -> dict:
+        """The simulation's counts with the parts' entities and stops served added in."""
+        c = self.sim.counts()
+        entities = dict(c["entities"])
+        for pc in self.part_counts():
+            for kind, n in pc.get("entities", {}).items():
+                entities[kind] = entities.get(kind, 0) + int(n)
+            c["stops_served"] += int(pc.get("stops_served", 0))
+        c["entities"] = dict(sorted(entities.items()))
+        return c
+
+    def behind_warning(self, late: float) -> str:
+        """The warning that the run does not keep real time, and what to do about it (said once, then every
+        `behind_warn_every` wall seconds while it lasts)."""
+        sim = self.sim
+        return (f"[{sim.ticks * sim.dt:6.0f}s] warning: behind real time (this tick {1000 * late:.0f} ms late, "
+                f"{self.behind} ticks behind so far): the figures still hold for simulated time, but the load "
+                "is not what the options asked for; try fewer viewers (--viewers), fewer entities, a smaller "
+                "--measure-share or a slower --speed")
+
+    def _lateness_text(self) -> str:
+        """This window's tick lateness for the summary line (and the window restarts)."""
+        late, behind = self._win_late, self._win_behind
+        self._win_late, self._win_behind = [], 0
+        if not late:
+            return "late n/a"
+        text = f"late p99 {1000 * float(np.percentile(late, 99)):.0f} ms"
+        return text + (f", {behind} of {len(late)} ticks behind" if behind else "")
+
     def summary_line(self, wall_dt: float) -> str:
         """The live one-line summary: rates over the last `wall_dt` wall seconds (the window restarts here),
         collisions, viewer error and a progress bar when running faster than real time."""
         sim = self.sim
-        c = sim.counts()
+        c = self.counts()
         deliveries = sum(v.deliveries for v in sim.viewers)
         d_del = deliveries - self._window["deliveries"]
         d_pub = self._window["published"]
@@ -292,7 +337,7 @@ class Shell:
         line = (f"[{sim.ticks * sim.dt:6.0f}s] entities {sum(c['entities'].values())} ({ents}) | "
                 f"updates {d_pub / wall_dt:6.1f}/s | deliveries {d_del / wall_dt:7.1f}/s | collisions avoided "
                 f"{col['avoided']} accepted {col['accepted']} deleted {col['deleted']} | viewer error {err}, "
-                f"missed {100 * tv['missed_visibility']:.1f}%")
+                f"missed {100 * tv['missed_visibility']:.1f}% | {self._lateness_text()}")
         if self.config.cluster is not None:
             line += " | " + self.config.cluster.summary()
         if self.config.duration and self.config.speed > 1.0:
@@ -305,12 +350,16 @@ class Shell:
         sim = self.sim
         return (f"[{sim.ticks * sim.dt:6.0f}s] stopped after {sim.ticks * sim.dt:.0f} simulated s: "
                 f"{self.published} updates published, {sum(v.deliveries for v in sim.viewers)} deliveries to "
-                f"viewers, {sim.world.counters['stops_served']} bus and tram stops served")
+                f"viewers, {self.counts()['stops_served']} bus and tram stops served")
 
     def report(self) -> dict:
         """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps.
         Against an external server truth-vs-viewer is not measured (its entity ids cannot be mapped back)."""
         rep = self.sim.report()
+        parts = self.part_counts()
+        if parts:  # every entity the viewers saw, the parts' too; each part's own figures beside
+            c = self.counts()
+            rep["entities"], rep["stops_served"], rep["parts"] = c["entities"], c["stops_served"], parts
         lat = np.array(self.lateness) if self.lateness else np.zeros(1)
         rep["realtime"] = {
             "speed": self.config.speed, "ticks": self.sim.ticks,

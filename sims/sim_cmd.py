@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+from entitynet.commands.options import SEED, bounded_float, bounded_int, positive_seconds
+
 
 def _hostport(text: str) -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
@@ -40,34 +42,47 @@ def service_time(text: str) -> float:
 def register(sub) -> None:
     """Add the `sim` subcommand and its options to the CLI's subparsers (called by `entitynet.cli`)."""
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
-                                   "clients and PVS viewers, with a live summary and a JSON report")
-    p.add_argument("--entities", type=int, default=300, help="pedestrians and cars on the map (default 300)")
-    p.add_argument("--car-share", type=float, default=0.3, help="share of cars among them (default 0.3)")
-    p.add_argument("--viewers", type=int, default=24, help="viewers (default 24, a quarter above the roofs)")
+                                   "clients and PVS viewers, with a live summary and a JSON report",
+                       epilog="How large a run keeps real time: on a 2-core machine about 800 entities with 80 "
+                              "viewers, the server in the same process (entitynet bench sim, "
+                              "entities_realtime_max). A larger run still steps every tick, late: the live summary "
+                              "shows the tick lateness, and a warning says when the run falls behind (then every "
+                              "30 s while it lasts). --speed 0.5 halves the load.")
+    p.add_argument("--entities", type=bounded_int(0, 1_000_000),
+                   default=300, help="pedestrians and cars on the map (default 300)")
+    p.add_argument("--car-share", type=bounded_float(0, 1), default=0.3, help="share of cars among them (default 0.3)")
+    p.add_argument("--viewers", type=bounded_int(0, 100_000),
+                   default=24, help="viewers (default 24, a quarter above the roofs)")
     p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
                                                   "extract); 'none' for no transit")
     p.add_argument("--date", metavar="YYYYMMDD", help="service day of the feed (default: its busiest)")
     p.add_argument("--start", type=service_time, default=8 * 3600.0, metavar="HH:MM",
                    help="service-day time the run starts at (default 08:00)")
-    p.add_argument("--duration", type=float, help="simulated seconds to run (default: until Ctrl-C)")
-    p.add_argument("--speed", type=float, default=1.0, help="times real time (default 1; e.g. 10)")
-    p.add_argument("--tick-hz", type=float, default=2.0, help="simulation ticks per second (default 2)")
+    p.add_argument("--duration", type=positive_seconds(), help="simulated seconds to run (default: until Ctrl-C)")
+    p.add_argument("--speed", type=bounded_float(0, 1000, lo_open=True),
+                   default=1.0, help="times real time (default 1; e.g. 10)")
+    p.add_argument("--tick-hz", type=bounded_float(0, 1000, lo_open=True),
+                   default=2.0, help="simulation ticks per second (default 2)")
     p.add_argument("--server", type=_hostport, metavar="HOST:PORT",
                    help="an existing shard server (default: start one in this process)")
     p.add_argument("--token", default="", help="auth token for --server")
-    p.add_argument("--shards", type=int, metavar="K", help="start a local cluster of K switchboard processes "
+    p.add_argument("--shards", type=bounded_int(1, 64),
+                   metavar="K", help="start a local cluster of K switchboard processes "
                    "joined by nats-server and run against it (entities and viewers by where they are)")
-    p.add_argument("--nats-nodes", type=int, default=1, metavar="N", help="nats-server nodes with --shards "
+    p.add_argument("--nats-nodes", type=bounded_int(1, 16),
+                   default=1, metavar="N", help="nats-server nodes with --shards "
                                                                            "(default 1)")
     p.add_argument("--topology", metavar="FILE", help="topology artifact (default: the bundled Helsinki map)")
-    p.add_argument("--connections", type=int, default=4, help="connections carrying the entities (default 4)")
+    p.add_argument("--connections", type=bounded_int(1, 1024),
+                   default=4, help="connections carrying the entities (default 4)")
     p.add_argument("--radius", action="store_true", help="viewers subscribe to a 500 m radius instead of the PVS")
-    p.add_argument("--measure-share", type=float, default=0.25, metavar="S",
+    p.add_argument("--measure-share", type=bounded_float(0, 1, lo_open=True), default=0.25, metavar="S",
                    help="share of the viewers measured against the truth at each 1 s sample, in turn (default "
                         "0.25: each viewer every 4 s, so the measure does not make real time late); 1 = the full "
                         "measure")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
-    p.add_argument("--summary-every", type=float, default=5.0, metavar="S", help="summary interval (default 5 s)")
+    p.add_argument("--seed", type=SEED, default=1, help="random seed (default 1)")
+    p.add_argument("--summary-every", type=positive_seconds(86400),
+                   default=5.0, metavar="S", help="summary interval (default 5 s)")
     p.add_argument("--report", metavar="FILE.json", help="write the final JSON report here (default: stdout)")
     p.add_argument("--mobility", choices=("ours", "sumo"), default="ours",
                    help="what moves the entities: our world model (default) or an Eclipse SUMO scenario stepped "
@@ -75,6 +90,22 @@ def register(sub) -> None:
     p.add_argument("--sumocfg", metavar="FILE", help="with --mobility sumo: the scenario's .sumocfg (default: the "
                    "bundled map's scenario, generated once by `entitynet sumo scenario` and cached)")
     p.set_defaults(func=run)
+
+
+def sim_args(**overrides) -> argparse.Namespace:
+    """`entitynet sim`'s options as its parser sets them by default, with `overrides` (names of its options).
+
+    Why through the parser: a preset (`entitynet demo --shards K`) that wrote out its own Namespace missed every
+    option added to `sim` after it (`--measure-share` crashed the demo); an override that names no option of
+    `sim` is a TypeError here, not an AttributeError deep inside the run."""
+    parser = argparse.ArgumentParser(prog="entitynet")
+    register(parser.add_subparsers())
+    args = parser.parse_args(["sim"])
+    for name, value in overrides.items():
+        if not hasattr(args, name):
+            raise TypeError(f"entitynet sim has no option {name!r}")
+        setattr(args, name, value)
+    return args
 
 
 def run(args: argparse.Namespace) -> int:
@@ -148,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         shard_at = shard_locator(topo, regions)
     sim = Sim(topo, config, schedule, shards=args.shards or 1, shard_at=shard_at, source=source)
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
-        f"{len(sim.viewers)} viewers subscribing by {sim.subscribe_by}, ticks at {config.tick_hz:g} Hz, "
+        f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path), say)
@@ -220,4 +251,20 @@ def load_feed(gtfs: str | None, topo, date: str | None, seed: int, start: float,
     n_run = len(schedule.running_at(start))
     say(f"schedule {feed.name} (service day {schedule.service_date or 'any'}): "
         f"{len(schedule.departures)} departures over the map, {n_run} under way at the start")
+    if not schedule.departures:
+        say(f"warning: {no_departures_reason(feed.name, schedule)}; the run has no scheduled trams or buses")
     return schedule
+
+
+def no_departures_reason(name: str, schedule) -> str:
+    """Why a feed put no departure on the map, from its read report: a feed of another city (its trips in
+    service all run off the map) reads differently from a day without service. Why a warning of its own: "0
+    departures over the map" went by unnoticed in the middle of the start-up lines."""
+    report = schedule.report
+    off_map = int(report.get("skipped:trip_off_map", 0))
+    if off_map:
+        return (f"the feed {name} does not overlap the map: none of its {off_map} trams' and buses' trips in "
+                "service runs over it (a feed of another city?)")
+    if report.get("skipped:not_in_service", 0):
+        return f"no tram or bus trip of {name} is in service on {schedule.service_date or 'the chosen day'}"
+    return f"the feed {name} has no tram or bus trip that runs over the map"

@@ -104,6 +104,11 @@ def clean(raw: RawMap, params: CleanParams | None = None) -> Network:
         layer = w.layer + (1 if w.bridge and w.layer == 0 else 0) - (1 if w.tunnel and w.layer == 0 else 0)
         ways.append((w.way_id, xy, ids, w.networks, layer))
     if not ways:
+        if raw.ways:  # there were ways, but all their points coincide: say that, not "no way of a network"
+            n = len(raw.ways)
+            what = "its one way of the modelled networks has" if n == 1 else \
+                f"its {n} ways of the modelled networks all have"
+            raise ValueError(f"the map has no streets: {what} zero length (all its points sit at one place)")
         raise ValueError("the map has no streets: no way of any modelled network (pedestrian, vehicle, tram)")
 
     # --- 2. node identity: shared OSM node ids join, except interior nodes shared across layers

@@ -1,15 +1,21 @@
-"""GTFS (static) reading and matching onto the topology: tram and bus shapes as a-priori routes.
+"""GTFS (static): the project's one reader of a feed's files, and the matching of its shapes onto the topology.
 
-Only the standard library reads the feed (csv + zipfile, streamed); pyproj projects to the artifact's CRS and
-origin; the shapes that run over the map are clipped to it and map-matched onto the tram or vehicle network
-by a shortest path through the corridor around each shape (`topology.matching.match_corridor`, the same
-matcher as OSM route relations).
+Why one reader: the simulation (spawns), the transit proxies (routes, the replay producer) and the benchmarks
+all read the same feed; each parsing the CSV itself gave two `Schedule` classes, two time parsers and rules
+that disagreed (a feed without shapes.txt had one stop-made shape per route and direction here but one per
+trip in the proxy, so the proxy placed 53 of 2,077 trips). `read_feed` reads every file once (csv + zipfile,
+streamed, standard library only) into a `Feed`; `topology.schedule` makes the service day's departures of it;
+`match_shapes` clips the shapes that run over the map and matches them onto the tram or vehicle network by a
+shortest path through the corridor around each (`topology.matching.match_corridor`, the same matcher as OSM
+route relations).
 
 Files: routes.txt, trips.txt, stops.txt and stop_times.txt are required (a feed without one is refused with a
-`GtfsError` naming it); shapes.txt and every other file are optional. A trip without a shape (no shapes.txt,
-no shape_id, or a shape_id that shapes.txt lacks) is routed from stop to stop on the network: shortest paths
-between the nodes nearest its consecutive stops (`topology.matching.route_by_stops`). Malformed rows are
-skipped and counted in `Feed.report`.
+`GtfsError` naming it); shapes.txt, frequencies.txt, calendar.txt, calendar_dates.txt and the rest are
+optional. A trip without a shape (no shapes.txt, no shape_id, or a shape_id that shapes.txt lacks) runs on the
+shape made of its stops: one per route and stop sequence, named `STOP_SHAPE` + the first (smallest) id of the
+trips that share it, so that every such trip finds the shape `match_shapes` matched; it is routed from stop to
+stop on the network (`topology.matching.route_by_stops`). Malformed rows are skipped and counted in
+`Feed.report`.
 """
 
 from __future__ import annotations
@@ -29,18 +35,46 @@ from topology.networks import TRAM, VEHICLE
 REQUIRED_FILES = ("routes.txt", "trips.txt", "stops.txt", "stop_times.txt")
 #: shape ids made for trips without a shape: their polyline is the trip's stops
 STOP_SHAPE = "stops:"
+WEEKDAYS = ("monday", "tuesday", "wednesday", "thursday", "friday", "saturday", "sunday")
 
 
 class GtfsError(ValueError):
-    """The feed cannot be read (not a zip, a required file missing): a clear message for the user."""
+    """The feed cannot be read (not a zip, a required file missing, a bad time): a clear message for the user."""
 
 #: GTFS route_type -> our mode (basic types and the HSL extended bus types 700-704)
 MODE_OF_TYPE = {0: "tram", 900: "tram", 3: "bus", 700: "bus", 701: "bus", 702: "bus", 704: "bus"}
 
 
+def parse_time(text: str) -> int:
+    """GTFS "H:MM:SS" to seconds since the service day's midnight (noon minus 12 h); hours past 24 are kept
+    (25:10:00 is 90600: a trip of the service day that runs after midnight). A GtfsError otherwise."""
+    parts = text.strip().split(":")
+    try:
+        if len(parts) != 3 or not all(p.isdigit() for p in parts):
+            raise ValueError
+        h, m, s = (int(p) for p in parts)
+        if not (0 <= m < 60 and 0 <= s < 61):
+            raise ValueError
+    except ValueError:
+        raise GtfsError(f"not a GTFS time: {text!r}") from None
+    return h * 3600 + m * 60 + s
+
+
+@dataclass
+class TripInfo:
+    """A trip of trips.txt: its route, service, direction and the shape it runs on (shapes.txt's, or the
+    `STOP_SHAPE` one made of its stops; "" when it has neither)."""
+
+    route_id: str
+    service_id: str
+    direction: str
+    shape_id: str
+
+
 @dataclass
 class Feed:
-    """What `read_feed` keeps of a feed: the routes, shapes and stops of the wanted modes (lon, lat)."""
+    """What `read_feed` keeps of a feed: the routes, stops and shapes (lon, lat) of the wanted modes' trips,
+    with their stop times, frequencies and calendars."""
 
     routes: dict[str, tuple[str, str]]  # route_id -> (mode or "", short name)
     shape_route: dict[str, str]  # shape_id -> route_id (of its first trip)
@@ -50,6 +84,16 @@ class Feed:
     path: str = ""
     #: "skipped:<file>_bad_row", "read:trips_without_shape", ...
     report: Counter = field(default_factory=Counter)
+    trips: dict[str, TripInfo] = field(default_factory=dict)  # trip_id -> info, in trips.txt order
+    #: trip_id -> [(stop_sequence, stop_id, arrival, departure)] sorted; a time is None where the feed leaves it
+    #: empty (a stop that is not a timepoint)
+    stop_times: dict[str, list[tuple[int, str, int | None, int | None]]] = field(default_factory=dict)
+    #: trip_id -> [(start, end, headway, exact_times)] of frequencies.txt
+    frequencies: dict[str, list[tuple[int, int, int, bool]]] = field(default_factory=dict)
+    #: service_id -> (Monday..Sunday flags, start date, end date) of calendar.txt
+    calendar: dict[str, tuple[tuple[int, ...], str, str]] = field(default_factory=dict)
+    #: date -> {service_id: exception_type (1 added, 2 removed)} of calendar_dates.txt
+    calendar_dates: dict[str, dict[str, int]] = field(default_factory=dict)
 
 
 @dataclass
@@ -70,6 +114,14 @@ def _rows(zf: zipfile.ZipFile, name: str):
         yield from csv.DictReader(io.TextIOWrapper(fh, encoding="utf-8-sig", newline=""))
 
 
+def read_table(zf: zipfile.ZipFile, name: str) -> tuple[list[str], list[dict[str, str]]]:
+    """One file of an open feed as it is: its column names and rows (for tools that rewrite a feed, such as
+    the bundled extract's `sims.data.make_hsl_extract`, so that no one else parses the CSV)."""
+    with zf.open(name) as fh:
+        r = csv.DictReader(io.TextIOWrapper(fh, encoding="utf-8-sig", newline=""))
+        return list(r.fieldnames or []), list(r)
+
+
 def _open(path: str | FsPath) -> zipfile.ZipFile:
     try:
         zf = zipfile.ZipFile(path)
@@ -82,70 +134,124 @@ def _open(path: str | FsPath) -> zipfile.ZipFile:
     return zf
 
 
-def read_feed(path: str | FsPath, modes: tuple[str, ...] = ("tram", "bus")) -> Feed:
-    """Routes, shapes, one trip per shape and the stops of the given modes.
+def _optional_time(text: str | None) -> int | None:
+    return parse_time(text) if text and text.strip() else None
 
-    Trips without a usable shape get one made of their stops (`STOP_SHAPE` + trip id; one trip per route and
-    direction), which `match_shapes` routes from stop to stop on the network."""
+
+def read_feed(path: str | FsPath, modes: tuple[str, ...] = ("tram", "bus")) -> Feed:
+    """Every file of the feed that the project uses, for the trips of the given modes: routes, trips, their
+    stop times, frequencies, the calendars, stops, and shapes (a trip without one gets the shape of its
+    stops: the module docstring)."""
     report: Counter = Counter()
+    feed = Feed({}, {}, {}, {}, {}, str(path), report)
     with _open(path) as zf:
-        routes = {}
+        names = set(zf.namelist())
         for r in _rows(zf, "routes.txt"):
             try:
-                mode = MODE_OF_TYPE.get(int(r["route_type"]), "")
-                routes[r["route_id"]] = (mode, r.get("route_short_name") or "")
+                feed.routes[r["route_id"]] = (MODE_OF_TYPE.get(int(r["route_type"]), ""),
+                                              r.get("route_short_name") or "")
             except (KeyError, TypeError, ValueError):
                 report["skipped:routes_bad_row"] += 1
-        shape_route: dict[str, str] = {}
-        shape_trip: dict[str, str] = {}
-        shapeless: dict[tuple[str, str], str] = {}  # (route, direction) -> one trip without a shape
         for t in _rows(zf, "trips.txt"):
-            try:
-                rid, tid = t["route_id"], t["trip_id"]
-            except KeyError:
+            rid, tid = t.get("route_id"), t.get("trip_id")
+            if not rid or not tid or rid not in feed.routes:
                 report["skipped:trips_bad_row"] += 1
                 continue
-            if routes.get(rid, ("", ""))[0] not in modes or not tid:
-                continue
-            sid = t.get("shape_id") or ""
-            if sid:
-                if sid not in shape_route:
-                    shape_route[sid] = rid
-                    shape_trip[sid] = tid
-            else:
-                shapeless.setdefault((rid, t.get("direction_id") or ""), tid)
+            mode = feed.routes[rid][0]
+            if not mode:
+                report["skipped:unknown_route_type"] += 1
+            elif mode in modes:
+                feed.trips[tid] = TripInfo(rid, t.get("service_id") or "", t.get("direction_id") or "",
+                                           t.get("shape_id") or "")
+        _read_stop_times(zf, feed)
+        if "frequencies.txt" in names:
+            for r in _rows(zf, "frequencies.txt"):
+                if r.get("trip_id") not in feed.trips:
+                    continue
+                try:
+                    a, b, h = parse_time(r["start_time"]), parse_time(r["end_time"]), int(r["headway_secs"])
+                    if h <= 0 or b < a:
+                        raise ValueError
+                    feed.frequencies.setdefault(r["trip_id"], []).append((a, b, h, r.get("exact_times") == "1"))
+                except (KeyError, TypeError, ValueError):
+                    report["skipped:frequencies_bad_row"] += 1
+        _read_calendars(zf, names, feed)
+        for s in _rows(zf, "stops.txt"):
+            try:
+                feed.stops[s["stop_id"]] = (s.get("stop_name") or "", float(s["stop_lon"]), float(s["stop_lat"]))
+            except (KeyError, TypeError, ValueError):
+                report["skipped:stops_bad_row"] += 1
+        wanted = {t.shape_id for t in feed.trips.values() if t.shape_id}
         pts: dict[str, list[tuple[int, float, float]]] = defaultdict(list)
-        if "shapes.txt" in zf.namelist():
+        if "shapes.txt" in names:
             for s in _rows(zf, "shapes.txt"):
                 sid = s.get("shape_id") or ""
-                if sid in shape_route:
+                if sid in wanted:
                     try:
                         pts[sid].append((int(s["shape_pt_sequence"]), float(s["shape_pt_lon"]),
                                          float(s["shape_pt_lat"])))
                     except (KeyError, TypeError, ValueError):
                         report["skipped:shapes_bad_row"] += 1
-        shapes = {sid: np.array([(lon, lat) for _q, lon, lat in sorted(p)], dtype=np.float64)
-                  for sid, p in pts.items() if len(p) >= 2}
-        for sid in list(shape_route):  # a shape_id that shapes.txt lacks: route its trip by its stops
-            if sid not in shapes:
-                rid = shape_route.pop(sid)
-                shapeless.setdefault((rid, sid), shape_trip.pop(sid))
-        stops = {}
-        for s in _rows(zf, "stops.txt"):
+    feed.shapes = {sid: np.array([(lon, lat) for _q, lon, lat in sorted(p)], dtype=np.float64)
+                   for sid, p in pts.items() if len(p) >= 2}
+    _assign_shapes(feed)
+    return feed
+
+
+def _read_stop_times(zf: zipfile.ZipFile, feed: Feed) -> None:
+    """stop_times.txt of the wanted trips, each trip's rows in stop_sequence order (bad rows counted)."""
+    out: dict[str, list[tuple[int, str, int | None, int | None]]] = defaultdict(list)
+    for r in _rows(zf, "stop_times.txt"):
+        tid = r.get("trip_id")
+        if tid not in feed.trips:
+            continue
+        try:
+            arr = _optional_time(r.get("arrival_time"))
+            dep = _optional_time(r.get("departure_time"))
+            out[tid].append((int(r["stop_sequence"]), r["stop_id"], arr if arr is not None else dep,
+                             dep if dep is not None else arr))
+        except (KeyError, TypeError, ValueError):
+            feed.report["skipped:stop_times_bad_row"] += 1
+    feed.stop_times = {tid: sorted(rows) for tid, rows in out.items()}
+
+
+def _read_calendars(zf: zipfile.ZipFile, names: set[str], feed: Feed) -> None:
+    if "calendar.txt" in names:
+        for r in _rows(zf, "calendar.txt"):
             try:
-                stops[s["stop_id"]] = (s.get("stop_name") or "", float(s["stop_lon"]), float(s["stop_lat"]))
+                days = tuple(int(r[d]) for d in WEEKDAYS)
+                feed.calendar[r["service_id"]] = (days, r["start_date"], r["end_date"])
             except (KeyError, TypeError, ValueError):
-                report["skipped:stops_bad_row"] += 1
-    if shapeless:
-        report["read:trips_without_shape"] += len(shapeless)
-        seqs = trip_stops(path, set(shapeless.values()), report)
-        for (rid, _d), tid in sorted(shapeless.items()):
-            known = [stops[i] for i in seqs.get(tid, []) if i in stops]
-            if len(known) >= 2:
-                sid = STOP_SHAPE + tid
-                shape_route[sid], shape_trip[sid] = rid, tid
-                shapes[sid] = np.array([(k[1], k[2]) for k in known], dtype=np.float64)
-    return Feed(routes, shape_route, shape_trip, shapes, stops, str(path), report)
+                feed.report["skipped:calendar_bad_row"] += 1
+    if "calendar_dates.txt" in names:
+        for r in _rows(zf, "calendar_dates.txt"):
+            try:
+                feed.calendar_dates.setdefault(r["date"], {})[r["service_id"]] = int(r["exception_type"])
+            except (KeyError, TypeError, ValueError):
+                feed.report["skipped:calendar_dates_bad_row"] += 1
+
+
+def _assign_shapes(feed: Feed) -> None:
+    """Each trip's shape: shapes.txt's, else the one made of its stops (per route and stop sequence)."""
+    made: dict[tuple[str, tuple[str, ...]], list[str]] = defaultdict(list)
+    for tid, t in feed.trips.items():
+        if t.shape_id in feed.shapes:
+            if t.shape_id not in feed.shape_route:
+                feed.shape_route[t.shape_id], feed.shape_trip[t.shape_id] = t.route_id, tid
+            continue
+        seq = tuple(s for _q, s, _a, _d in feed.stop_times.get(tid, []) if s in feed.stops)
+        t.shape_id = ""
+        if len(seq) >= 2:
+            made[(t.route_id, seq)].append(tid)
+        feed.report["read:trips_without_shape"] += 1
+    for (rid, seq), tids in made.items():
+        sid = STOP_SHAPE + min(tids)
+        feed.shapes[sid] = np.array([feed.stops[s][1:] for s in seq], dtype=np.float64)
+        feed.shape_route[sid], feed.shape_trip[sid] = rid, min(tids)
+        for tid in tids:
+            feed.trips[tid].shape_id = sid
+    if made:
+        feed.report["read:shapes_made_of_stops"] += len(made)
 
 
 def trip_stops(path: str | FsPath, trip_ids: set[str], report: Counter | None = None) -> dict[str, list[str]]:
@@ -183,8 +289,8 @@ def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), 
     """Shapes of `modes` that run over the map, clipped and matched to connected directed-edge routes.
 
     A matched route is kept if it is at least `min_length` metres long and within -20%/+25% of the clipped
-    shape's length (otherwise the match went astray and it is skipped). A trip without a shape is routed
-    from stop to stop (`route_by_stops`) and kept if it is at least `min_length` metres long."""
+    shape's length (otherwise the match went astray and it is skipped). A shape made of a trip's stops is
+    routed from stop to stop (`route_by_stops`) and kept if it is at least `min_length` metres long."""
     from topology.projection import LocalProjection
 
     graphs: dict[int, object] = {}
@@ -219,7 +325,10 @@ def match_shapes(feed: Feed, topo, *, modes: tuple[str, ...] = ("tram", "bus"), 
                     continue
             out.append(MatchedShape(sid, route_id, mode, ref, run, best))
     if out:
-        stops_of = trip_stops(feed.path, {feed.shape_trip[m.shape_id] for m in out})
+        stops_of = {tid: [s for _q, s, _a, _d in feed.stop_times.get(tid, [])]
+                    for tid in {feed.shape_trip[m.shape_id] for m in out}}
+        if not feed.stop_times:  # a Feed made by hand, without its stop times: stream them
+            stops_of = trip_stops(feed.path, set(stops_of))
         for m in out:
             ids = stops_of.get(feed.shape_trip[m.shape_id], [])
             known = [feed.stops[i] for i in ids if i in feed.stops]

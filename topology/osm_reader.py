@@ -53,6 +53,9 @@ class _Collector:
         self.seen_ways: set[int] = set()
         self.incomplete_ways: set[int] = set()  # ways with a node missing from the extract
         self.built: set[tuple[bool, int]] = set()  # (from a way, original id) of every area osmium built
+        # closed polygon ways with every node located, as lon/lat rings: what `repair_unassembled` rebuilds a
+        # polygon from when osmium builds no ring (a self-intersecting way, the usual OSM case)
+        self.poly_rings: dict[int, tuple[list[tuple[float, float]], dict]] = {}
 
     def node(self, n) -> None:
         if n.tags and _is_stop_node(n.tags) and n.location.valid():
@@ -66,7 +69,10 @@ class _Collector:
             self.incomplete_ways.add(w.id)
         kind = _polygon_kind(tags)
         if kind is not None:
-            self.poly_ways[w.id] = (kind, _why_no_polygon(w))
+            why = _why_no_polygon(w)
+            self.poly_ways[w.id] = (kind, why)
+            if why == "not_assembled":
+                self.poly_rings[w.id] = ([(nr.location.lon, nr.location.lat) for nr in w.nodes], tags)
         bits = way_networks(tags)
         if not bits:
             if "highway" in tags or "railway" in tags:
@@ -115,7 +121,6 @@ class _Collector:
         if not is_building and akind is None:
             return
         kind = "building" if is_building else "area"
-        self.built.add((a.from_way(), a.orig_id()))
         rings = 0
         try:
             for outer in a.outer_rings():
@@ -126,14 +131,26 @@ class _Collector:
         except (osmium.InvalidLocationError, ValueError):
             self.report[f"dropped:{kind}_bad_geometry"] += 1
             return
-        if rings == 0:  # osmium could not close a ring (a self-overlapping way, an open multipolygon)
+        if rings:
+            self.built.add((a.from_way(), a.orig_id()))
+        elif not a.from_way():  # osmium could not close a ring (an open multipolygon)
+            self.built.add((False, a.orig_id()))
             self.report[f"dropped:{kind}_no_rings"] += 1
+        # (a closed way without rings is self-intersecting: `repair_unassembled` rebuilds it from its nodes)
 
-    def count_unassembled(self) -> None:
-        """Buildings and areas that osmium never turned into an area are dropped too: count them by why."""
+    def repair_unassembled(self) -> None:
+        """Buildings and areas that osmium never turned into an area: a closed way with every node located
+        (osmium builds no ring for a self-intersecting one) becomes the polygon of its nodes, which
+        `_valid_parts` makes valid (`shapely.make_valid`) and counts as repaired, or drops as degenerate
+        when nothing of it has an area; the others are dropped and counted by why."""
         for wid, (kind, why) in self.poly_ways.items():
-            if (True, wid) not in self.built:
-                self.report[f"dropped:{kind}_{why}"] += 1
+            if (True, wid) in self.built:
+                continue
+            ring = self.poly_rings.get(wid)
+            if ring is not None:
+                self.polys.append((kind, wid, Polygon(ring[0]), ring[1]))
+                continue
+            self.report[f"dropped:{kind}_{why}"] += 1
         for rid, (kind, members) in self.poly_rels.items():
             if (False, rid) not in self.built:
                 missing = not members or any(m not in self.seen_ways or m in self.incomplete_ways
@@ -183,7 +200,7 @@ def read_osm(
                 col.area(obj)
     except RuntimeError as exc:
         raise MapReadError(f"{path}: not readable OpenStreetMap data ({exc})") from None
-    col.count_unassembled()
+    col.repair_unassembled()
     if not col.ways and not col.polys:
         raise MapReadError(f"{path}: no streets, areas or buildings found (is this OpenStreetMap data?)")
     return _assemble(col, crs, bbox)
@@ -195,7 +212,7 @@ def _assemble(col: _Collector, crs: str | None, bbox) -> RawMap:
     if col.ways:
         allc = np.concatenate([w[1] for w in col.ways])
     else:
-        allc = np.concatenate([np.asarray(p[2].exterior.coords) for p in col.polys])
+        allc = np.concatenate([np.asarray(p[2].exterior.coords) for p in col.polys if not p[2].is_empty])
     lon_min, lat_min = allc.min(axis=0)
     lon_max, lat_max = allc.max(axis=0)
     if bbox is not None:
@@ -300,12 +317,14 @@ def _min_height(tags: dict) -> float:
 
 
 def _valid_parts(poly, report: Counter, kind: str) -> list[Polygon]:
-    """Repair invalid polygons (bow-ties, self-touching rings) and split multipolygons into parts."""
+    """Repair invalid polygons (bow-ties, self-touching rings) and split multipolygons into parts. A repair
+    is counted when something with an area is left of it (`repaired:<kind>_invalid_polygon`); a polygon with
+    nothing left (a ring of collinear points) is dropped and counted as degenerate."""
     if poly.is_empty:
         report[f"dropped:{kind}_empty"] += 1
         return []
-    if not poly.is_valid:
-        report[f"repaired:{kind}_invalid_polygon"] += 1
+    repaired = not poly.is_valid
+    if repaired:
         poly = shapely.make_valid(poly)
     parts = [g for g in getattr(poly, "geoms", [poly]) if g.geom_type == "Polygon"]
     for g in getattr(poly, "geoms", []):
@@ -314,4 +333,6 @@ def _valid_parts(poly, report: Counter, kind: str) -> list[Polygon]:
     kept = [p for p in parts if p.area >= MIN_POLYGON_AREA_M2]
     if len(kept) < len(parts) or not parts:
         report[f"dropped:{kind}_degenerate_polygon"] += max(1, len(parts) - len(kept))
+    if repaired and kept:
+        report[f"repaired:{kind}_invalid_polygon"] += 1
     return kept

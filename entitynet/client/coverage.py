@@ -13,22 +13,26 @@ import math
 from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
+from entitynet.client.hold import PlacementHold, cells_under
 from entitynet.client.lateral import near_index
 from entitynet.client.modes import AREA
 from entitynet.client.motion import AreaModel, Model, NetworkModel
 from entitynet.client.network import NetView
-from entitynet.client.occupation import Occupation, make_occupation, occupy, occupy_area, wire_validity
+from entitynet.client.occupation import (
+    LOOKAHEAD,
+    Occupation,
+    lookahead_for,
+    occupy,
+    occupy_area,
+    wire_validity,
+    with_cells,
+)
 from entitynet.client.path import Path, follow
 from entitynet.client.placement import ring_distance
 from entitynet.client.route import Route
 from entitynet.client.tracker import MAX_PATH_EDGES, NetworkTracker
 
 MAX_PUBLISH_CELLS = 64
-
-
-def _with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
-    """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
-    return make_occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
 
 
 def _wire(occ: Occupation) -> Occupation:
@@ -57,17 +61,32 @@ class Coverage:
     estimate (world-frame baselines), widened by `lateral` metres where the entity may be elsewhere."""
 
     def __init__(self, net: NetView, etype: EntityType, route: Route, *, body: float, margin: float,
-                 accuracy: float, lateral: float, lookahead: float, max_validity: float, heartbeat: float) -> None:
+                 accuracy: float, lateral: float, lookahead: float | None, max_validity: float,
+                 heartbeat: float) -> None:
         self.net = net
         self.etype = etype
         self.route = route
         self.has_route = bool(route)
         self.body, self.margin, self.accuracy, self.lateral = body, margin, accuracy, lateral
         self.lookahead, self.max_validity, self.heartbeat = lookahead, max_validity, heartbeat
+        # a place that rests on one fix: a wider cover for a few seconds, for walkers and cyclists (no body), whose
+        # network has the ways a few metres apart (sidewalks, footways drawn twice); it did not help cars
+        self.hold = PlacementHold(lateral if etype.length == 0.0 else None)
+
+    def placed(self, reason: str, t: float, ghost: Model, old: Model | None, trk: NetworkTracker,
+               estimate_xy: Callable[[], tuple[float, float]]) -> Occupation | None:
+        """The occupation of a publish for `reason` (`old`: the ghost it replaces): `occupation`, with the
+        placement hold's wider cover while a place rests on one fix (hold.py)."""
+        hold = self.hold
+        if hold.active and reason in ("first", "jump"):
+            hold.placed(reason, t, cells_under(self.net, old, t, self.body, self.margin))
+        occ = self.occupation(t, ghost, trk, estimate_xy, hold.lateral_at(t))
+        return hold.widen(occ, t) if occ is not None else None
 
     def occupation(self, t: float, ghost: Model, trk: NetworkTracker,
-                   estimate_xy: Callable[[], tuple[float, float]]) -> Occupation | None:
-        """The occupation to publish with `ghost` at `t` (None while the tracker has no place)."""
+                   estimate_xy: Callable[[], tuple[float, float]], lateral: float | None = None) -> Occupation | None:
+        """The occupation to publish with `ghost` at `t` (None while the tracker has no place). `lateral`: the
+        radius of the other ways' cells on a way, when not the usual (a place that rests on one fix)."""
         if trk.place is None:
             return None
         et = self.etype
@@ -111,8 +130,11 @@ class Coverage:
         known = self.route.known_until(path, s)
         travel = ghost.time_to if isinstance(ghost, NetworkModel) else None
         # at a dead end the model halts at the path's end: nothing ahead to enter, no front period
+        look = self.lookahead
+        if look is None:  # the default: sized by the model along a route, else up to the next choice of way
+            look = lookahead_for(v, a, et.vmax) if self.has_route else LOOKAHEAD
         occ = occupy(path, s, et.length, v, a, et.vmax, et.networks, known_until=known, margin=self.margin,
-                     lookahead=self.lookahead, max_validity=min(self.max_validity, self.heartbeat), travel=travel,
+                     lookahead=look, max_validity=min(self.max_validity, self.heartbeat), travel=travel,
                      dead_end_at_path_end=path.edges[-1] == trk.dead_end)
         back = None
         if v == 0.0 and not self.has_route and self.body == 0.0 and isinstance(ghost, NetworkModel):
@@ -126,14 +148,19 @@ class Coverage:
                     cells.append(c)
             occ = Occupation(tuple(cells), min(occ.validity, back.validity), occ.front_period, occ.aft_period,
                              occ.cover_start, occ.cover_end)
-        if self.lateral > 0.0 and not self.has_route:
+        lateral = self.lateral if lateral is None else lateral
+        if lateral > 0.0:
+            # with a route, only the route's own ways: where it turns back on itself (a tram's terminal
+            # triangle, a bus loop) the way back lies within GPS noise of the way on, and the tracker may hold
+            # the wrong one for a while (issue 20: the largest share of the vehicles' occupation error)
             extra = self._lateral_cells(trk, path, s, occ.cover_end - s,
-                                        None if back is None else back.cover_end - back.cover_start)
+                                        None if back is None else back.cover_end - back.cover_start,
+                                        only=self.route.edge_ids if self.has_route else None, lateral=lateral)
             cells = list(occ.cells)
             for c in extra:
                 if c not in cells and len(cells) < MAX_PUBLISH_CELLS:
                     cells.append(c)
-            occ = _with_cells(occ, tuple(cells))
+            occ = with_cells(occ, tuple(cells))
         return _wire(occ)
 
     def _behind(self, path: Path, s: float, lookahead: float, networks: int) -> Occupation:
@@ -150,13 +177,16 @@ class Coverage:
                       lookahead=lookahead, max_validity=min(self.max_validity, self.heartbeat))
 
     def _lateral_cells(self, trk: NetworkTracker, path: Path, s: float, ahead: float,
-                       behind: float | None = None) -> list[int]:
+                       behind: float | None = None, only: frozenset[int] | None = None,
+                       lateral: float | None = None) -> list[int]:
         """Cells of the other edges within `lateral` metres of the position: under GPS noise the entity may
         be on a parallel way (the other sidewalk) rather than the one it was placed on. Each such edge is
         covered from `behind` metres behind the projected point (default: the margin and the body) to `ahead`
-        metres on, in the direction of travel."""
+        metres on, in the direction of travel. `only`: the edges that may be candidates (a route's); then no
+        area is."""
         net, placer = self.net, trk.placer
         near = near_index(placer)
+        lateral = self.lateral if lateral is None else lateral
         x, y = path.xy(s)
         hx, hy = path.xy(min(s + 1.0, path.length))
         bx, by = path.xy(max(s - 1.0, 0.0))
@@ -169,11 +199,11 @@ class Coverage:
         on_path = {edges[k][0] for k in range(len(edges)) if cum[k + 1] >= s - back and cum[k] <= s + ahead}
         out: list[int] = []
         # every way near the position, connected or not (footways drawn twice, a few metres apart)
-        for e in near.edges_near(x, y, self.lateral):
-            if e == e_cur or e in on_path:
+        for e in near.edges_near(x, y, lateral):
+            if e == e_cur or e in on_path or (only is not None and e not in only):
                 continue
             f = placer.project_on(x, y, e)
-            if f.distance > self.lateral:
+            if f.distance > lateral:
                 continue
             hx0, hy0 = net.point(e, min(f.offset + 1.0, net.edge_len[e]))
             bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
@@ -184,8 +214,10 @@ class Coverage:
             for a0, b0, c in net.pieces(e, 1):
                 if b0 >= lo and a0 <= hi and c not in out:
                     out.append(c)
-        for area in placer.areas_near(x, y, self.lateral):  # an area next to the way: maybe inside it
-            if near.within_ring(area, x, y, self.lateral):
+        if only is not None:
+            return out
+        for area in placer.areas_near(x, y, lateral):  # an area next to the way: maybe inside it
+            if near.within_ring(area, x, y, lateral):
                 c = net.area_cell[area]
                 if c not in out:
                     out.append(c)

@@ -34,32 +34,33 @@ from collections.abc import Sequence
 import numpy as np
 
 from entitynet.client.fixes import FixRejected
-from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed, hypot_py, kf_update
+from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed, hypot_py, interval_rows, kf_update
 from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
 from entitynet.client.path import Path
 from entitynet.client.placement import Fix, _new_fix
 from entitynet.client.player import Player
-from entitynet.client.rules import OWN_ESTIMATE
+from entitynet.client.rules import FIX_INTERVALS_KEPT, GAP_INTERVALS, MIN_INTERVALS, OWN_ESTIMATE, usual_interval
 from entitynet.client.tracker import MAX_PATH_EDGES
 from entitynet.protocol import Publish, Unpublish
 
 W = MAX_PATH_EDGES  # the widest path a row holds (the tracker never keeps more edges)
-RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent`
+RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent` (and fix intervals by `UpdateRules.intervals`)
+assert FIX_INTERVALS_KEPT == RECENT
 # the float fields in three groups, each a contiguous run of columns that `_load` writes in one assignment:
 # what any call may change (with the rings: oldest first, last RECENT), what changes only with a new ghost
 # (a publish), and the entity's constants (written once; `player(slot)` hands the Player out, so it may change)
 _VAR = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt",
-        "dist_ema", "vpeak", "vpeak_t", "lf_off", "lf_x", "lf_y", "lf_d")
+        "dist_ema", "vpeak", "vpeak_t", "lf_off", "lf_x", "lf_y", "lf_d", "gap_lim", "reach")
 _GHOST = ("pub_t", "validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
 _CONST = ("kq", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap",
-          "lost_after", "body")
-_F = (*_VAR, *(f"{ring}{k}" for ring in ("rs", "rx", "ry") for k in range(RECENT)), *_GHOST, *_CONST)
+          "lost_after", "body", "vmax")
+_F = (*_VAR, *(f"{ring}{k}" for ring in ("rs", "rx", "ry", "iv") for k in range(RECENT)), *_GHOST, *_CONST)
 _RINGS = _F.index("rs0")
 _G0 = _F.index("pub_t")  # the ghost's columns [_G0, _C0), the constants' [_C0, end)
 _C0 = _F.index("kq")
-_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn")  # pn, gn: by _put_path
+_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn", "iv_n")  # pn, gn: by _put_path
 _B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty", "consts")  # path_dirty: trimmed in the arrays;
 # consts: the constants' columns hold the Player's
 
@@ -73,7 +74,7 @@ def _deadline(p: Player) -> float:
     if p.last_t is not None:
         d = min(d, p.last_t + r.lost_after)
         if not r.halted:
-            d = min(d, p.last_t + r.max_gap)
+            d = min(d, p.last_t + r.gap_limit)
     return d - (1e-6 + abs(d) * 1e-12)
 
 
@@ -108,7 +109,7 @@ class FleetCore:
             setattr(self, f, self.fm[:, j])
         for j, f in enumerate(_I):
             setattr(self, f, self.im[:, j])
-        for ring in ("rs", "rx", "ry"):
+        for ring in ("rs", "rx", "ry", "iv"):
             j = _F.index(f"{ring}0")
             setattr(self, ring, self.fm[:, j : j + RECENT])
         for f in _B:
@@ -216,6 +217,9 @@ class FleetCore:
         pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
         rows = np.arange(len(sl))
         ks, kv, ka, kt = self.ks[sl], self.kv[sl], self.ka[sl], self.kt[sl]
+        iv, iv_n, gap_lim, reach = interval_rows(self.iv[sl], self.iv_n[sl], t - self.last_t[sl], self.max_gap[sl],
+                                                 self.lost_after[sl], self.reacq[sl], self.vmax[sl], GAP_INTERVALS,
+                                                 MIN_INTERVALS)
         dt = np.where(t > kt, t - kt, 0.0)
         s_pred = ks + kv * dt + 0.5 * ka * dt * dt
         k = (pc <= s_pred[:, None]).sum(axis=1) - 1
@@ -245,7 +249,7 @@ class FleetCore:
             ok[g] = good
             e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
             e[g], off[g], px[g], py[g], dist[g], s_meas[g] = ge_, goff, gpx, gpy, gd, gs
-        ok &= ~(np.abs(s_meas - s_pred) > reacq)
+        ok &= ~(np.abs(s_meas - s_pred) > reach)
         near_rows = gen
         dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
         kup = kt < t
@@ -331,6 +335,7 @@ class FleetCore:
         w = np.flatnonzero(ok)
         c = sl[w]
         self.last_t[c] = t
+        self.iv[c], self.iv_n[c], self.gap_lim[c], self.reach[c] = iv[w], iv_n[w], gap_lim[w], reach[w]
         self.mx[c], self.my[c] = x[w], y[w]
         self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
         self.dist_ema[c] = dist_ema[w]
@@ -355,7 +360,7 @@ class FleetCore:
         self.rx[c], self.ry[c], self.rr_n[c] = rx[w], ry[w], rr_n[w]
         self.over[c] = np.where(standing[w], self.over[c], over[w])
         d = np.minimum(np.minimum(pub_t[w] + self.validity[c], pub_t[w] + self.heartbeat[c]),
-                       np.minimum(t + self.lost_after[c], t + self.max_gap[c]))
+                       np.minimum(t + self.lost_after[c], t + gap_lim[w]))
         self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
         self.dirty[c] = True
         return ok
@@ -424,6 +429,10 @@ class FleetCore:
         n = int(self.rr_n[s])
         rules.recent = list(zip(self.rx[s, RECENT - n:].tolist(), self.ry[s, RECENT - n:].tolist(), strict=True))
         rules.over = int(self.over[s])
+        n = int(self.iv_n[s])
+        rules.intervals = self.iv[s, RECENT - n:].tolist()
+        rules.interval = usual_interval(rules.intervals) if n >= MIN_INTERVALS else 0.0
+        rules.gap_limit, trk.reach = float(self.gap_lim[s]), float(self.reach[s])
         self.dirty[s] = False
 
     def _load(self, s: int) -> None:
@@ -453,13 +462,13 @@ class FleetCore:
         if paths is None or paths[1] is not ghost.path:
             self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
         self._paths[s] = (trk.path, ghost.path)
-        n_s, n_r = len(trk.recent_s), len(rules.recent)
+        n_s, n_r, n_i = len(trk.recent_s), len(rules.recent), len(rules.intervals)
         pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
         self.fm[s, :_G0] = [p.last_t, p.measured[0], p.measured[1], self.deadline[s], kf.s, kf.v, kf.a, kf.p00,
                             kf.p01, kf.p02, kf.p11, kf.p12, kf.p22, kf.t, trk.dist_ema, trk.vpeak, trk.vpeak_t,
-                            lf[2], lf[3], lf[4], lf[5],
+                            lf[2], lf[3], lf[4], lf[5], rules.gap_limit, trk.reach,
                             *pad_s, *trk.recent_s, *pad_r, *[pt[0] for pt in rules.recent],
-                            *pad_r, *[pt[1] for pt in rules.recent]]
+                            *pad_r, *[pt[1] for pt in rules.recent], *[0.0] * (RECENT - n_i), *rules.intervals]
         if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish, and with it pub_t, validity
             self._ghosts[s] = ghost
             tb, sb, vb, b = ghost.plan
@@ -470,11 +479,12 @@ class FleetCore:
             self.fm[s, _C0:] = [kf.q, placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
                                 placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0,
                                 trk.lookahead, trk.margin, rules.threshold, rules.heartbeat, rules.max_gap,
-                                rules.lost_after, trk.body]
+                                rules.lost_after, trk.body, et.vmax]
             self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
             self.consts[s] = True
         dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
         self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
+        self.iv_n[s] = n_i
 
     @staticmethod
     def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:

@@ -220,3 +220,26 @@ def extend_rows(players, net, sl: np.ndarray, ext: np.ndarray, need: np.ndarray,
             pe[r, n + j], pd[r, n + j], pc[r, n + j + 1] = e, d, c
         pn[r] = n + len(ahead)
     return dead
+
+
+def interval_rows(ring: np.ndarray, n: np.ndarray, dt: np.ndarray, max_gap: np.ndarray, lost_after: np.ndarray,
+                  reacquire: np.ndarray, vmax: np.ndarray, gap_intervals: float,
+                  min_intervals: int) -> tuple[np.ndarray, ...]:
+    """`UpdateRules.note_interval` (with `usual_interval`, `gap_limit`) and the Player's `reach` for every row:
+    the interval ring (oldest first, the last n columns used) with dt appended where 0 < dt < lost_after,
+    its count, the gap limit and the along-path reach (rows with fewer than `min_intervals`: max_gap and
+    reacquire)."""
+    k = ring.shape[1]
+    rec = (dt > 0.0) & (dt < lost_after)
+    ring = np.where(rec[:, None], np.concatenate([ring[:, 1:], dt[:, None]], axis=1), ring)
+    n = np.where(rec, np.minimum(n + 1, k), n)
+    v = np.sort(np.where(np.arange(k)[None, :] >= (k - n)[:, None], ring, np.inf), axis=1)
+    rows = np.arange(len(n))
+    lo, hi = np.maximum(n - 1, 0) // 2, n // 2
+    med = (v[rows, lo] + v[rows, np.minimum(hi, k - 1)]) / 2.0
+    some = n >= min_intervals
+    gap = np.where(some, np.minimum(np.maximum(max_gap, gap_intervals * med), np.maximum(max_gap, 0.5 * lost_after)),
+                   max_gap)
+    reach = np.where(some, np.maximum(reacquire, vmax * med), reacquire)
+    return ring, n, gap, reach
+

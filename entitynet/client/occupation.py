@@ -30,15 +30,36 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from entitynet.client.frozen import maker
-from entitynet.client.kinematics import INF, time_to_travel
+from entitynet.client.kinematics import INF, advance, time_to_travel
 from entitynet.client.path import Path
 
-#: metres the occupation reaches past the body and its margin along a way known to be taken (the a-priori
-#: route, or up to the next choice of way): as deep as the branch tree at a junction (`occupy`'s
-#: `branch_depth`). Every cell listed ahead sends the entity's updates to viewers before it is there; with
-#: 150 m, 40 % of a street viewer's deliveries in the city simulation were for entities in no visible cell,
-#: and 40 m kept the publish rates within a few per cent (issue 11, docs/simulation.md).
+#: metres the occupation reaches past the body and its margin up to the next choice of way when no route is
+#: known (as deep as the branch tree at a junction, `occupy`'s `branch_depth`), and the least along a route
+#: (`lookahead_for`); also the way the tracker keeps ahead beyond the extrapolation. Every cell listed ahead
+#: sends the entity's updates to viewers before it is there: with 150 m, 40 % of a street viewer's deliveries
+#: in the city simulation were for entities in no visible cell (issue 11, docs/simulation.md).
 LOOKAHEAD = 40.0
+
+#: seconds of the published model's travel that the occupation of an entity on a known route lists ahead of
+#: its body and margin: a vehicle's drift rule re-publishes about every 6 s (`bench dr`), so a cover that lasts
+#: 12 s seldom expires first. With the fixed 40 m a tram at 12 m/s re-published every 4 s for the validity
+#: alone, and a ghost halting at a stop the vehicle passed left it outside its cells (issue 20). Without a
+#: route the occupation stops at the next choice of way, and LOOKAHEAD (the junction tree's depth) stays: a
+#: shorter one raised the walkers' occupation error (0.061 % to 0.11 % at 20 m), a longer one the deliveries
+#: for entities in no visible cell (issue 11).
+LOOKAHEAD_TIME = 12.0
+#: the most (m): the viewers of every cell listed receive the entity's updates before it is there
+LOOKAHEAD_MAX = 150.0
+
+
+def lookahead_for(v: float, a: float, vmax: float) -> float:
+    """The look-ahead (m) along a known route of an occupation published with model (v, a, vmax): how far that
+    model travels in LOOKAHEAD_TIME seconds, within [LOOKAHEAD, LOOKAHEAD_MAX]. The least is what a standing
+    vehicle covers from rest at up to 1.3 m/s^2 in the 5 s the start rule needs to see it go (16 m) and more."""
+    d, _v = advance(max(v, 0.0), a, vmax, LOOKAHEAD_TIME)
+    if not d < LOOKAHEAD_MAX:  # also NaN
+        return LOOKAHEAD_MAX if d == d else LOOKAHEAD
+    return d if d > LOOKAHEAD else LOOKAHEAD
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,6 +75,11 @@ class Occupation:
 
 
 make_occupation = maker(Occupation)  # Occupation(...) without the frozen dataclass __init__ (once per publish)
+
+
+def with_cells(occ: Occupation, cells: tuple[int, ...]) -> Occupation:
+    """`dataclasses.replace(occ, cells=cells)` without its generic field walk (once per publish)."""
+    return make_occupation(cells, occ.validity, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
 
 
 def certain_end(path: Path, s_front: float, networks: int, known_until: float) -> float:

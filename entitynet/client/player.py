@@ -40,6 +40,7 @@ from entitynet.protocol import Publish, Unpublish
 
 __all__ = ["MODELS", "FixRejected", "Player", "placer_for"]
 
+
 _make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
 
 
@@ -82,7 +83,6 @@ class Player:
         self.max_validity = max_validity
         self.off_network_timeout = off_network_timeout
         self.estimate = estimate
-        lookahead = LOOKAHEAD if lookahead is None else lookahead  # without a route `occupy` stops at a choice
         lateral = 2.0 * accuracy if lateral is None else float(lateral)
         self.net: NetView | None = netview(topo) if topo is not None else None
         self.route = Route(self.net, route, stops)
@@ -94,7 +94,8 @@ class Player:
         self.coverage: Coverage | None = None
         if self.net is not None:
             self.tracker = NetworkTracker(
-                self.net, et, self.route, body=self.body, margin=self.margin, lookahead=lookahead,
+                self.net, et, self.route, body=self.body, margin=self.margin,
+                lookahead=LOOKAHEAD if lookahead is None else lookahead,  # the way kept ahead
                 off_network=off_network, lateral=lateral, route_margin=route_margin,
                 filter_q=et.jerk_q if filter_q is None else float(filter_q),
                 filter_accel=et.accel if filter_accel is None else bool(filter_accel),
@@ -162,13 +163,14 @@ class Player:
              speed_accuracy: float = 0.5) -> list[Publish | Unpublish]:
         """One GPS fix (local metres, seconds). Returns the messages to send now (usually none).
 
-        `speed` (m/s) and `heading` (degrees clockwise from north: the course over ground) are the receiver's
-        Doppler velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per
-        axis (m/s). Optional: without them the speed comes from differences of positions, which at 5 m GPS
-        and 1 Hz is about ten times noisier."""
+        `speed` (m/s) and `heading` (degrees clockwise from north: the course over ground) are the receiver's Doppler
+        velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per axis (m/s).
+        Optional: without them the speed comes from differences of positions, about ten times noisier at 5 m, 1 Hz."""
         acc = self.accuracy if accuracy is None else float(accuracy)
         check_fix(x, y, t, acc, self.last_t)
         vel = velocity(speed, heading, speed_accuracy)
+        if self.last_t is not None and self.rules.note_interval(t - self.last_t) and self.tracker is not None:
+            self.tracker.follow_cadence(self.rules.interval)
         self.last_t = t
         self.rules.halted = False
         self.measured = (x, y, t)
@@ -202,9 +204,8 @@ class Player:
         return [self._publish(t, reason)]
 
     def tick(self, now: float) -> list[Publish | Unpublish]:
-        """Time passes without a fix: re-publish when the validity period or the heartbeat runs out; `max_gap`
-        seconds after the last fix publish the guess standing where it got to then, and `lost_after` seconds
-        after it unpublish (a later fix publishes afresh)."""
+        """Time passes without a fix: re-publish when the validity or the heartbeat runs out; a gap limit after the
+        last fix (rules.py) publish the guess standing, `lost_after` after it unpublish (a fix publishes afresh)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
         if self.last_t is not None and now < self.last_t:
@@ -261,8 +262,8 @@ class Player:
             payload, ghost = encode_quantized(plane_model(self.model, self.etype, t, *self._plane(), area,
                                                           self.ghost, from_ghost, stop_at))
         self.rules.published()
-        self.ghost = ghost
-        occ = self.occupation = self.coverage.occupation(t, ghost, trk, self.estimate_xy) if trk else None
+        old, self.ghost = self.ghost, ghost
+        occ = self.occupation = self.coverage.placed(reason, t, ghost, old, trk, self.estimate_xy) if trk else None
         self.pub_t = t
         self.seq += 1
         self.published = True

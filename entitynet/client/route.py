@@ -23,6 +23,7 @@ class Route:
         self.net = net
         self.edges: list[DirEdge] = [(int(e), 1 if d > 0 else -1) for e, d in (route or [])]
         self.pairs = set(zip(self.edges, self.edges[1:], strict=False))
+        self.edge_ids = frozenset(e for e, _d in self.edges)  # undirected: the ways the entity may be on
         self.first: dict[DirEdge, int] = {}
         for i, de in enumerate(self.edges):
             self.first.setdefault(de, i)

@@ -5,8 +5,12 @@
 - `stop` / `start`: emergent behaviour the extrapolation cannot know (a start is speed *and* displacement);
 - `periodic`: the baseline that publishes a position every `period` seconds;
 - `expiry`: the occupation's validity period ran out; `heartbeat`: nothing else for `heartbeat` seconds;
-- `gap`: no fix for `max_gap` seconds: the guess stops where it got to; `lost`: no fix for `lost_after`
-  seconds, the entity is unpublished (entitynet/client/limits.py says why).
+- `gap`: no fix for `gap_limit` seconds: the guess stops where it got to; `lost`: no fix for `lost_after`
+  seconds, the entity is unpublished (entitynet/client/limits.py says why). `gap_limit` is the configured
+  `max_gap`, or `GAP_INTERVALS` times the median of the last fix intervals (given `MIN_INTERVALS` of them)
+  when the feed is that slow (a real bus feed sends a fix every 31-33 s: with a 30 s limit every interval
+  was a gap and then a start), at most half of `lost_after`. At 1 Hz it is `max_gap`: nothing changes for
+  fast feeds. The tracker's along-path `reach` follows the same interval (`NetworkTracker.follow_cadence`).
 
 Where the entity "is believed to be" comes from an injected `Estimate` (default: the player's own filtered
 estimate), so that a benchmark can put the truth there without overriding the player's private methods.
@@ -54,6 +58,25 @@ class OwnEstimate:
 
 OWN_ESTIMATE = OwnEstimate()
 
+#: a gap is this many of the feed's usual fix intervals without a fix (one missed fix is not yet a gap)
+GAP_INTERVALS = 2.5
+FIX_INTERVALS_KEPT = 5  # the last intervals whose median is the usual one (robust to one long hole)
+MIN_INTERVALS = 3  # fewer say nothing yet (a gap right after the first fix is not the feed's cadence)
+
+
+def usual_interval(intervals: list[float]) -> float:
+    """The median of the observed fix intervals (non-empty), robust to one long hole (the fleet core's
+    `fleet_kernels.interval_rows` repeats these operations in this order)."""
+    v = sorted(intervals)
+    n = len(v)
+    return (v[(n - 1) // 2] + v[n // 2]) / 2.0
+
+
+def gap_limit(max_gap: float, lost_after: float, interval: float) -> float:
+    """Seconds without a fix before the guess halts: `max_gap`, or `GAP_INTERVALS` x the feed's usual fix
+    `interval` when that is longer, at most max(max_gap, lost_after / 2)."""
+    return min(max(max_gap, GAP_INTERVALS * interval), max(max_gap, 0.5 * lost_after))
+
 
 class UpdateRules:
     """The decisions between publishes, and their memory: fixes over the threshold in a row (`over`), the
@@ -67,6 +90,9 @@ class UpdateRules:
         self.threshold, self.confirm = threshold, confirm
         self.heartbeat, self.max_validity, self.period = heartbeat, max_validity, period
         self.max_gap, self.lost_after = max_gap, lost_after
+        self.intervals: list[float] = []  # the last fix intervals (s), oldest first
+        self.interval = 0.0  # their median (0: none observed yet)
+        self.gap_limit = max_gap  # `gap_limit(max_gap, lost_after, interval)`
         self.over = 0
         self.reposition = False
         self.halted = False  # a fix gap stopped the published guess (the `gap` update)
@@ -78,6 +104,19 @@ class UpdateRules:
         self.recent.append(xy)
         if len(self.recent) > 5:
             del self.recent[0]
+
+    def note_interval(self, dt: float) -> bool:
+        """A fix came `dt` seconds after the previous one: the gap limit follows the feed's usual interval
+        (an interval of `lost_after` or more is a loss, not the feed's cadence, and is not kept). Whether
+        the interval was kept (and `interval` may have changed)."""
+        if not 0.0 < dt < self.lost_after:
+            return False
+        self.intervals.append(dt)
+        if len(self.intervals) > FIX_INTERVALS_KEPT:
+            del self.intervals[0]
+        self.interval = usual_interval(self.intervals) if len(self.intervals) >= MIN_INTERVALS else 0.0
+        self.gap_limit = gap_limit(self.max_gap, self.lost_after, self.interval)
+        return True
 
     def forget(self) -> None:
         """A lost entity: its next fix starts afresh."""
@@ -152,12 +191,12 @@ class UpdateRules:
     def on_tick(self, now: float, last_t: float | None, pub_t: float,
                 occupation: Occupation | None) -> tuple[str | None, float | None]:
         """Time passes without a fix: (reason, stop_at). "lost" after `lost_after` seconds without a fix;
-        "gap" once after `max_gap` (stand where the guess was at `stop_at`); then "expiry" / "heartbeat"
+        "gap" once after `gap_limit` (stand where the guess was at `stop_at`); then "expiry" / "heartbeat"
         (continuing the published model, standing at `stop_at` when a gap halted it)."""
         gap = now - last_t if last_t is not None else 0.0
         if gap >= self.lost_after:
             return "lost", None
-        stop_at = last_t + self.max_gap if gap >= self.max_gap else None
+        stop_at = last_t + self.gap_limit if gap >= self.gap_limit else None
         if stop_at is not None and not self.halted:
             self.halted = True
             return "gap", stop_at

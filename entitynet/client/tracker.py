@@ -49,6 +49,10 @@ class NetworkTracker:
         self.net = net
         self.etype = etype
         self.placer = placer_for(net, etype.networks)
+        # how far along the path from the prediction a fix may map before it is a jump (start afresh there):
+        # the placer's `reacquire`, or what the type covers at its vmax in the feed's usual fix interval
+        # (the Player sets it; a bus feed's fixes 32 s apart are 200 m apart)
+        self.reach = self.placer.reacquire
         self.route = route
         self.has_route = bool(route)  # (a plain attribute: asked on every fix)
         self.body, self.margin, self.lookahead = body, margin, lookahead
@@ -73,6 +77,12 @@ class NetworkTracker:
         self.vpeak = 0.0
         self.vpeak_t = -math.inf
         self.last_fix: Fix | None = None
+
+    def follow_cadence(self, interval: float) -> None:
+        """The feed's usual fix interval (s) changed: a fix may map as far along the path from the prediction
+        as the type covers at its vmax in one interval before it is a jump (the fleet core's
+        `fleet_kernels.interval_rows` repeats this)."""
+        self.reach = max(self.placer.reacquire, self.etype.vmax * interval)
 
     def forget(self) -> None:
         """Drop the state of a lost entity: its next fix is placed afresh."""
@@ -126,9 +136,21 @@ class NetworkTracker:
         i = self.route.first.get(de, self.route.first.get((fix.index, -1)))
         if i is not None:
             de = self.route.edges[i]
-        self.path = Path(self.net, [de])
-        self.recent_s.clear()
         s = self.net.dist_of(de, fix.offset)
+        behind: list = []
+        if i is not None:
+            # the body (and its margin) reaches back past the edge's start: the route says which way it
+            # came, so the path starts far enough back for the occupation to list the cells under the aft
+            # (a tram re-placed just past a node otherwise publishes no cell for most of its length)
+            need, j = self.body + self.margin - s, i
+            while need > 0.0 and j > 0:
+                j -= 1
+                behind.append(self.route.edges[j])
+                need -= self.net.edge_len[self.route.edges[j][0]]
+            behind.reverse()
+        self.path = Path(self.net, behind + [de])
+        s += self.path.cum[len(behind)]
+        self.recent_s.clear()
         self.kf = Kinematic1D(s, t, r, q=self.filter_q, accel=self.filter_accel)
         self.pending = (-1, 0)
         self.dead_end = None
@@ -244,7 +266,7 @@ class NetworkTracker:
                 self.dist_ema = g.distance
                 return "jump"
         s_meas = self._s_of(fix, s_pred, k_cur)
-        if abs(s_meas - s_pred) > placer.reacquire:
+        if abs(s_meas - s_pred) > self.reach:
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
             return "jump"
         if reason is not None:
@@ -284,8 +306,7 @@ class NetworkTracker:
             s_meas = path.cum[k_cur] + (off if path.edges[k_cur][1] > 0 else self.net.edge_len[e_cur] - off)
         else:
             s_meas = self._s_of(fix, s_pred, k_cur)
-        placer = self.placer
-        if abs(s_meas - s_pred) > placer.reacquire:
+        if abs(s_meas - s_pred) > self.reach:
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
             return "jump"
         recent_s = self.recent_s

@@ -49,6 +49,7 @@ class ClusterLink:
         self._sids: dict[str, int] = {}
         self._releasing = False
         self._nursery: trio.Nursery | None = None
+        self._lost_at: float | None = None  # trio time the NATS connection was lost (None: connected)
 
     def _poke(self) -> None:
         self._wake.set()
@@ -60,7 +61,7 @@ class ClusterLink:
         clock = server.clock
         address = cfg.address or f"{server.config.host}:{server.port}"
         nc = NatsClient(cfg.servers, name=f"entitynet-shard-{cfg.shard}", token=cfg.token, tls=cfg.tls,
-                        on_reconnect=self._reconnected)
+                        on_reconnect=self._reconnected, on_disconnect=self._lost)
         async with nc, trio.open_nursery() as nursery:
             self._nursery = nursery
             self.nc = nc
@@ -94,7 +95,24 @@ class ClusterLink:
         if self.core.out:
             self._wake.set()
 
+    def _where(self) -> str:
+        """host:port of the NATS node the shard is (or was last) connected to, else the configured URLs."""
+        nc = self.nc
+        return f"{nc.server[0]}:{nc.server[1]}" if nc is not None and nc.server else self.config.servers
+
+    def _lost(self, why: str) -> None:
+        """The NATS connection is gone: said once (a warning), however many reconnect attempts fail after."""
+        self._lost_at = trio.current_time()
+        where = self._where()
+        log.warning("shard %d lost its NATS connection to %s (%s); reconnecting, publications are buffered",
+                    self.config.shard, where, why)
+
     def _reconnected(self) -> None:
+        """Back on NATS: said once, with how long the shard was cut off; the core re-syncs (snapshots)."""
+        down = 0.0 if self._lost_at is None else trio.current_time() - self._lost_at
+        self._lost_at = None
+        where = self._where()
+        log.info("shard %d NATS connection restored to %s after %.1f s", self.config.shard, where, down)
         if self.core is not None:
             self.core.resync()
             self._wake.set()

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import socket
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from entitynet.child_process import entitynet_argv, last_lines
 from entitynet.cluster.natsd import die_with_parent, free_port
 
 
@@ -41,8 +41,8 @@ class LocalShards:
         """Spawn every shard without waiting for it (`wait_ready` waits): several clusters can start at once."""
         self.ports = [free_port() for _ in range(self.k)]
         for i, port in enumerate(self.ports):
-            cmd = [sys.executable, "-m", "entitynet", "serve", "--open", "--topology", str(self.topology),
-                   "--port", str(port), *self.extra]
+            cmd = entitynet_argv("serve", "--open", "--topology", str(self.topology), "--port", str(port),
+                                 *self.extra)
             if self.regions is not None:
                 cmd += ["--cluster", self.nats_urls, "--shard", str(i), "--regions", str(self.regions)]
             log = open(Path(self.log_dir) / f"shard-{i}.log", "ab")  # noqa: SIM115 (the child owns it)
@@ -60,9 +60,13 @@ class LocalShards:
                     socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
                     break
                 except OSError:
-                    if self.procs[i].poll() is not None or time.monotonic() > deadline:
+                    code = self.procs[i].poll()
+                    if code is not None or time.monotonic() > deadline:
                         self.stop()
-                        raise RuntimeError(f"shard {i} did not start; see {self.log_dir}/shard-{i}.log") from None
+                        log = Path(self.log_dir) / f"shard-{i}.log"
+                        how = f"exited with {code}" if code is not None else f"did not listen within {timeout:g} s"
+                        raise RuntimeError(f"shard {i} did not start ({how}); the end of {log}:\n"
+                                           + last_lines(log)) from None
                     time.sleep(0.05)
         return self
 

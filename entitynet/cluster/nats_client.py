@@ -7,7 +7,8 @@ a switchboard's hot path never awaits the network (many PUBs go out in one write
 node is lost the client dials the next known node (the given list plus the `connect_urls` the cluster
 announces in INFO), re-sends every SUB and keeps what was published meanwhile, up to `max_pending` bytes
 (beyond that new publications are dropped and counted: entity states are superseded within a validity period
-anyway). `on_reconnect` tells the owner, which re-requests snapshots.
+anyway). `on_reconnect` tells the owner, which re-requests snapshots; `on_disconnect` tells it the connection
+it had is gone (once per loss: failed attempts to reconnect are only logged at DEBUG), so the owner can say so.
 
 `echo: false` in CONNECT: NATS never delivers a switchboard's own publications back to it.
 """
@@ -66,7 +67,8 @@ class NatsClient:
 
     def __init__(self, servers: str | Sequence[str], name: str = "entitynet", token: str | None = None,
                  tls: ssl.SSLContext | None = None, max_pending: int = 64 << 20, reconnect_wait: float = 0.1,
-                 connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None):
+                 connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None,
+                 on_disconnect: Callable[[str], None] | None = None):
         self.servers = parse_servers(servers)
         self.name = name
         self.token = token
@@ -75,6 +77,8 @@ class NatsClient:
         self.reconnect_wait = reconnect_wait
         self.connect_timeout = connect_timeout
         self.on_reconnect = on_reconnect
+        self.on_disconnect = on_disconnect  # called with why, once, when an established connection ends
+        self._lost_why: str | None = None  # what ended the current connection (reader or writer)
         self.writes = 0  # socket writes (each carries every publication queued since the last)
         self.info: dict = {}
         self.connected = False
@@ -137,13 +141,17 @@ class NatsClient:
         first = True
         while not self._closed:
             for host, port in self._known():
+                self._lost_why = None
                 try:
                     await self._session(host, port, first)
                 except (OSError, trio.BrokenResourceError, trio.ClosedResourceError, trio.TooSlowError,
                         N.NatsProtocolError, ssl.SSLError) as exc:
-                    log.info("NATS connection to %s:%s lost: %s", host, port, exc)
+                    self._lost_why = self._lost_why or str(exc) or type(exc).__name__
+                    log.debug("NATS connection to %s:%s ended or failed: %s", host, port, exc)
                 if self.connected:
                     first = False
+                    if self.on_disconnect is not None and not self._closed:
+                        self.on_disconnect(self._lost_why or "the server closed the connection")
                 self.connected = False
                 self._stream = None
                 for f in self._pongs:  # nobody will answer these: their flushes fail
@@ -184,7 +192,7 @@ class NatsClient:
         self.info, self._stream, self.server, self.connected = info, stream, (host, port), True
         if not first:
             self.reconnects += 1
-            log.info("NATS reconnected to %s:%s", host, port)
+            log.debug("NATS reconnected to %s:%s", host, port)
             if self.on_reconnect is not None:
                 self.on_reconnect()
         self._connected_ev.set()
@@ -219,7 +227,8 @@ class NatsClient:
         try:
             await self._read_loop(stream, parser)
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError, N.NatsProtocolError) as exc:
-            log.info("NATS connection lost: %s", exc)
+            self._lost_why = self._lost_why or str(exc) or type(exc).__name__
+            log.debug("NATS connection lost: %s", exc)
 
     async def _read_loop(self, stream, parser: N.Parser) -> None:
         while True:
@@ -256,7 +265,8 @@ class NatsClient:
                     self.writes += 1
                     await stream.send_all(data)
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as exc:
-            log.info("NATS write failed: %s", exc)
+            self._lost_why = self._lost_why or f"write failed: {exc}"
+            log.debug("NATS write failed: %s", exc)
             scope.cancel()  # the reader ends too; the client dials again
 
     def _dispatch(self, m: N.Msg) -> None:

@@ -15,6 +15,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from entitynet.child_process import last_lines
+
 
 def die_with_parent() -> Callable[[], None] | None:
     """A `preexec_fn` for a child that must not outlive this process (Linux: PR_SET_PDEATHSIG = SIGKILL), or None
@@ -130,7 +132,9 @@ class NatsCluster:
             while not _answers(node.host, node.port):
                 if node.proc.poll() is not None:
                     self.stop()
-                    raise RuntimeError(f"nats-server on port {node.port} exited with {node.proc.returncode}")
+                    log = Path(self.log_dir) / f"nats-{self.nodes.index(node)}.log" if self.log_dir else None
+                    raise RuntimeError(f"nats-server on port {node.port} exited with {node.proc.returncode}"
+                                       + (f"; the end of {log}:\n{last_lines(log)}" if log else ""))
                 if time.monotonic() > deadline:
                     self.stop()
                     raise RuntimeError(f"nats-server on port {node.port} did not start within {timeout} s")

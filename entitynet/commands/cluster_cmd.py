@@ -17,6 +17,14 @@ import time
 from pathlib import Path
 
 from entitynet.cli import CommandError
+from entitynet.commands.options import MAX_SHARDS, bounded_float, bounded_int, positive_seconds
+
+#: seconds of silence after which a shard is dead (`serve --dead-after`)
+DEAD_AFTER = 2.0
+
+#: the options of `serve` that only mean something with --cluster (dest -> option)
+CLUSTER_ONLY = {"shard": "--shard", "regions": "--regions", "shards": "--shards", "advertise": "--advertise",
+                "nats_token": "--nats-token", "nats_ca": "--nats-ca", "dead_after": "--dead-after"}
 
 DEFAULT_STATE = Path(os.environ.get("ENTITYNET_CLUSTER_STATE", Path.home() / ".cache/entitynet/cluster.json"))
 
@@ -25,14 +33,16 @@ def add_cluster_options(p: argparse.ArgumentParser) -> None:
     """The `--cluster ...` options of `entitynet serve`; `cluster_config_from` checks them together."""
     g = p.add_argument_group("cluster (sharded switchboards over NATS)")
     g.add_argument("--cluster", metavar="URLS", help="join a cluster: NATS servers nats://HOST:PORT[,...]")
-    g.add_argument("--shard", type=int, metavar="N", help="this switchboard's shard (owns region N)")
+    g.add_argument("--shard", type=bounded_int(0, MAX_SHARDS - 1),
+                   metavar="N", help="this switchboard's shard (owns region N)")
     g.add_argument("--regions", metavar="MAP", help="cluster map from `entitynet topology regions`")
-    g.add_argument("--shards", type=int, metavar="K", help="or compute K regions from the topology at start")
+    g.add_argument("--shards", type=bounded_int(1, MAX_SHARDS),
+                   metavar="K", help="or compute K regions from the topology at start")
     g.add_argument("--advertise", metavar="HOST:PORT", help="address clients are redirected to (default: listen)")
     g.add_argument("--nats-token", metavar="TOKEN", help="NATS auth token (default: $ENTITYNET_NATS_TOKEN)")
     g.add_argument("--nats-ca", metavar="PEM", help="CA bundle for TLS to NATS (tls:// or a server that needs it)")
-    g.add_argument("--dead-after", type=float, default=2.0, metavar="S",
-                   help="a shard silent this long is dead and its regions pass on (default 2 s)")
+    g.add_argument("--dead-after", type=bounded_float(0.5, 3600), metavar="S",
+                   help=f"a shard silent this long is dead and its regions pass on (default {DEAD_AFTER:g} s)")
 
 
 def cluster_config_from(args: argparse.Namespace):
@@ -66,11 +76,19 @@ def cluster_config_from(args: argparse.Namespace):
     tls = None
     if args.nats_ca or args.cluster.startswith("tls://"):
         tls = ssl.create_default_context(cafile=args.nats_ca)
-    if args.dead_after <= 0:
-        raise CommandError("--dead-after must be positive")
+    dead_after = DEAD_AFTER if args.dead_after is None else args.dead_after
     return ClusterConfig(args.cluster, args.shard, regions, address=args.advertise,
                          token=args.nats_token or os.environ.get("ENTITYNET_NATS_TOKEN"), tls=tls,
-                         heartbeat_s=min(0.5, args.dead_after / 4), dead_after_s=args.dead_after)
+                         heartbeat_s=min(0.5, dead_after / 4), dead_after_s=dead_after)
+
+
+def check_cluster_only(args: argparse.Namespace) -> None:
+    """Without --cluster, a cluster option would be ignored in silence: refuse it, naming the options."""
+    if args.cluster:
+        return
+    given = [option for dest, option in CLUSTER_ONLY.items() if getattr(args, dest, None) is not None]
+    if given:
+        raise CommandError(f"{', '.join(given)} only take effect with --cluster URLS")
 
 
 def register(sub) -> None:
@@ -78,16 +96,19 @@ def register(sub) -> None:
     p = sub.add_parser("cluster", help="a local sharded cluster (nats-server + switchboards) and its status")
     csub = p.add_subparsers(dest="cluster_command", metavar="ACTION", required=True)
     up = csub.add_parser("up", help="start nats-server nodes and K switchboards on loopback")
-    up.add_argument("--shards", type=int, default=2, metavar="K", help="switchboards, one per region (default 2)")
-    up.add_argument("--nats-nodes", type=int, default=1, metavar="N", help="nats-server nodes (default 1)")
+    up.add_argument("--shards", type=bounded_int(1, 64),
+                    default=2, metavar="K", help="switchboards, one per region (default 2)")
+    up.add_argument("--nats-nodes", type=bounded_int(1, 16),
+                    default=1, metavar="N", help="nats-server nodes (default 1)")
     up.add_argument("--topology", metavar="FILE", help="artifact (default: the bundled Helsinki map)")
-    up.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    up.add_argument("--duration", type=positive_seconds(), help="stop after this many seconds (default: until Ctrl-C)")
     up.add_argument("--state", default=str(DEFAULT_STATE), help=f"state file (default {DEFAULT_STATE})")
     up.set_defaults(func=cmd_up)
     st = csub.add_parser("status", help="regions, owners, clients, entities and load of a running cluster")
     st.add_argument("--nats", metavar="URLS", help="NATS servers (default: from the state file of `cluster up`)")
     st.add_argument("--state", default=str(DEFAULT_STATE))
-    st.add_argument("--listen", type=float, default=1.5, metavar="S", help="how long to listen (default 1.5 s)")
+    st.add_argument("--listen", type=bounded_float(0.1, 3600),
+                    default=1.5, metavar="S", help="how long to listen (default 1.5 s)")
     st.add_argument("--json", action="store_true")
     st.set_defaults(func=cmd_status)
 

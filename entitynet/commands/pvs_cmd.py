@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from entitynet.cli import CommandError
+from entitynet.commands.options import LOCAL_COORDINATE, METRES, bounded_int
 from topology.pvs_index import PvsIndex
 from topology.pvs_quality import QUALITY
 
@@ -21,25 +21,15 @@ if TYPE_CHECKING:
     from topology.pvs import PvsConfig
 
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
-
-
 def add_pvs_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `entitynet topology build` for the view cells and the PVS (`--no-pvs` is the builder's)."""
     g = parser.add_argument_group("visibility (view cells and PVS)")
     g.add_argument("--pvs-quality", choices=sorted(QUALITY), default="default",
                    help="speed/accuracy preset of the PVS (default: default; see docs/pvs.md)")  # fmt: skip
-    g.add_argument("--view-cell-size", type=_positive, metavar="M", help="view-cell cube side (default 20 m)")
-    g.add_argument("--view-max-height", type=_positive, metavar="M", help="top of the view cells (default 100 m)")
-    g.add_argument("--view-distance", type=_positive, metavar="M", help="PVS range (default 500 m)")
-    g.add_argument("--pvs-workers", type=int, metavar="N", help="worker processes (default 2)")
+    g.add_argument("--view-cell-size", type=METRES, metavar="M", help="view-cell cube side (default 20 m)")
+    g.add_argument("--view-max-height", type=METRES, metavar="M", help="top of the view cells (default 100 m)")
+    g.add_argument("--view-distance", type=METRES, metavar="M", help="PVS range (default 500 m)")
+    g.add_argument("--pvs-workers", type=bounded_int(1, 256), metavar="N", help="worker processes (default 2)")
 
 
 def pvs_config_from_args(args: Any) -> PvsConfig:
@@ -64,7 +54,7 @@ def register_pvs_command(tsub: Any, load_artifact: Callable[[str], Any]) -> None
     what a viewer standing there would subscribe to."""
     p = tsub.add_parser("pvs", help="print the PVS (visible cells) of the view cell holding a position")
     p.add_argument("file")
-    p.add_argument("--at", nargs=3, type=float, metavar=("X", "Y", "Z"), required=True,
+    p.add_argument("--at", nargs=3, type=LOCAL_COORDINATE, metavar=("X", "Y", "Z"), required=True,
                    help="local position in metres (relative to the artifact's origin)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object")
 

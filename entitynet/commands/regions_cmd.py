@@ -12,6 +12,7 @@ from collections.abc import Callable
 from typing import Any
 
 from entitynet.cli import CommandError
+from entitynet.commands.options import MAX_SHARDS, bounded_int
 
 
 def register(tsub, load_artifact: Callable[[str], Any]) -> None:
@@ -19,7 +20,8 @@ def register(tsub, load_artifact: Callable[[str], Any]) -> None:
     loads artifacts its own way)."""
     r = tsub.add_parser("regions", help="partition the cells into K shard regions with their border cells")
     r.add_argument("file", help="topology artifact")
-    r.add_argument("--shards", type=int, required=True, metavar="K", help="number of regions (switchboards)")
+    r.add_argument("--shards", type=bounded_int(1, MAX_SHARDS),
+                   required=True, metavar="K", help="number of regions (switchboards)")
     r.add_argument("--out", metavar="MAP", help="cluster map to write (JSON)")
     r.add_argument("--weights", metavar="FILE",
                    help="expected load per cell as JSON (a list, or {cell: weight}); default: footprint area")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from entitynet.cli import CommandError
+from entitynet.commands.options import bounded_float, port
 
 
 def register(sub) -> None:
@@ -13,11 +14,14 @@ def register(sub) -> None:
     p.add_argument("--topology", metavar="FILE", required=True,
                    help="topology artifact: the server learns its digest and cell count from it")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=7400, help="TCP port (default 7400; 0 = any free port)")
-    p.add_argument("--ws-port", type=int, metavar="PORT", help="also listen for WebSocket clients here")
-    p.add_argument("--metrics-port", type=int, metavar="PORT", help="serve Prometheus /metrics here")
-    p.add_argument("--http-port", type=int, metavar="PORT",
-                   help="serve the browser viewer (and /metrics) here; needs --ws-port (docs/viewer.md)")
+    p.add_argument("--port", type=port(), default=7400, help="TCP port (default 7400; 0 = any free port)")
+    p.add_argument("--ws-port", type=port(), metavar="PORT",
+                   help="also listen for WebSocket clients here (0 = any free port, logged)")
+    p.add_argument("--metrics-port", type=port(), metavar="PORT",
+                   help="serve Prometheus /metrics here (0 = any free port, logged)")
+    p.add_argument("--http-port", type=port(), metavar="PORT",
+                   help="serve the browser viewer (and /metrics) here; needs --ws-port (0 = any free port, logged; "
+                        "docs/viewer.md)")
     p.add_argument("--tls-cert", metavar="PEM", help="TLS certificate chain (with --tls-key)")
     p.add_argument("--tls-key", metavar="PEM", help="TLS private key")
     p.add_argument("--open", action="store_true",
@@ -25,14 +29,17 @@ def register(sub) -> None:
     from entitynet.commands.users_cmd import add_users_db_option
 
     add_users_db_option(p, "token store, alias --db (default: see `entitynet users`)")
-    p.add_argument("--flush-ms", type=float, default=10.0,
+    p.add_argument("--flush-ms", type=bounded_float(0, 1000), default=10.0,
                    help="longest wait of news for a flush, under load (default 10 ms; an idle server flushes sooner)")
-    p.add_argument("--flush-min-ms", type=float, default=0.0,
-                   help="shortest time between two flushes (default 0: flush whenever the server is idle)")
-    p.add_argument("--gc-full-every", type=float, default=300.0, metavar="S",
+    p.add_argument("--flush-min-ms", type=bounded_float(0, 1000), default=0.0,
+                   help="shortest time between two flushes, at most --flush-ms (default 0: flush whenever the "
+                        "server is idle)")
+    p.add_argument("--gc-full-every", type=bounded_float(1, 86400, special={0: "Python's own policy"}),
+                   default=300.0, metavar="S",
                    help="run Python's full garbage collection only every S seconds instead of whenever the heap "
                         "grows (default 300; 0 = Python's own policy; docs/switch.md)")
-    p.add_argument("--grace", type=float, default=5.0, help="seconds an entity outlives its validity")
+    p.add_argument("--grace", type=bounded_float(0, 3600), default=5.0,
+                   help="seconds an entity outlives its validity (default 5, at most 3600)")
     p.add_argument("--log-json", action="store_true", help="structured logs as JSON lines")
     from entitynet.commands.cluster_cmd import add_cluster_options
 
@@ -49,11 +56,11 @@ def run(args: argparse.Namespace) -> int:
 
     from entitynet.server import ConfigError, ServerConfig, logs, serve_until_signal
 
-    if logging.getLogger().level > logging.INFO:
+    if logging.getLogger().level > logging.INFO:  # the server's and the cluster link's events are shown
         logging.getLogger("entitynet.server").setLevel(logging.INFO)
+        logging.getLogger("entitynet.cluster").setLevel(logging.INFO)
     logs.use_json(args.log_json)
-    if not (args.flush_ms >= 0 and args.flush_min_ms >= 0 and args.grace >= 0 and args.gc_full_every >= 0):
-        raise CommandError("--flush-ms, --flush-min-ms, --grace and --gc-full-every must be >= 0")
+    check_options(args)
     config = ServerConfig(
         host=args.host, port=args.port, ws_port=args.ws_port, metrics_port=args.metrics_port,
         http_port=args.http_port,
@@ -68,16 +75,38 @@ def run(args: argparse.Namespace) -> int:
         config.cluster = cluster_config_from(args)
     try:
         trio.run(serve_until_signal, config)
-    except ConfigError as exc:
-        raise CommandError(str(exc)) from None
-    except OSError as exc:
-        raise CommandError(f"cannot listen: {exc}") from None
-    except BaseExceptionGroup as group:
-        bind = group.subgroup(lambda e: isinstance(e, OSError))
-        if bind is None:
-            raise
-        first = bind
-        while isinstance(first, BaseExceptionGroup):
-            first = first.exceptions[0]
-        raise CommandError(f"cannot listen: {first}") from None
+    except BaseExceptionGroup as group:  # raised inside the server's nurseries: the first user-facing cause
+        raise CommandError(_first_failure(group)) from None
+    except (ConfigError, OSError) as exc:
+        raise CommandError(_message(exc)) from None
     return 0
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """What the options' ranges (checked by argparse) cannot say alone: --flush-min-ms is at most --flush-ms
+    (it was capped in silence), and the cluster options need --cluster (they were ignored in silence)."""
+    from entitynet.commands.cluster_cmd import check_cluster_only
+
+    if args.flush_min_ms > args.flush_ms:
+        raise CommandError(f"--flush-min-ms ({args.flush_min_ms:g}) cannot exceed --flush-ms ({args.flush_ms:g})")
+    check_cluster_only(args)
+
+
+def _message(exc: BaseException) -> str:
+    from entitynet.server import ConfigError
+
+    return str(exc) if isinstance(exc, ConfigError) else f"cannot listen: {exc}"
+
+
+def _first_failure(group: BaseExceptionGroup) -> str:
+    """The message of the first ConfigError (a ListenError names its option and port) or OSError in a group;
+    anything else is a bug and keeps its traceback."""
+    from entitynet.server import ConfigError
+
+    found = group.subgroup(lambda e: isinstance(e, (ConfigError, OSError)))
+    if found is None:
+        raise group
+    first: BaseException = found
+    while isinstance(first, BaseExceptionGroup):
+        first = first.exceptions[0]
+    return _message(first)

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from entitynet.cli import CommandError
+from entitynet.commands.options import LOCAL_COORDINATE, METRES, bounded_float
 
 
 def register(sub) -> None:
@@ -28,19 +29,19 @@ def register(sub) -> None:
     b.add_argument(
         "--bbox",
         nargs=4,
-        type=float,
+        type=bounded_float(-180, 180),
         metavar=("LON_MIN", "LAT_MIN", "LON_MAX", "LAT_MAX"),
         help="keep only OSM features that meet this WGS84 box",
     )
-    b.add_argument("--street-width", type=float, default=16.0, metavar="M", help="cell width (default 16 m)")
+    b.add_argument("--street-width", type=METRES, default=16.0, metavar="M", help="cell width (default 16 m)")
     b.add_argument(
-        "--entity-height", type=float, default=4.5, metavar="M", help="cell height (default 4.5 m)"
+        "--entity-height", type=METRES, default=4.5, metavar="M", help="cell height (default 4.5 m)"
     )
     b.add_argument(
-        "--junction-radius", type=float, metavar="M", help="junction arm length (default: street width)"
+        "--junction-radius", type=METRES, metavar="M", help="junction arm length (default: street width)"
     )
     b.add_argument(
-        "--max-cell-length", type=float, default=60.0, metavar="M", help="street cell length cap (60 m)"
+        "--max-cell-length", type=METRES, default=60.0, metavar="M", help="street cell length cap (60 m)"
     )
     b.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     b.add_argument("--no-pvs", action="store_true", help="skip view cells and the PVS (faster; no visibility)")
@@ -73,7 +74,7 @@ def _add_pvs_export_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--pvs-at",
         nargs=3,
-        type=float,
+        type=LOCAL_COORDINATE,
         metavar=("X", "Y", "Z"),
         help="also export the PVS (visible cells) of the view cell holding this local position",
     )

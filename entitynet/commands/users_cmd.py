@@ -8,7 +8,10 @@ think of it.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import sqlite3
 import sys
+from collections.abc import Iterator
 
 from entitynet.cli import CommandError
 
@@ -42,17 +45,31 @@ def add_users_db_option(parser: argparse.ArgumentParser, help_text: str, default
 def _store(args: argparse.Namespace):
     from entitynet.auth import TokenStore, default_db_path
 
+    path = args.users_db or default_db_path()
     try:
-        return TokenStore(args.users_db or default_db_path())
+        return TokenStore(path)
     except Exception as exc:  # sqlite3.Error, OSError: a bad path or a file that is not a database
-        raise CommandError(f"cannot open token store: {exc}") from None
+        raise CommandError(f"cannot open token store {path}: {exc}") from None
+
+
+@contextlib.contextmanager
+def _store_errors(args: argparse.Namespace) -> Iterator[None]:
+    """A store that cannot be written (read-only file or folder) or read (a damaged page), or that another
+    process keeps locked, is one `entitynet: error:` line naming the file, not a traceback."""
+    try:
+        yield
+    except sqlite3.Error as exc:
+        from entitynet.auth import default_db_path
+
+        raise CommandError(f"token store {args.users_db or default_db_path()}: {exc}") from None
 
 
 def run_add(args: argparse.Namespace) -> int:
     """Print a new token on stdout (for scripts to capture) and, on stderr, that it cannot be shown again:
     only its hash is stored."""
     try:
-        token = _store(args).add_user(args.name)
+        with _store_errors(args):
+            token = _store(args).add_user(args.name)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     print(token)
@@ -62,7 +79,9 @@ def run_add(args: argparse.Namespace) -> int:
 
 def run_list(args: argparse.Namespace) -> int:
     """One line per user: name, a tab, how many tokens they hold (never the tokens: only hashes exist)."""
-    for user, n in _store(args).users():
+    with _store_errors(args):
+        users = _store(args).users()
+    for user, n in users:
         print(f"{user}\t{n}")
     return 0
 
@@ -70,7 +89,8 @@ def run_list(args: argparse.Namespace) -> int:
 def run_remove(args: argparse.Namespace) -> int:
     """Revoke every token of a user; an unknown user is an error so that a typo does not pass silently.
     A running server notices the change (data_version) and closes their connections."""
-    n = _store(args).remove_user(args.name)
+    with _store_errors(args):
+        n = _store(args).remove_user(args.name)
     if n == 0:
         raise CommandError(f"no user {args.name!r}")
     print(f"revoked {n} token(s) of {args.name}", file=sys.stderr)

@@ -77,6 +77,7 @@ class ErrorCode(IntEnum):
     TOO_MANY_REQUESTS = 407
     SHUTTING_DOWN = 500
     INTERNAL = 501
+    AUTH_UNAVAILABLE = 502  # the server cannot check tokens now (its store is locked or damaged): retry later
 
 
 #: errors after which the server closes the connection
@@ -95,6 +96,7 @@ FATAL_ERRORS = frozenset(
         ErrorCode.SERVER_FULL,
         ErrorCode.SHUTTING_DOWN,
         ErrorCode.INTERNAL,
+        ErrorCode.AUTH_UNAVAILABLE,
     }
 )
 

@@ -35,7 +35,7 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server import fdlimit, logs
-from entitynet.server.config import ConfigError, ServerConfig
+from entitynet.server.config import ConfigError, ServerConfig, check_ports
 from entitynet.server.http import HttpLimits, HttpServer, Router
 from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
@@ -99,6 +99,7 @@ class Server(WritingMixin):
     """One shard server. Start it with `await nursery.start(serve, config)` or `entitynet serve`."""
 
     def __init__(self, config: ServerConfig):
+        check_ports(config)
         self.config = config
         self.clock = config.clock
         self.tokens = None if config.open_mode else TokenWatch(config)  # revocations close connections
@@ -160,6 +161,8 @@ class Server(WritingMixin):
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
                 nursery.start_soon(self._housekeeping)
+                if self.tokens is not None:
+                    nursery.start_soon(self._watch_tokens)
                 if cfg.gc_full_every is not None:
                     from entitynet.server.gcpolicy import FullCollections
 
@@ -268,8 +271,16 @@ class Server(WritingMixin):
 
     async def _feed(self, conn: _Conn, msgs: list[P.Message]) -> None:
         """Feed one frame to the core in slices, serving the other clients between slices: a slice ends after
-        `feed_slice` messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells)."""
+        `feed_slice` messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells).
+        A HELLO whose token the core will check is looked up first, off the loop (entitynet.server.tokens), and
+        the answer handed over for the first slice, which the core handles without a task switch."""
         sb = self.sb
+        tokens, first = self.tokens, msgs[0] if msgs else None
+        looked_up, answer = False, None
+        if tokens is not None and type(first) is P.Hello and sb.asks_token(conn.cid, first, self.clock()):
+            looked_up, answer = True, await tokens.lookup(first.token)
+            if sb.outbox(conn.cid) is None:
+                return  # it went away (or its handshake timed out) while the store was read
         step = self.config.feed_slice
         start, n = 0, len(msgs)
         while start < n:
@@ -281,7 +292,12 @@ class Server(WritingMixin):
                 if t is P.Subscribe or t is P.Query:
                     break
             before = sb.stats["updates_in"]
-            sb.receive(conn.cid, msgs[start:end] if start or end < n else msgs, self.clock(), frame_end=end >= n)
+            part = msgs[start:end] if start or end < n else msgs
+            if start == 0 and looked_up:
+                with tokens.answering(first.token, answer):
+                    sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
+            else:
+                sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
             self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
             self._rearm()
             self._note_news()
@@ -383,20 +399,14 @@ class Server(WritingMixin):
             self._wake_dirty()  # LEAVEs and handshake ERRORs go out now
 
     async def _housekeeping(self) -> None:
-        """Every 0.1 s: stall accounting of blocked writes, the token store's revocations, the metrics."""
+        """Every 0.1 s: stall accounting of blocked writes and the metrics."""
         m, sb = self.metrics, self.sb
         seen_errors: dict[int, int] = {}
         pushed_msgs = pushed_frames = pushed_drops = 0
-        next_auth = time.monotonic() + self.config.auth_recheck
         while True:
             await trio.sleep(0.1)
             self._check_stalls()
             self._note_news()  # a slow consumer dropped: its LEAVEs
-            if self.tokens is not None and time.monotonic() >= next_auth:
-                next_auth = time.monotonic() + self.config.auth_recheck
-                for cid in self.tokens.poll(sb):  # revoked tokens: AUTH_FAILED queued, the writer closes
-                    if cid in self.conns:
-                        self._try_write(self.conns[cid])
             counts = sb.counts()
             m.entities.set(counts["entities"])
             m.subscriptions.set(counts["subscriptions"])
@@ -411,6 +421,16 @@ class Server(WritingMixin):
                 if n > seen_errors.get(code, 0):
                     m.errors.labels(str(code)).inc(n - seen_errors.get(code, 0))
                     seen_errors[code] = n
+
+    async def _watch_tokens(self) -> None:
+        """Every `auth_recheck` seconds, the token store's revocations (read off the loop: entitynet.server.tokens)
+        close the connections of revoked tokens: AUTH_FAILED queued, the writer closes."""
+        assert self.tokens is not None
+        while True:
+            await trio.sleep(self.config.auth_recheck)
+            for cid in await self.tokens.poll(self.sb):
+                if cid in self.conns:
+                    self._try_write(self.conns[cid])
 
 
 async def serve(config: ServerConfig, *, task_status=trio.TASK_STATUS_IGNORED) -> None:

@@ -12,6 +12,29 @@ class ConfigError(ValueError):
     """The server cannot start with this configuration (message says why)."""
 
 
+#: the listener settings of ServerConfig, each with the `entitynet serve` option that sets it
+PORT_SETTINGS = {"port": "--port", "ws_port": "--ws-port", "metrics_port": "--metrics-port",
+                 "http_port": "--http-port"}
+
+
+class ListenError(ConfigError):
+    """A listener could not be bound: says which one (`setting`, a key of PORT_SETTINGS), where, and why, so
+    that the user learns which option to change instead of reading an errno."""
+
+    def __init__(self, setting: str, host: str, port: int, reason: str):
+        self.setting, self.host, self.port, self.reason = setting, host, port, reason
+        super().__init__(f"cannot listen on {host}:{port} ({PORT_SETTINGS.get(setting, setting)}): {reason}")
+
+
+def check_ports(config: ServerConfig) -> None:
+    """Refuse a port outside 0..65535 (0 = any free port) before anything binds: the kernel would silently
+    take 65536 for 0 and listen on a random port."""
+    for setting, option in PORT_SETTINGS.items():
+        value = getattr(config, setting)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 65535):
+            raise ConfigError(f"{option} must be a port from 1 to 65535 (or 0: any free port), not {value!r}")
+
+
 @dataclass
 class ServerConfig:
     """Everything `serve()` needs. Ports of 0 pick a free port (see the started `Server`'s ports).
@@ -33,6 +56,7 @@ class ServerConfig:
     open_mode: bool = False
     users_db: str | None = None  # None = entitynet.auth.default_db_path()
     auth_recheck: float = 1.0  # how often (s) to look for changes of the token store and re-check connections
+    auth_timeout: float = 2.0  # a token store read (off the loop) answers within this (s) or the login is refused
     flush_interval: float = 0.01  # news waits at most this long (s) for a flush: one write per connection per flush
     flush_min_interval: float = 0.0  # ... and flushes (as soon as the loop is idle) are at least this far apart
     gc_full_every: float | None = None  # full garbage collections only this often (s); None = Python's (gcpolicy)

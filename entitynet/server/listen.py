@@ -15,6 +15,8 @@ and no stage waits longer than the handshake timeout for a peer that does nothin
 from __future__ import annotations
 
 import logging
+import os
+import socket
 import ssl
 from collections.abc import Awaitable, Callable
 
@@ -24,7 +26,7 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server.accept import HandshakeLog, Throttled, accept_loop, peer_of, tls_handshake
-from entitynet.server.config import ServerConfig
+from entitynet.server.config import ListenError, ServerConfig
 from entitynet.server.fdlimit import Admission
 from entitynet.server.http import HttpServer, error_bytes
 from entitynet.server.wsgate import CLOSED, HandoffListener, PrefixedStream, read_upgrade_head
@@ -61,23 +63,27 @@ class Listeners:
         """Bind every configured port (errors surface here) and start accepting."""
         cfg = self.config
         if cfg.port is not None:
-            self.port = await self._listen(nursery, cfg.port, self._on_tcp)
+            self.port = await self._listen(nursery, cfg.port, self._on_tcp, "port")
         if cfg.ws_port is not None:
             self._gate = HandoffListener()
             server = trio_websocket.WebSocketServer(
                 self.ws_handler, [self._gate], max_message_size=self.max_message,
                 connect_timeout=cfg.handshake_timeout, disconnect_timeout=min(2.0, cfg.handshake_timeout))
             await nursery.start(server.run)
-            self.ws_port = await self._listen(nursery, cfg.ws_port, self._on_ws)
+            self.ws_port = await self._listen(nursery, cfg.ws_port, self._on_ws, "ws_port")
         if cfg.metrics_port is not None and self.http is not None:
-            self.http_port = await self._listen(nursery, cfg.metrics_port, self.http.handle)
+            self.http_port = await self._listen(nursery, cfg.metrics_port, self.http.handle, "metrics_port")
 
     async def open_http(self, nursery: trio.Nursery, port: int, http: HttpServer) -> int:
         """Another HTTP listener (the browser viewer's) on `port`; returns the port bound."""
-        return await self._listen(nursery, port, http.handle)
+        return await self._listen(nursery, port, http.handle, "http_port")
 
-    async def _listen(self, nursery: trio.Nursery, port: int, handler) -> int:
-        listeners = await trio.open_tcp_listeners(port, host=self.config.host)
+    async def _listen(self, nursery: trio.Nursery, port: int, handler, setting: str) -> int:
+        """Bind `port` (the config's `setting`) and accept on it; a failure is a ListenError naming both."""
+        try:
+            listeners = await trio.open_tcp_listeners(port, host=self.config.host)
+        except OSError as exc:
+            raise ListenError(setting, self.config.host, port, _bind_reason(exc)) from exc
         for listener in listeners:
             nursery.start_soon(accept_loop, listener, handler, nursery)
         return listeners[0].socket.getsockname()[1]
@@ -140,6 +146,15 @@ class Listeners:
         finally:
             self.admission.leave(client=True, admitted=reason is None)
             await trio.aclose_forcefully(stream if stream is not None else sock)
+
+
+def _bind_reason(exc: OSError) -> str:
+    """Why a bind failed, in words ("address already in use"), without trio's repetition of the address."""
+    if isinstance(exc, socket.gaierror):
+        return f"cannot resolve the host ({exc.strerror})"
+    if exc.errno is not None and exc.errno > 0:
+        return os.strerror(exc.errno).lower()
+    return str(exc)
 
 
 async def _send_quietly(stream: trio.abc.Stream, data: bytes) -> None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 from prometheus_client.exposition import choose_encoder
 
+from entitynet.protocol import ErrorCode
+
 
 class Metrics:
     """One server's Prometheus metrics, in a registry of its own so that several servers in one process
@@ -21,6 +23,8 @@ class Metrics:
         self.frames_out = Counter("entitynet_frames_out", "frames written to clients", registry=r)
         self.drops = Counter("entitynet_slow_consumer_drops", "clients dropped for not keeping up", registry=r)
         self.errors = Counter("entitynet_errors", "errors sent to clients", ["code"], registry=r)
+        for code in ErrorCode:  # a zero sample per known code from the first scrape: rate() needs a baseline
+            self.errors.labels(str(int(code)))
         self.latency = Histogram(
             "entitynet_queue_latency_seconds",
             "time from a connection's outbox becoming non-empty to its batch being written",

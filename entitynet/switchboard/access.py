@@ -13,7 +13,7 @@ process closes NAME's connections within the shell's re-check interval.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import TYPE_CHECKING
 
 from entitynet import protocol as P
@@ -23,6 +23,11 @@ from entitynet.switchboard.ratelimit import FailureThrottle
 
 if TYPE_CHECKING:
     from entitynet.switchboard.core import Switchboard
+
+
+class StoreUnavailable(Exception):
+    """Raised by the shell's token resolver when it cannot answer (its store is locked or damaged): the HELLO
+    is refused with AUTH_UNAVAILABLE, which clients retry, and it is not counted as a failed login."""
 
 
 def throttle_for(cfg: SwitchConfig) -> FailureThrottle:
@@ -45,7 +50,11 @@ def admit(cfg: SwitchConfig, throttle: FailureThrottle, m: P.Hello, peer: str, s
             return None, P.ProtocolError(
                 ErrorCode.AUTH_THROTTLED,
                 f"too many failed logins from your address; retry in {math.ceil(wait)} s")
-        user = authenticate(m.token) if authenticate and m.token else None
+        try:
+            user = authenticate(m.token) if authenticate and m.token else None
+        except StoreUnavailable:
+            return None, P.ProtocolError(ErrorCode.AUTH_UNAVAILABLE,
+                                         "the server cannot check tokens right now; try again later")
         if user is None:
             block = throttle.failed(peer, now)
             later = f"; your address may try again in {math.ceil(block)} s" if block > 0.0 else ""
@@ -57,15 +66,30 @@ def admit(cfg: SwitchConfig, throttle: FailureThrottle, m: P.Hello, peer: str, s
     return user, None
 
 
-def revalidate(sb: Switchboard, authenticate: Callable[[str], str | None]) -> list[int]:
+def asks_token(cfg: SwitchConfig, throttle: FailureThrottle, m: P.Hello, peer: str, now: float) -> bool:
+    """Whether `admit` would ask the resolver about this HELLO's token, so that a shell whose store answers
+    slowly looks it up beforehand (off its event loop) only when it will be needed: not for a blocked peer,
+    an empty token, a wrong protocol version or in open mode."""
+    return (m.version == P.PROTOCOL_VERSION and not cfg.open_mode and bool(m.token)
+            and throttle.retry_after(peer, now) <= 0.0)
+
+
+def tokens_in_use(sb: Switchboard) -> set[str]:
+    """The distinct tokens of the authenticated connections: what a re-check after a revocation looks up."""
+    return {c.token for c in sb.clients.values() if c.token is not None and c.ready and not c.closing}
+
+
+def revalidate(sb: Switchboard, authenticate: Callable[[str], str | None], only: Collection[str] | None = None,
+               ) -> list[int]:
     """Close (AUTH_FAILED, "revoked") every authenticated connection whose token no longer names its user;
-    returns their ids. One store lookup per distinct token. Errors of `authenticate` (a locked or vanished
-    store) propagate and close nobody: the shell retries later."""
+    returns their ids. One store lookup per distinct token; with `only`, just the connections of those tokens
+    (the shell looked them up beforehand, off its loop). Errors of `authenticate` (a locked or vanished store)
+    propagate and close nobody: the shell retries later."""
     users: dict[str, str | None] = {}
     closed: list[int] = []
     for c in list(sb.clients.values()):
         token = c.token
-        if token is None or not c.ready or c.closing:
+        if token is None or not c.ready or c.closing or (only is not None and token not in only):
             continue
         if token not in users:
             users[token] = authenticate(token)

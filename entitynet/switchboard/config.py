@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from entitynet.protocol import CodecLimits
@@ -48,8 +49,8 @@ class SwitchConfig:
     def __post_init__(self) -> None:
         if self.n_cells < 0:
             raise ValueError("n_cells must be >= 0")
-        if not (self.grace_s >= 0 and self.query_rate >= 0 and self.query_burst >= 1):
-            raise ValueError("grace_s, query_rate must be >= 0 and query_burst >= 1")
+        if not (0 <= self.grace_s < math.inf and self.query_rate >= 0 and self.query_burst >= 1):
+            raise ValueError("grace_s must be finite and >= 0, query_rate >= 0 and query_burst >= 1")
         if not (self.churn_rate >= 0 and self.churn_burst >= 1):
             raise ValueError("churn_rate must be >= 0 and churn_burst >= 1")
         if self.handshake_timeout_s is not None and not self.handshake_timeout_s > 0:

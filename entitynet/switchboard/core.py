@@ -113,6 +113,11 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         c = self.clients.get(cid)
         return c.outbox if c else None
 
+    def asks_token(self, cid: int, m: P.Hello, now: float) -> bool:
+        """Whether a HELLO from this connection, fed now, would be checked with the resolver (access.asks_token)."""
+        c = self.clients.get(cid)
+        return c is not None and not c.ready and access.asks_token(self.config, self.auth_throttle, m, c.peer, now)
+
     def user_of(self, cid: int) -> str | None:
         """The user a connected client authenticated as (for the shell's logs), or None."""
         c = self.clients.get(cid)

@@ -24,6 +24,7 @@ SUITES = {
     "pvs": "sims.bench.pvs_bench",
     "sim": "sims.bench.sim_bench",
     "cluster": "sims.bench.cluster_bench",
+    "e2e": "sims.bench.e2e_bench",
 }
 
 

@@ -36,6 +36,9 @@ class Entity:
         self.stops = stops  # (edge, offset) of the route's stops
         self.edge = edge  # true edge at each sample (network entities), for the wrong-edge rate
         self.edge_ok = edge_ok  # whether the sample is unambiguous (>= 10 m from the edge's ends)
+        self.path = None  # path-driven entities: the path, the front's coordinate per sample, the body length
+        self.s: np.ndarray | None = None
+        self.length = 0.0
 
     @property
     def minutes(self) -> float:
@@ -55,7 +58,9 @@ def _sample_path(path: Path, prof, length: float, name, etype, route) -> Entity:
         d = v - path.cum[k]
         edges.append(path.edges[k][0])
         ok.append(10.0 <= d <= net.edge_len[path.edges[k][0]] - 10.0)
-    return Entity(name, etype, t, xy, cells, route, np.array(edges), np.array(ok))
+    ent = Entity(name, etype, t, xy, cells, route, np.array(edges), np.array(ok))
+    ent.path, ent.s, ent.length = path, s, length  # the true front's path coordinate (dr_causes: front or aft)
+    return ent
 
 
 def _project_on_path(path: Path, pts: list[tuple[float, float]], tol: float = 25.0) -> list[float]:

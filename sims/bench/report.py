@@ -42,6 +42,16 @@ def write_report(suite: str, body: dict[str, Any], out: str | os.PathLike | None
     return report
 
 
+def print_json(report: dict[str, Any], out: str | os.PathLike | None) -> None:
+    """A diagnostic run's JSON (`python -m sims.bench.sim_causes`, `dr_causes`): printed, and written to `out`
+    when given."""
+    text = json.dumps(report, indent=2)
+    if out:
+        with open(out, "w") as f:
+            f.write(text + "\n")
+    print(text)
+
+
 def median_time(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
     """Median wall time of `repeat` calls of fn, and the last result."""
     times, result = [], None

@@ -21,11 +21,11 @@ Per viewer it counts SUBSCRIBE messages and the cells added and removed. Determi
 from __future__ import annotations
 
 import argparse
-import json
 from collections import Counter
 from typing import Any
 
 from entitynet import protocol as P
+from sims.bench.report import print_json
 from sims.engine.local import LocalSwitch
 from sims.engine.sim import Sim, SimConfig
 
@@ -209,11 +209,7 @@ def main(argv: list[str] | None = None) -> None:
     topo, _ = bundled_topology(with_pvs=True)
     schedule = load_schedule(BUNDLED_FEED, topo, cache=cache_dir())
     rep = causes(topo, schedule, entities=a.entities, viewers=a.viewers, seconds=a.seconds, seed=a.seed)
-    text = json.dumps(rep, indent=2)
-    if a.out:
-        with open(a.out, "w") as f:
-            f.write(text + "\n")
-    print(text)
+    print_json(rep, a.out)
 
 
 if __name__ == "__main__":

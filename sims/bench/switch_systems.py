@@ -14,7 +14,6 @@ import os
 import shutil
 import socket
 import subprocess
-import sys
 import time
 import urllib.request
 from collections.abc import Callable, Iterator
@@ -22,6 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from entitynet.child_process import entitynet_argv, last_lines
 from sims.bench.switch_drivers import NatsDriver, OursDriver, RedisDriver
 
 MIN_CORES_TO_PIN = 4  # one for the server, at least three for the publisher and the reader processes
@@ -76,12 +76,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def wait_port(port: int, proc, timeout: float = 30.0) -> None:
-    """Until something listens on `port` (or the process exits: then a clear error)."""
+def wait_port(port: int, proc, timeout: float = 30.0, log: Path | None = None) -> None:
+    """Until something listens on `port` (or the process exits: then a clear error, with the end of its `log`)."""
     deadline = time.time() + timeout
     while time.time() < deadline:
         if proc.poll() is not None:
-            raise RuntimeError(f"server exited with status {proc.returncode}")
+            raise RuntimeError(f"server exited with status {proc.returncode}"
+                               + (f"; the end of {log}:\n{last_lines(log)}" if log is not None else ""))
         try:
             socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
             return
@@ -139,9 +140,10 @@ def started(system: str, exe: str | None, topo_path: str, digest: str, p: dict, 
     if system == "entitynet":
         mport = free_port()
         prof = os.environ.get("ENTITYNET_BENCH_PROFILE")  # developer aid: profile the server process
-        cmd = [*pin, sys.executable, *(["-m", "cProfile", "-o", prof] if prof else []), "-m", "entitynet.cli",
-               "serve", "--topology", topo_path, "--port", str(port), "--metrics-port", str(mport), "--open",
-               "--flush-ms", str(p["flush_ms"]), *p.get("server_args", ())]  # switch_repeat's variants
+        cmd = [*pin, *entitynet_argv("serve", "--topology", topo_path, "--port", str(port), "--metrics-port",
+                                     str(mport), "--open", "--flush-ms", str(p["flush_ms"]),
+                                     *p.get("server_args", ()),  # switch_repeat's variants
+                                     python_options=("-m", "cProfile", "-o", prof) if prof else ())]
         driver: Any = OursDriver(port, digest)
         scrape = scraper(mport)
     elif system == "redis":
@@ -159,7 +161,7 @@ def started(system: str, exe: str | None, topo_path: str, digest: str, p: dict, 
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
                             cwd=str(Path(__file__).parents[2]))
     try:
-        wait_port(port, proc)
+        wait_port(port, proc, log=log_dir / f"{system}.log")
         yield driver, proc, scrape
     finally:
         if system == "entitynet":

@@ -24,9 +24,9 @@ MARGIN = 1000.0
 
 
 def _read(zf: zipfile.ZipFile, name: str) -> tuple[list[str], list[dict]]:
-    with zf.open(name) as fh:
-        r = csv.DictReader(io.TextIOWrapper(fh, encoding="utf-8-sig", newline=""))
-        return list(r.fieldnames or []), list(r)
+    from topology.gtfs import read_table  # the one reader of GTFS files
+
+    return read_table(zf, name)
 
 
 def _write(out: zipfile.ZipFile, name: str, fields: list[str], rows: list[dict]) -> None:

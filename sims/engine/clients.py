@@ -33,7 +33,10 @@ class Fleet:
 
     def __init__(self, world: Truth, connections: int = 4, *, fix_interval: float = 1.0,
                  gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None,
-                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None, core: str = "fleet"):
+                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None, core: str = "fleet",
+                 model: str = "network"):
+        """`model`: the client cores' model ("network": dead reckoning; "periodic": a standing position every
+        `fix_interval`, the 1 Hz baseline)."""
         if core not in ("fleet", "player"):
             raise ValueError(f"core must be 'fleet' or 'player', got {core!r}")
         if connections < 1:
@@ -50,6 +53,7 @@ class Fleet:
         self.fix_interval = fix_interval
         self.gps_sigma = gps_sigma
         self.threshold = threshold  # the client core's drift threshold (None: its default, the GPS accuracy)
+        self.model = model
         self.rng = np.random.default_rng(seed)
         self.players: dict[int, Player] = {}
         self.next_fix: dict[int, float] = {}
@@ -76,7 +80,8 @@ class Fleet:
         # a source may give an entity its own body (a SUMO tram's length as its parts): `etype` over the name
         etype = getattr(a, "etype", None) or a.name
         self.players[a.id] = Player(self.world.topo, a.id, etype, accuracy=self.gps_sigma, route=route,
-                                    stops=stops, threshold=self.threshold)
+                                    stops=stops, threshold=self.threshold, model=self.model,
+                                    period=self.fix_interval)
         if self.shard_at is not None:  # by where it is: its first PUBLISH then needs no REDIRECT
             x, y = a.xy()
             self.home[a.id] = self.shard_at(float(x), float(y)) * self.per_shard + a.id % self.per_shard

@@ -52,6 +52,9 @@ class SimConfig:
     measure_after: float = 2.0  # s: the start, when every entity appears at once before its first fix, is not sampled
     threshold: float | None = None  # the client core's drift threshold (None: its default)
     core: str = "fleet"  # the honest clients' core: "fleet" (vectorised, the same messages) or "player"
+    #: the honest clients' model: "network" (dead reckoning on the street network) or "periodic" (a standing
+    #: position every fix interval: the ablation `bench e2e` compares with)
+    client_model: str = "network"
 
     def __post_init__(self) -> None:
         problems = []
@@ -75,6 +78,8 @@ class SimConfig:
             problems.append(f"measure share must be within (0, 1], got {self.measure_share}")
         if self.core not in ("fleet", "player"):
             problems.append(f"core must be 'fleet' or 'player', got {self.core!r}")
+        if self.client_model not in ("network", "periodic"):
+            problems.append(f"client model must be 'network' or 'periodic', got {self.client_model!r}")
         if problems:
             raise ValueError("; ".join(problems))
 
@@ -98,12 +103,14 @@ class Sim:
         self.fleet = Fleet(self.world, config.connections, fix_interval=config.fix_interval,
                            gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold,
                            shards=shards, shard_at=shard_at,  # shards: `connections` to each, by where entities are
-                           core=config.core)
+                           core=config.core, model=config.client_model)
+        #: how the viewers subscribe: "pvs", or "radius" (asked for, or the map has no PVS to subscribe by)
+        self.subscribe_by = config.subscribe
         if cells_at is None:
             cells_at = pvs_cells_at(topo) if config.subscribe == "pvs" else None
             if cells_at is None:
                 cells_at = radius_cells_at(topo, config.radius)
-        self.subscribe_by = config.subscribe if cells_at is not None else "radius"
+                self.subscribe_by = "radius"
         rng = random.Random(config.seed + 7)
         n_high = round(config.viewers * config.roof_share)
         self.decode_cache = DecodeCache(self.world.net)  # one payload reaches many viewers: decode it once
@@ -119,6 +126,14 @@ class Sim:
     def now(self) -> float:
         """The world's clock (service-day seconds): the one time base of the schedule, clients and viewers."""
         return self.world.now
+
+    def subscription_text(self) -> str:
+        """How the viewers subscribe, for the command's first line: "pvs", or "radius (500 m)", saying so when
+        the PVS was asked for and the map has none (a user must not read "pvs" for a run that used the radius)."""
+        if self.subscribe_by == "pvs":
+            return "pvs"
+        why = ": the map has no PVS" if self.config.subscribe == "pvs" else ""
+        return f"radius ({self.config.radius:g} m{why})"
 
     def start(self) -> tuple[list[list[P.Message]], list[list[P.Subscribe]]]:
         """The first population and the viewers' first subscriptions: the messages to send before the first tick."""

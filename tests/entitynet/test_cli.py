@@ -57,3 +57,34 @@ def test_a_plugin_cannot_shadow_a_built_in(monkeypatch, capsys):
     parser = cli.build_parser()
     assert "plugin command 'serve' ignored" in capsys.readouterr().err
     assert parser.parse_args(["serve", "--topology", "x.enttopo"]).port == 7400
+
+
+def _raising(exc: BaseException):
+    """A plugin `entitynet boom` that raises `exc`, as a command's trio nursery would."""
+    def register(sub) -> None:
+        def run(_args):
+            raise exc
+
+        sub.add_parser("boom").set_defaults(func=run)
+    return register
+
+
+@pytest.mark.parametrize("exc, status, line", [
+    (KeyboardInterrupt(), 130, "entitynet: interrupted"),
+    (BaseExceptionGroup("nursery", [KeyboardInterrupt()]), 130, "entitynet: interrupted"),
+    (BaseExceptionGroup("outer", [BaseExceptionGroup("inner", [KeyboardInterrupt()]),
+                                  type("Cancelled", (BaseException,), {})()]), 130, "entitynet: interrupted"),
+    (ExceptionGroup("nursery", [cli.CommandError("bad feed")]), 2, "entitynet: error: bad feed"),
+])
+def test_ctrl_c_and_user_errors_inside_exception_groups_are_one_line(monkeypatch, capsys, exc, status, line):
+    monkeypatch.setattr(cli, "discover_plugins", lambda group=cli.PLUGIN_GROUP: [("boom", _raising(exc))])
+    assert cli.main(["boom"]) == status
+    assert capsys.readouterr().err.strip() == line
+
+
+def test_a_bug_inside_an_exception_group_keeps_its_traceback(monkeypatch):
+    """Only interrupts and user errors are turned into one line; a bug is raised for its report."""
+    group = BaseExceptionGroup("nursery", [KeyboardInterrupt(), ZeroDivisionError()])
+    monkeypatch.setattr(cli, "discover_plugins", lambda group_=cli.PLUGIN_GROUP: [("boom", _raising(group))])
+    with pytest.raises(BaseExceptionGroup):
+        cli.main(["boom"])

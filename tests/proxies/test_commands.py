@@ -12,6 +12,68 @@ def test_the_proxy_command_is_registered_through_the_entry_point_group():
     assert args.proxy_command == "replay" and callable(args.func)
 
 
-def test_proxy_errors_are_clean(tmp_path, capsys):
+def test_proxy_errors_are_clean(tmp_path, capsys, line_feed):
     assert cli.main(["proxy", "replay", "--gtfs", str(tmp_path / "missing.zip"), "--port", "0"]) == 2
     assert "entitynet: error: cannot read GTFS feed" in capsys.readouterr().err
+    garbage = tmp_path / "garbage.enttopo"
+    garbage.write_bytes(b"not an artifact")
+    assert cli.main(["proxy", "replay", "--gtfs", str(line_feed), "--topology", str(garbage), "--port", "0"]) == 2
+    assert "entitynet: error: cannot load topology" in capsys.readouterr().err
+
+
+def test_an_unreadable_feed_is_a_clean_error(tmp_path, capsys, line_topo):
+    """`proxy siri` and `proxy gtfs-rt` with a --gtfs that is no zip, or a folder: one line, no traceback."""
+    from topology.artifact import save
+
+    art = tmp_path / "line.enttopo"
+    save(line_topo, art)
+    garbage = tmp_path / "garbage.zip"
+    garbage.write_text("not a zip\n")
+    common = ["--server", "127.0.0.1:1", "--topology", str(art)]
+    for feed in (garbage, tmp_path):
+        assert cli.main(["proxy", "siri", "--url", "http://127.0.0.1:1/siri", *common, "--gtfs", str(feed)]) == 2
+        err = capsys.readouterr().err
+        assert "entitynet: error:" in err and str(feed.name) in err, err
+        assert cli.main(["proxy", "gtfs-rt", "--vehicle-positions", "http://127.0.0.1:1/vp", *common,
+                         "--gtfs", str(feed)]) == 2
+        assert "entitynet: error:" in capsys.readouterr().err
+
+
+def _interrupted(cmd: list[str], ready: str, cwd) -> tuple[int, str]:
+    """Start `entitynet CMD` as a real process, wait until its stderr shows `ready`, send SIGINT (a terminal's
+    Ctrl-C) and return its exit status and whole stderr."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "entitynet", *cmd], cwd=cwd, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "ENTITYNET_CACHE": str(cwd)})
+    seen = []
+    deadline = time.monotonic() + 60
+    try:
+        while ready not in (line := proc.stderr.readline()):
+            assert line and time.monotonic() < deadline, "".join(seen) + (proc.stderr.read() if not line else "")
+            seen.append(line)
+        seen.append(line)
+        time.sleep(0.5)  # inside its trio loop by now
+        proc.send_signal(signal.SIGINT)
+        _out, rest = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    return proc.returncode, "".join(seen) + rest
+
+
+def test_ctrl_c_stops_replay_and_siri_without_a_traceback(tmp_path, line_topo, line_feed):
+    from topology.artifact import save
+
+    art = tmp_path / "line.enttopo"
+    save(line_topo, art)
+    rc, err = _interrupted(["proxy", "replay", "--gtfs", str(line_feed), "--port", "0"], "replay of", tmp_path)
+    assert rc == 130 and "Traceback" not in err and "entitynet: interrupted" in err, err
+    rc, err = _interrupted(["proxy", "siri", "--url", "http://127.0.0.1:1/siri", "--server", "127.0.0.1:1",
+                            "--topology", str(art), "--gtfs", str(line_feed)], "request(s) per poll", tmp_path)
+    assert rc == 130 and "Traceback" not in err and "entitynet: interrupted" in err, err

@@ -19,6 +19,8 @@ async def test_transit_vehicles_reach_the_server(line_topo, line_book, line_feed
                 while (server.metrics.registry.get_sample_value("entitynet_entities") or 0) < 3:  # as the server counts
                     await trio.sleep(0.05)
             assert len(shell.fleet.vehicles) >= 3
+            counts = shell.counts()  # what the demo's summary adds to the simulation's entities
+            assert counts["entities"] == {"tram": len(shell.fleet.vehicles)} and counts["stops_served"] >= 0
             n.cancel_scope.cancel()
     assert any(line.startswith("transit: replay of") for line in lines)
 
@@ -28,3 +30,24 @@ def test_demo_command_refuses_a_missing_feed(tmp_path, capsys):
 
     assert cli.main(["demo", "--transit", str(tmp_path / "nope.zip"), "--duration", "1"]) == 2
     assert "GTFS feed" in capsys.readouterr().err
+
+
+def test_demo_command_refuses_a_folder_as_feed(tmp_path, capsys):
+    from entitynet import cli
+
+    assert cli.main(["demo", "--transit", str(tmp_path), "--duration", "1"]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+async def test_an_unreadable_feed_is_the_commands_error(line_topo, tmp_path, monkeypatch):
+    """A --transit feed that is no GTFS zip ends the demo with one line (a CommandError, which the CLI prints
+    even from inside the demo's nursery), not a traceback."""
+    import pytest
+
+    from entitynet.cli import CommandError
+
+    monkeypatch.setenv("ENTITYNET_CACHE", str(tmp_path))
+    garbage = tmp_path / "garbage.zip"
+    garbage.write_text("not a zip\n")
+    with pytest.raises(CommandError, match="--transit .*garbage.zip.*not a readable GTFS zip"):
+        await run_transit(line_topo, ("127.0.0.1", 1), garbage, lambda m: None)

@@ -90,3 +90,15 @@ def test_bad_routes_are_refused():
         EtaMotion([0.0, 10.0, 5.0], [(0, 0)] * 3, Limits(10.0))
     with pytest.raises(ValueError):
         EtaMotion([], [], Limits(10.0))
+
+
+def test_stops_served_counts_the_stops_it_stood_at_not_those_it_passed():
+    m = _motion(0.0)
+    m.observe(0.0, {1: 95.0, 2: 210.0, 3: 330.0, 4: 445.0})
+    for t in np.arange(0.5, 250.0, 0.5):
+        m.advance(t)
+    assert m.stops_served == 2  # stood at stops 1 and 2 (stop 0, where it started, is not an arrival)
+    m.observe(250.0, {4: 330.0})  # the tracker has it past stop 3: it goes through
+    for t in np.arange(250.5, 600.0, 0.5):
+        m.advance(t)
+    assert m.finished and m.stops_served == 3  # and the last stop

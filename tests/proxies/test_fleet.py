@@ -81,3 +81,16 @@ def test_the_stop_id_decides_not_a_stop_sequence_that_counts_otherwise(line_topo
     fleet = Fleet(line_topo, line_book, granularity=0.0)
     fleet.ingest([_call(3, T0 + 60.0, order=2), _call(4, T0 + 150.0, order=3)], T0, T0)
     assert set(fleet.vehicles["V1"].motion.eta) == {3, 4}
+
+
+def test_stops_served_and_vehicles_by_mode_count_the_vehicles_that_left_too(line_topo, line_book):
+    fleet = Fleet(line_topo, line_book, stale_after=400.0, granularity=0.0)
+    fleet.ingest([_call(2, T0 + 60.0), _call(3, T0 + 150.0), _call(4, T0 + 240.0)], T0, T0)
+    assert fleet.by_mode() == {"tram": 1} and fleet.stops_served() == 0
+    for t in range(0, 200):
+        fleet.tick(T0 + t)
+    served = fleet.stops_served()
+    assert served >= 1  # stood at stop 2 (and 3) on its ETAs
+    fleet.tick(T0 + 1000.0)  # stale: it leaves, its stops stay counted
+    assert not fleet.vehicles and fleet.by_mode() == {}
+    assert fleet.stops_served() == served

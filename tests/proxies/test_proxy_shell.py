@@ -152,6 +152,29 @@ async def test_gtfs_rt_proxy_positions_and_trip_updates(line_topo, line_book, li
             n.cancel_scope.cancel()
 
 
+async def test_single_mode_polls_complete_when_some_requests_fail(line_topo, line_book, line_feed):
+    """`--mode single` (a request per stop): failing requests are counted by kind and the poll goes on with the
+    other stops, so it completes and their vehicles are used."""
+    service = make_service(line_feed)
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):
+        shell = _shell(line_topo, line_book, server)
+        client = StopMonitoringClient(url(service), mode="single", timeout=1.0)
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, shell.siri_poller(client))
+            await _wait(lambda: len(shell.fleet.vehicles) >= 3)
+            good, calls = shell.good_polls, shell.metrics.value("entitynet_proxy_calls_total")
+            await _control(service, "fault=http500&count=2")
+            await _wait(lambda: shell.metrics.value("entitynet_proxy_request_errors_total", kind="http_5xx") == 2)
+            await _wait(lambda: shell.good_polls > good + 1)
+            assert shell.metrics.value("entitynet_proxy_errors_total", kind="http_5xx") == 0  # no poll failed
+            assert shell.metrics.value("entitynet_proxy_calls_total") > calls
+            assert len(shell.fleet.vehicles) >= 3
+            # every request of a poll failing is still a failed poll, counted once
+            await _control(service, f"fault=http500&count={len(line_book.stops)}")
+            await _wait(lambda: shell.metrics.value("entitynet_proxy_errors_total", kind="http_5xx") == 1)
+            n.cancel_scope.cancel()
+
+
 async def test_an_unforeseen_error_in_a_poll_is_counted_and_survived(line_topo, line_book, line_feed):
     service = make_service(line_feed)
     async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):

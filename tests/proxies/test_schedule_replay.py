@@ -6,14 +6,15 @@ import numpy as np
 import pytest
 
 from proxies.replay_core import ReplayWorld, _profile_distance, min_run_time
-from proxies.schedule import nmtoken, parse_gtfs_time, read_schedule
+from proxies.schedule import nmtoken, read_schedule
 from tests.proxies.conftest import CEN_SERVICES_XSD, STOP_X, needs_xsd
+from topology.gtfs import parse_time
 
 
 def test_frequencies_expand_into_departures_every_headway(line_feed):
     sched = read_schedule(line_feed, modes=("tram",))
     east = [d for d in sched.departures if d.pattern.trip_id == "T east"]
-    assert [d.start for d in east] == list(range(parse_gtfs_time("07:50:00"), parse_gtfs_time("09:00:00"), 300))
+    assert [d.start for d in east] == list(range(parse_time("07:50:00"), parse_time("09:00:00"), 300))
     assert len({d.journey for d in sched.departures}) == len(sched.departures) == 2 * len(east)
     assert east[0].journey == "T_east:28200"  # an NMTOKEN: no spaces
     pat = east[0].pattern

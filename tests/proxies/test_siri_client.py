@@ -36,7 +36,9 @@ async def test_stop_monitoring_over_soap(line_feed, wsdl, mode):
     service.answer = spy
     async with replay_running(service):
         client = StopMonitoringClient(url(service), wsdl, mode=mode, timeout=5.0)
-        raws = await trio.to_thread.run_sync(client.fetch, STOPS)
+        fetched = await trio.to_thread.run_sync(client.fetch, STOPS)
+    raws = fetched.answers
+    assert not fetched.failures and fetched.not_sent == 0
     assert len(raws) == (1 if mode == "multiple" else len(STOPS)) == client.requests_for(STOPS)
     calls = [c for r in raws for c in parse_response(r).calls]
     assert calls and {c.stop_id for c in calls} <= set(STOPS)
@@ -90,8 +92,8 @@ async def test_faults_are_classified(line_feed, fault, exc, match):
         with pytest.raises(exc, match=match):
             await trio.to_thread.run_sync(client.fetch, STOPS)
         # and the next poll works again
-        raws = await trio.to_thread.run_sync(client.fetch, STOPS)
-    assert parse_response(raws[0]).calls
+        fetched = await trio.to_thread.run_sync(client.fetch, STOPS)
+    assert parse_response(fetched.answers[0]).calls
 
 
 @pytest.mark.parametrize("fault, match", [("garbage", "malformed XML"), ("truncated", "malformed XML")])
@@ -100,9 +102,9 @@ async def test_garbage_and_truncated_answers_fail_to_parse(line_feed, fault, mat
     async with replay_running(service):
         client = StopMonitoringClient(url(service), mode="multiple", timeout=5.0)
         await trio.to_thread.run_sync(requests.post, url(service, f"/control?fault={fault}&count=1"))
-        raws = await trio.to_thread.run_sync(client.fetch, STOPS)
+        fetched = await trio.to_thread.run_sync(client.fetch, STOPS)
     with pytest.raises(SiriError, match=match):
-        parse_response(raws[0])
+        parse_response(fetched.answers[0])
 
 
 async def test_a_slow_service_times_out(line_feed):
@@ -131,3 +133,40 @@ def test_a_wsdl_without_stop_monitoring_is_refused(tmp_path):
         StopMonitoringClient("http://127.0.0.1:9/", str(bad))
     with pytest.raises(SiriError, match="not found"):
         StopMonitoringClient("http://127.0.0.1:9/", str(tmp_path / "missing.wsdl"))
+
+
+async def test_single_mode_polls_every_stop_and_returns_the_failures(line_feed):
+    """One GetStopMonitoring per stop: two failed requests do not end the poll; the other stops are asked and the
+    failures come back classified."""
+    service = make_service(line_feed)
+    async with replay_running(service):
+        client = StopMonitoringClient(url(service), mode="single", timeout=5.0)
+        await trio.to_thread.run_sync(requests.post, url(service, "/control?fault=http500&count=1"))
+        await trio.to_thread.run_sync(requests.post, url(service, "/control?fault=soap&count=1"))
+        fetched = await trio.to_thread.run_sync(client.fetch, STOPS)
+    assert len(fetched.answers) == len(STOPS) - 2 and fetched.not_sent == 0
+    assert [type(e) for e in fetched.failures] == [HttpError, SoapFault]
+    assert service.state.stops_asked == len(STOPS) - 2  # the answered ones: every other stop was asked
+    assert any(parse_response(raw).calls for raw in fetched.answers)
+
+
+async def test_a_poll_whose_every_request_fails_raises_the_first_failure(line_feed):
+    service = make_service(line_feed)
+    async with replay_running(service):
+        client = StopMonitoringClient(url(service), mode="single", timeout=5.0)
+        await trio.to_thread.run_sync(requests.post, url(service, f"/control?fault=http503&count={len(STOPS)}"))
+        with pytest.raises(HttpError, match="HTTP 503"):
+            await trio.to_thread.run_sync(client.fetch, STOPS)
+
+
+async def test_a_poll_stops_asking_once_its_failures_have_used_up_its_time(line_feed):
+    """Timeouts on every stop would make one poll last a timeout per stop: after two timeouts' worth of failing
+    requests the rest of the poll is not sent (and counted as such)."""
+    service = make_service(line_feed, slow_s=3.0)
+    async with replay_running(service):
+        client = StopMonitoringClient(url(service), mode="single", timeout=0.4)
+        await trio.to_thread.run_sync(requests.post, url(service, f"/control?fault=slow&count={len(STOPS)}"))
+        with pytest.raises(Timeout):
+            await trio.to_thread.run_sync(client.fetch, STOPS)
+        # each timeout takes at least 0.4 s: after the second or third (> 0.8 s) the rest were not asked
+        assert service.state.faults["slow"] in (2, 3), service.state.faults

@@ -27,8 +27,9 @@ def test_bench_rejects_an_unknown_suite(capsys):
 
 
 def test_demo_checks_its_numbers(capsys):
-    assert main(["demo", "--entities", "0"]) == 2
-    assert "--entities must be at least 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:  # a usage error: refused while parsing (entitynet/commands/options.py)
+        main(["demo", "--entities", "0"])
+    assert info.value.code == 2 and "argument --entities: expected an integer from 1" in capsys.readouterr().err
 
 
 def test_demo_refuses_a_missing_schedule_and_a_bad_start(capsys, tmp_path):
@@ -37,3 +38,13 @@ def test_demo_refuses_a_missing_schedule_and_a_bad_start(capsys, tmp_path):
     with pytest.raises(SystemExit):
         main(["demo", "--start", "8h"])
     assert "service-day time" in capsys.readouterr().err
+
+
+def test_sim_args_are_the_sim_parsers_defaults_and_refuse_unknown_names():
+    """A preset of `sim` gets every option `sim` has (new ones included) and cannot name one it lacks."""
+    from sims.sim_cmd import sim_args
+
+    args = sim_args(entities=7)
+    assert (args.entities, args.measure_share, args.speed, args.server) == (7, 0.25, 1.0, None)
+    with pytest.raises(TypeError, match="no option 'nonesuch'"):
+        sim_args(nonesuch=1)

@@ -3,6 +3,7 @@ going away mid-run, and the command line's errors."""
 
 from __future__ import annotations
 
+import pytest
 import trio
 
 from entitynet.cli import main
@@ -67,10 +68,10 @@ async def test_server_going_away_mid_run_is_survived_and_reported():
 
 
 def test_cli_refuses_bad_options(capsys):
-    assert main(["sim", "--speed", "0", "--duration", "1"]) == 2
-    assert "--speed must be positive" in capsys.readouterr().err
-    assert main(["sim", "--tick-hz", "0", "--duration", "1"]) == 2
-    assert "tick rate" in capsys.readouterr().err
+    for option in ("--speed", "--tick-hz"):  # usage errors: refused while parsing (entitynet/commands/options.py)
+        with pytest.raises(SystemExit) as info:
+            main(["sim", option, "0", "--duration", "1"])
+        assert info.value.code == 2 and f"argument {option}: expected a number above 0" in capsys.readouterr().err
 
 
 def test_cli_refuses_a_missing_feed(capsys, tmp_path):
@@ -125,3 +126,80 @@ def test_the_shell_clock_runs_between_ticks_stops_while_paused_and_never_goes_ba
     assert shell.clock() == at  # stands still while paused
     shell._toggle()  # resume: on from where it stood
     assert at <= shell.clock() <= 100.5
+
+
+async def test_the_parts_trams_and_buses_are_in_the_summary_and_the_report(tmp_path):
+    """`demo --transit FEED`: the transit proxy is a part that publishes its trams and buses into the same server;
+    the summary, the final line and the report count them (and the stops they served) with the simulation's."""
+    from topology.artifact import save
+
+    class ProxyLike:
+        def counts(self) -> dict:
+            return {"entities": {"tram": 2, "bus": 1}, "stops_served": 4}
+
+    async def transit(address, task_status=trio.TASK_STATUS_IGNORED):
+        task_status.started(ProxyLike())
+        await trio.sleep_forever()
+
+    topo = grid()
+    path = tmp_path / "grid.enttopo"
+    save(topo, path)
+    lines: list[str] = []
+    sim = Sim(topo, SimConfig(entities=3, viewers=1, connections=1, transit=False, start=0.0, subscribe="radius"))
+    shell = Shell(sim, ShellConfig(duration=2.0, speed=4.0, summary_every=0.1, artifact=path, keys=False,
+                                   parts=(transit,)), lines.append)
+    with trio.fail_after(30):
+        rep = await shell.run()
+    summaries = [line for line in lines if "collisions avoided" in line]
+    assert summaries and all("1 bus" in line and "2 tram" in line for line in summaries), summaries
+    assert "4 bus and tram stops served" in lines[-1]
+    assert rep["entities"]["tram"] == 2 and rep["entities"]["bus"] == 1 and rep["stops_served"] == 4
+    assert rep["parts"] == [ProxyLike().counts()]
+
+
+def _small_run(tmp_path, tick_hz: float):
+    """Three entities and a viewer on the small grid, its artifact saved for the in-process server."""
+    from topology.artifact import save
+
+    topo = grid()
+    path = tmp_path / "grid.enttopo"
+    save(topo, path)
+    return Sim(topo, SimConfig(entities=3, viewers=1, connections=1, tick_hz=tick_hz, transit=False, start=0.0,
+                               subscribe="radius")), path
+
+
+async def test_a_run_behind_real_time_says_so_once_per_interval_and_in_the_summary(tmp_path):
+    """A tick that takes longer than the tick period: the live summary shows the lateness, and a warning says
+    the run is behind and what to do, once and then again only after `behind_warn_every` wall seconds."""
+    import time as wall
+
+    sim, path = _small_run(tmp_path, tick_hz=10.0)
+    lines: list[str] = []
+    step = sim.step
+
+    def slow_step():
+        wall.sleep(0.15)  # each tick 0.15 s of work at a 0.1 s period: behind from the start
+        return step()
+
+    sim.step = slow_step
+    shell = Shell(sim, ShellConfig(duration=2.5, speed=1.0, summary_every=0.5, artifact=path, keys=False,
+                                   behind_warn_every=1.5), lines.append)
+    with trio.fail_after(60):
+        rep = await shell.run()
+    warnings = [line for line in lines if "warning: behind real time" in line]
+    assert 1 <= len(warnings) <= 3, lines  # about 3.8 wall s of ticks: at most one warning per 1.5 s
+    assert "--viewers" in warnings[0] and "--speed" in warnings[0]
+    summaries = [line for line in lines if "collisions avoided" in line]
+    assert summaries and all("late p99" in line for line in summaries)
+    assert any("ticks behind" in line for line in summaries)
+    assert rep["realtime"]["ticks_behind"] > 0
+
+
+async def test_a_run_that_keeps_real_time_gives_no_warning(tmp_path):
+    sim, path = _small_run(tmp_path, tick_hz=2.0)
+    lines: list[str] = []
+    shell = Shell(sim, ShellConfig(duration=2.0, speed=1.0, summary_every=0.5, artifact=path, keys=False,
+                                   warmup_ticks=1), lines.append)
+    with trio.fail_after(60):
+        await shell.run()
+    assert not [line for line in lines if "warning: behind" in line]

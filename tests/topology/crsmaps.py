@@ -32,11 +32,13 @@ def geojson_map(tmp: Path, place: tuple[float, float], name: str = "town") -> Pa
     return path
 
 
-def osm_map(tmp: Path, place: tuple[float, float], name: str = "town") -> Path:
+def osm_map(tmp: Path, place: tuple[float, float], name: str = "town", buildings: int = 0) -> Path:
+    """The grid as OSM XML, with `buildings` small square buildings in a row along the first block."""
     out = ['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="test">']
     ids: dict[tuple[float, float], int] = {}
     ways = []
-    for line in grid_lines():
+    squares = [[(12 + 8 * i + dx, 12 + dy) for dx, dy in ((0, 0), (5, 0), (5, 5), (0, 5))] for i in range(buildings)]
+    for line in grid_lines() + squares:
         refs = []
         for pt in line:
             if pt not in ids:
@@ -47,7 +49,10 @@ def osm_map(tmp: Path, place: tuple[float, float], name: str = "town") -> Path:
         ways.append(refs)
     for k, refs in enumerate(ways, start=1):
         nd = "".join(f'<nd ref="{r}"/>' for r in refs)
-        out.append(f'<way id="{k}" version="1">{nd}<tag k="highway" v="residential"/></way>')
+        tag = '<tag k="highway" v="residential"/>' if k <= len(grid_lines()) else '<tag k="building" v="yes"/>'
+        if k > len(grid_lines()):
+            nd += f'<nd ref="{refs[0]}"/>'
+        out.append(f'<way id="{k}" version="1">{nd}{tag}</way>')
     out.append("</osm>")
     path = tmp / f"{name}.osm"
     path.write_text("\n".join(out))

@@ -1,11 +1,14 @@
 """GTFS reading and shape matching on the real HSL feed (skipped when ../shared is absent)."""
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-FEED = Path(__file__).resolve().parents[3] / "shared" / "data" / "hsl-gtfs-2022-02.zip"
+# ../shared beside the clone; ENTITYNET_SHARED overrides (a worktree elsewhere), as in tests/proxies/conftest.py
+SHARED = Path(os.environ.get("ENTITYNET_SHARED") or Path(__file__).resolve().parents[3] / "shared")
+FEED = SHARED / "data" / "hsl-gtfs-2022-02.zip"
 pytestmark = pytest.mark.skipif(not FEED.exists(), reason="../shared/data/hsl-gtfs-2022-02.zip absent")
 
 

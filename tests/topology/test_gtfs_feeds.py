@@ -58,7 +58,10 @@ def _matched(feed, topo):
 
 def test_a_feed_without_shapes_is_routed_from_stop_to_stop(tmp_path, route_map):
     feed = read_feed(write_feed(tmp_path / "f.zip"), modes=("bus",))
-    assert list(feed.shapes) == [STOP_SHAPE + "t1"] and feed.report["read:trips_without_shape"] == 1
+    # t1 and t2 stop at the same stops: one shape made of them, which both trips run on
+    assert list(feed.shapes) == [STOP_SHAPE + "t1"] and feed.report["read:trips_without_shape"] == 2
+    assert feed.report["read:shapes_made_of_stops"] == 1
+    assert {t.shape_id for t in feed.trips.values()} == {STOP_SHAPE + "t1"}
     m = _matched(feed, route_map)
     assert m.edges == true_route(route_map)
     assert [s[0] for s in m.stop_xy] == ["First", "Corner", "North", "Last"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 import shapely
 from shapely.geometry import shape
 
@@ -51,7 +52,9 @@ def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     assert main(["topology", "info", str(junk)]) == 2
     assert "not a topology artifact" in capsys.readouterr().err
     src = write_map(tmp_path)
-    assert main(["topology", "build", "--geojson", str(src), "--street-width", "-3"]) == 2
+    with pytest.raises(SystemExit) as info:  # a usage error: refused while parsing (entitynet/commands/options.py)
+        main(["topology", "build", "--geojson", str(src), "--street-width=-3"])
+    assert info.value.code == 2 and "argument --street-width" in capsys.readouterr().err
     out = tmp_path / "t.enttopo"
     assert main(["topology", "build", "--geojson", str(src), "--out", str(out), "-q"]) == 0
     assert main(["topology", "export", str(out), "--geojson", str(tmp_path / "x.json"), "--layers", "nope"]) == 2

@@ -17,7 +17,7 @@ import weakref
 import pytest
 import trio
 
-from entitynet.cli import CommandError, build_parser
+from entitynet.cli import build_parser
 from entitynet.server.gcpolicy import NEVER, FullCollections
 from tests.entitynet.server_helpers import running
 
@@ -94,7 +94,6 @@ async def test_a_server_without_the_policy_leaves_the_collector_alone(collector_
 def test_serve_takes_the_option_and_refuses_nonsense():
     parser = build_parser()
     assert parser.parse_args(["serve", "--topology", "x.enttopo"]).gc_full_every == 300.0
-    for bad in ("-1", "nan"):
-        args = parser.parse_args(["serve", "--topology", "x.enttopo", "--gc-full-every", bad, "--open"])
-        with pytest.raises(CommandError, match="gc-full-every"):
-            args.func(args)
+    for bad in ("-1", "nan", "1e-9"):  # refused while parsing (entitynet/commands/options.py)
+        with pytest.raises(SystemExit):
+            parser.parse_args(["serve", "--topology", "x.enttopo", f"--gc-full-every={bad}", "--open"])

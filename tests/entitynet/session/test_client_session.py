@@ -163,7 +163,8 @@ def test_revoked_token_after_the_handshake_is_final():
     assert s.receive(link, [err], 1.0) == [Stop(err)]
 
 
-@pytest.mark.parametrize("code", [P.ErrorCode.SERVER_FULL, P.ErrorCode.SHUTTING_DOWN, P.ErrorCode.INTERNAL])
+@pytest.mark.parametrize("code", [P.ErrorCode.SERVER_FULL, P.ErrorCode.SHUTTING_DOWN, P.ErrorCode.INTERNAL,
+                                  P.ErrorCode.AUTH_UNAVAILABLE])
 def test_other_handshake_errors_are_retried(code):
     s = _session(policy=ReconnectPolicy(0.1, 5.0))
     [c] = s.start(0.0)

@@ -115,7 +115,7 @@ async def test_viewer_in_headless_chromium(helsinki, helsinki_path, tmp_path):
             drawn = np.abs(img - BACKGROUND).sum(axis=2) > 12
             assert drawn.mean() > 0.2, f"only {drawn.mean():.1%} of the canvas drawn"
             r, g, b = img[:, :, 0], img[:, :, 1], img[:, :, 2]
-            walkers = ((r > 170) & (g > 70) & (g < 170) & (b < 90)).sum()  # orange, lit or in shade
+            walkers = ((r > 150) & (b > 120) & (g * 2 < r) & (g * 2 < b)).sum()  # magenta, lit or in shade
             assert walkers > 0, "no pedestrian drawn"
             by_type = await page.evaluate("window.entitynet.byType()")
             print(f"first entity after {first_entity_s:.2f} s; page: {stats}; by type {by_type}; "

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from pyproj import Transformer
 
-from sims.engine.schedule import GtfsError, parse_time, read_schedule
+from sims.engine.schedule import GtfsError, read_schedule
 from tests.entitynet.client_fixtures import make_topology
+from topology.gtfs import parse_time
 from topology.raw import PEDESTRIAN, TRAM, VEHICLE
 
 ORIGIN = (385000.0, 6672000.0)

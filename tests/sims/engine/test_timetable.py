@@ -13,10 +13,11 @@ import pytest
 from sims.engine.agents import Stop
 from sims.engine.behaviour import APPROACH_BRAKING, TIMETABLE_VMIN, timetable_speed
 from sims.engine.population import timetable_position
-from sims.engine.schedule import parse_time, read_schedule
+from sims.engine.schedule import read_schedule
 from sims.engine.world import World
 from tests.entitynet.client_fixtures import make_topology
 from tests.sims.engine.test_schedule import line_map, write_feed
+from topology.gtfs import parse_time
 from topology.raw import TRAM
 
 DT = 0.5  # the simulation's default tick (2 Hz)

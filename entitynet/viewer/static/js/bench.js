@@ -101,7 +101,7 @@ async function runThree(geometry, ghosts) {
   const count = ghosts.reduce((n, g) => n + Math.max(1, g.model.parts.length), 0);
   const boxes = new THREE.InstancedMesh(new THREE.BoxGeometry(1, 1, 1).translate(0, 0, 0.5),
     new THREE.MeshLambertMaterial(), count);
-  const colors = { 0: new THREE.Color(0xff8c1e), 1: new THREE.Color(0x2878ff), 3: new THREE.Color(0xe6283c) };
+  const colors = { 0: new THREE.Color(0xff2bd6), 1: new THREE.Color(0x00e5ff), 3: new THREE.Color(0xff1a3c) }; // city3d.js TYPE_STYLE
   scene.add(boxes);
   const cam = new THREE.PerspectiveCamera(60, innerWidth / innerHeight, 0.3, 6000);
   const c = camera(geometry);

@@ -8,15 +8,26 @@ import { mergeGeometries } from "three/examples/jsm/utils/BufferGeometryUtils.js
 
 const PEDESTRIAN = 1, VEHICLE = 2, TRAM = 4; // topology/raw.py network bits
 
-// pedestrian, car, bus, tram, cyclist: colour, width, height (pedestrians exaggerated to show from the roofs)
+// The simulated types (entitynet/client/entities.py; no cyclists are simulated, so none is in the legend):
+// colour, true width and height in metres. The colours are saturated and far from the map's (grey streets,
+// brown tram tracks 0x966e50, dull green areas, beige buildings, the overlays' light blue and yellow).
 export const TYPE_STYLE = {
-  0: { name: "pedestrian", color: 0xff8c1e, width: 1.8, height: 1.8 },
-  1: { name: "car", color: 0x2878ff, width: 1.9, height: 1.5 },
-  2: { name: "bus", color: 0x1ebe5a, width: 2.55, height: 3.1 },
-  3: { name: "tram", color: 0xe6283c, width: 2.4, height: 3.4 },
-  4: { name: "cyclist", color: 0xc850e6, width: 1.2, height: 1.7 },
+  0: { name: "pedestrian", color: 0xff2bd6, width: 0.7, height: 1.8 }, // magenta
+  1: { name: "car", color: 0x00e5ff, width: 1.9, height: 1.5 }, // cyan
+  2: { name: "bus", color: 0x8cff1a, width: 2.55, height: 3.1 }, // lime
+  3: { name: "tram", color: 0xff1a3c, width: 2.4, height: 3.4 }, // crimson
 };
-const OTHER = { name: "other", color: 0xc8c8c8, width: 1.5, height: 1.5 };
+const OTHER = { name: "other", color: 0xffffff, width: 1.5, height: 1.5 };
+// Far away a true-size entity is a pixel or two: each is scaled up (never down) so that its width covers at
+// least this many pixels on screen, whatever its distance.
+export const MIN_ENTITY_PX = 8;
+
+/** How much to enlarge a body of `width` metres at `distance` metres so that it spans at least `minPx` pixels
+ * with a camera of focal length `focalPx` (pixels): 1 near the camera, growing with the distance. */
+export function markerScale(width, distance, focalPx, minPx = MIN_ENTITY_PX) {
+  if (!(width > 0) || !(focalPx > 0) || !(distance > 0)) return 1;
+  return Math.max(1, (minPx * distance) / (focalPx * width));
+}
 
 function vec2s(flat) {
   const out = [];
@@ -172,20 +183,31 @@ export class City3D {
     this.capacity = cap;
   }
 
-  /** Draw the ghosts at time t (their models extrapolated: motion.js). */
+  /** The camera's focal length in CSS pixels (the vertical field of view over the canvas height). */
+  focalPx() {
+    const h = this.renderer.domElement.clientHeight || this.renderer.getSize(this._size || (this._size = new THREE.Vector2())).y;
+    return h / 2 / Math.tan((this.camera.fov * Math.PI) / 360);
+  }
+
+  /** Draw the ghosts at time t (their models extrapolated: motion.js), each at least MIN_ENTITY_PX wide. */
   setEntities(ghosts, t) {
     let n = 0;
     for (const g of ghosts) n += Math.max(1, g.model.parts.length);
     this._ensure(n);
     const { _m: m, _q: q, _v: v, _s: s, _c: c, _z: z } = this;
+    const eye = this.camera.position;
+    const focal = this.focalPx();
     let i = 0, j = 0;
     this.picked.length = 0;
     for (const g of ghosts) {
       const style = TYPE_STYLE[g.model.etype] || OTHER;
       c.setHex(style.color);
       const pts = g.model.partsXyAt(t);
+      const [cx, cy] = pts.length < 2 ? pts[0] : pts[(pts.length - 1) >> 1];
+      const k0 = markerScale(style.width, Math.hypot(cx - eye.x, cy - eye.y, eye.z), focal);
+      const w = style.width * k0, h = style.height * k0;
       if (pts.length < 2) {
-        m.compose(v.set(pts[0][0], pts[0][1], 0), q.identity(), s.set(style.width, style.width, style.height));
+        m.compose(v.set(pts[0][0], pts[0][1], 0), q.identity(), s.set(w, w, h));
         this.bodies.setMatrixAt(i, m);
         this.bodies.setColorAt(i, c);
         this.picked[i++] = g;
@@ -194,12 +216,12 @@ export class City3D {
       for (let k = 0; k + 1 < pts.length; k++) {
         const [ax, ay] = pts[k], [bx, by] = pts[k + 1];
         q.setFromAxisAngle(z, Math.atan2(ay - by, ax - bx));
-        m.compose(v.set((ax + bx) / 2, (ay + by) / 2, 0), q, s.set(Math.hypot(ax - bx, ay - by) || 0.1, style.width, style.height));
+        m.compose(v.set((ax + bx) / 2, (ay + by) / 2, 0), q, s.set(Math.max(Math.hypot(ax - bx, ay - by), w), w, h));
         this.bodies.setMatrixAt(i, m);
         this.bodies.setColorAt(i, c);
         this.picked[i++] = g;
         if (k > 0) {
-          m.compose(v.set(ax, ay, style.height), q, s.set(1.0, style.width * 0.8, 0.35));
+          m.compose(v.set(ax, ay, h), q, s.set(1.0 * k0, w * 0.8, 0.35 * k0));
           this.joints.setMatrixAt(j++, m);
         }
       }
@@ -218,6 +240,19 @@ export class City3D {
     this.raycaster.setFromCamera(new THREE.Vector2((x / el.clientWidth) * 2 - 1, -(y / el.clientHeight) * 2 + 1), this.camera);
     const hit = this.raycaster.intersectObject(this.bodies, false)[0];
     return hit && hit.instanceId !== undefined ? this.picked[hit.instanceId] : null;
+  }
+
+  /** Show or hide the entities (the legibility test renders the same instant with and without them). */
+  setEntitiesVisible(on) {
+    for (const mesh of [this.bodies, this.joints]) if (mesh) mesh.visible = on;
+  }
+
+  /** Where a local point [x, y, z] lands on the canvas: [px, py] in CSS pixels, or null behind the camera. */
+  project(x, y, z) {
+    const p = this._v.set(x, y, z).project(this.camera);
+    if (p.z < -1 || p.z > 1) return null;
+    const el = this.renderer.domElement;
+    return [((p.x + 1) / 2) * el.clientWidth, ((1 - p.y) / 2) * el.clientHeight];
   }
 
   render() {

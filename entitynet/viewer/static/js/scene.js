@@ -8,13 +8,12 @@ import { PathLayer, PolygonLayer, SolidPolygonLayer } from "@deck.gl/layers";
 const CART = { coordinateSystem: COORDINATE_SYSTEM.CARTESIAN };
 const PEDESTRIAN = 1, VEHICLE = 2, TRAM = 4; // topology/raw.py network bits
 
-// pedestrian, car, bus, tram, cyclist
+// the simulated types, in the viewer's colours (city3d.js)
 export const TYPE_STYLE = {
-  0: { name: "pedestrian", color: [255, 140, 30], width: 0.9, height: 1.8 },
-  1: { name: "car", color: [40, 120, 255], width: 1.9, height: 1.5 },
-  2: { name: "bus", color: [30, 190, 90], width: 2.55, height: 3.1 },
-  3: { name: "tram", color: [230, 40, 60], width: 2.4, height: 3.4 },
-  4: { name: "cyclist", color: [200, 80, 230], width: 0.8, height: 1.7 },
+  0: { name: "pedestrian", color: [255, 43, 214], width: 0.9, height: 1.8 },
+  1: { name: "car", color: [0, 229, 255], width: 1.9, height: 1.5 },
+  2: { name: "bus", color: [140, 255, 26], width: 2.55, height: 3.1 },
+  3: { name: "tram", color: [255, 26, 60], width: 2.4, height: 3.4 },
 };
 const OTHER = { name: "other", color: [200, 200, 200], width: 1.5, height: 1.5 };
 

@@ -201,6 +201,24 @@ async function main() {
     viewCell: (x, y, z) => pvs.viewCell(x, y, z),
     setCamera,
     show: (key, on) => { show[key] = on; },
+    // for the legibility test: one instant drawn with and without the entities (PNG data URLs, CSS pixels at
+    // scale 1) and where each visible ghost's middle lands on the canvas (null: behind the camera)
+    entityFrames: () => {
+      const { ghosts, t } = session.ghosts.visible(nowS());
+      city.setEntities(ghosts, t);
+      city.render();
+      const withEntities = canvas.toDataURL("image/png");
+      city.setEntitiesVisible(false);
+      city.render();
+      const without = canvas.toDataURL("image/png");
+      city.setEntitiesVisible(true);
+      const entities = ghosts.map((g) => {
+        const pts = g.model.partsXyAt(t);
+        const [px, py] = pts[(pts.length - 1) >> 1];
+        return { entity: g.entity, etype: g.model.etype, screen: city.project(px, py, 1.0) };
+      });
+      return { withEntities, without, entities };
+    },
   };
 }
 
