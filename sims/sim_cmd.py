@@ -84,6 +84,11 @@ def register(sub) -> None:
     p.add_argument("--summary-every", type=positive_seconds(86400),
                    default=5.0, metavar="S", help="summary interval (default 5 s)")
     p.add_argument("--report", metavar="FILE.json", help="write the final JSON report here (default: stdout)")
+    p.add_argument("--mobility", choices=("ours", "sumo"), default="ours",
+                   help="what moves the entities: our world model (default) or an Eclipse SUMO scenario stepped "
+                        "in process (needs the [sumo] extra; docs/sumo.md)")
+    p.add_argument("--sumocfg", metavar="FILE", help="with --mobility sumo: the scenario's .sumocfg (default: the "
+                   "bundled map's scenario, generated once by `entitynet sumo scenario` and cached)")
     p.set_defaults(func=run)
 
 
@@ -123,6 +128,8 @@ def run(args: argparse.Namespace) -> int:
         problems.append("--shards starts its own cluster: give either --shards or --server")
     if args.nats_nodes < 1:
         problems.append("--nats-nodes must be at least 1")
+    if getattr(args, "sumocfg", None) and getattr(args, "mobility", "ours") != "sumo":
+        problems.append("--sumocfg needs --mobility sumo")
     if problems:
         raise CommandError("; ".join(problems))
     import trio
@@ -153,6 +160,12 @@ def run(args: argparse.Namespace) -> int:
         topo, path = load_artifact(args.topology), Path(args.topology)
     else:
         topo, path = bundled_topology(lambda m: say(f"[{time.perf_counter() - t0:6.1f}s] {m}"), with_pvs=True)
+    source = None
+    if getattr(args, "mobility", "ours") == "sumo":  # SUMO moves everyone: no population, no schedule of ours
+        from sims.sumo.commands import sumo_source
+
+        source = sumo_source(topo, args.sumocfg, config, say)
+        config.transit, config.entities = False, 0
     schedule = load_feed(args.gtfs, topo, args.date, args.seed, config.start, say) if config.transit else None
     regions = shard_at = None
     if args.shards:
@@ -164,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         except RegionError as exc:
             raise CommandError(str(exc)) from None
         shard_at = shard_locator(topo, regions)
-    sim = Sim(topo, config, schedule, shards=args.shards or 1, shard_at=shard_at)
+    sim = Sim(topo, config, schedule, shards=args.shards or 1, shard_at=shard_at, source=source)
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
         f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")

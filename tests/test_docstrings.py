@@ -35,6 +35,7 @@ DOCUMENTED = (
     "sims/sim_cmd.py",
     "sims/data/make_hsl_extract.py",
     "sims/mobility",
+    "sims/sumo",
     "sims/demo.py",
     "proxies",
 )

@@ -20,6 +20,10 @@ Figures (keys of `results`):
 - `collisions`: avoided, accepted, deleted in the PVS run; `tick_lateness_p99_ms` of the largest real-time run.
 - `error_vs_updates`: ghost error p95 against updates per entity-minute for a range of client drift thresholds
   (plotted to `sim-error-vs-updates.png` next to the report when matplotlib is there).
+- `sumo` (issue 26, `sims.sumo.compare`): SUMO's world step against ours per vehicle-second with the same cars on
+  the same map (`step_cost`, ratio `world_step_ours_vs_sumo`), the end-to-end figures on SUMO's motion and ours
+  (`end_to_end`) and the SUMO entities kept in real time (`realtime_trials`, `entities_realtime_max`); a
+  `skipped` note instead where the [sumo] extra is not installed.
 """
 
 from __future__ import annotations
@@ -186,6 +190,10 @@ def run(args, progress) -> dict[str, Any]:
         best, lateness = n, trial["tick_lateness_p99_ms"]
         n *= 2
 
+    from sims.sumo.compare import bench_rows  # skipped, with the reason, without the [sumo] extra
+
+    sumo = bench_rows(topo, artifact, schedule, quick, progress)
+
     all_pvs = pvs["truth_vs_viewer"]["all"]
     results = {
         "entities_realtime_max": best,
@@ -206,6 +214,7 @@ def run(args, progress) -> dict[str, Any]:
         "error_vs_updates": sweep,
         "truth_vs_viewer": {"pvs": pvs["truth_vs_viewer"], "radius": rad["truth_vs_viewer"]},
         "realtime_trials": trials,
+        "sumo": sumo,
     }
     out = getattr(args, "out", None)
     if out:
@@ -220,7 +229,8 @@ def run(args, progress) -> dict[str, Any]:
         "peer": {"radius_500m": {"deliveries_per_viewer_s": street_rad["deliveries"],
                                  "missed_visibility": rad["truth_vs_viewer"]["all"]["missed_visibility"]}},
         "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"],
-                  "fleet_core_vs_player": fleet["ratio"]},
+                  "fleet_core_vs_player": fleet["ratio"],
+                  "world_step_ours_vs_sumo": [c["ours_vs_sumo"] for c in sumo.get("step_cost", [])] or None},
     }
 
 

@@ -72,6 +72,7 @@ class Agent:
     dwell_until: float | None = None
     crossings: list[tuple[float, int, int]] = field(default_factory=list)  # (s_node, node, k_out) ahead
     held: set[int] = field(default_factory=set)  # crossing nodes granted to this agent
+    movements: dict = field(default_factory=dict)  # route edge index k of a crossing -> its Movement (built once)
     blocked_since: float | None = None
     cause: str = ""  # what limits the agent now: "", "leader", "crossing", "stop", "stall"
     blocker: int | None = None  # the entity (or crossing node) it yields to

@@ -24,15 +24,14 @@ import numpy as np
 from entitynet import protocol as P
 from entitynet.client import FixRejected, Player
 from entitynet.client.fleet import FleetCore
-from sims.engine.agents import Agent
-from sims.engine.world import World
+from sims.engine.source import Body, Truth
 from sims.mobility.gps import GPS_SIGMA, gps
 
 
 class Fleet:
     """Every live entity's `Player`; `step(now)` returns the messages to send, one list per connection."""
 
-    def __init__(self, world: World, connections: int = 4, *, fix_interval: float = 1.0,
+    def __init__(self, world: Truth, connections: int = 4, *, fix_interval: float = 1.0,
                  gps_sigma: float = GPS_SIGMA, seed: int = 1, threshold: float | None = None,
                  shards: int = 1, shard_at: Callable[[float, float], int] | None = None, core: str = "fleet",
                  model: str = "network"):
@@ -71,14 +70,16 @@ class Fleet:
         home = self.home.get(entity)
         return entity % self.connections if home is None else home
 
-    def add(self, a: Agent) -> None:
+    def add(self, a: Body) -> None:
         """Give a new entity its client core. Scheduled vehicles get their route and stops a priori; the first fix
         is phased by id (golden ratio) so fixes spread over the interval instead of all landing on one tick."""
         route, stops = (), ()
         if a.stops or a.label:  # a scheduled vehicle knows its route and stops a priori
             route = a.route.edges
             stops = [a.route.edge_offset(st.s) for st in a.stops]
-        self.players[a.id] = Player(self.world.topo, a.id, a.name, accuracy=self.gps_sigma, route=route,
+        # a source may give an entity its own body (a SUMO tram's length as its parts): `etype` over the name
+        etype = getattr(a, "etype", None) or a.name
+        self.players[a.id] = Player(self.world.topo, a.id, etype, accuracy=self.gps_sigma, route=route,
                                     stops=stops, threshold=self.threshold, model=self.model,
                                     period=self.fix_interval)
         if self.shard_at is not None:  # by where it is: its first PUBLISH then needs no REDIRECT

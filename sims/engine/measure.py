@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sims.engine.source import Truth
 from sims.engine.viewers import SimViewer
-from sims.engine.world import World
 
 
 @dataclass
@@ -60,7 +60,7 @@ class Measure:
     def __init__(self) -> None:
         self.tallies: dict[str, Tally] = defaultdict(Tally)
 
-    def sample(self, now: float, world: World, viewers: list[SimViewer], eid_to_agent: dict[int, int]) -> None:
+    def sample(self, now: float, world: Truth, viewers: list[SimViewer], eid_to_agent: dict[int, int]) -> None:
         """One sample of every viewer against the truth at `now`: errors of shown entities in subscribed cells,
         misses, and stale ghosts (see the module docstring for the rules)."""
         where: dict[int, list[int]] = defaultdict(list)

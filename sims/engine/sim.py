@@ -20,10 +20,9 @@ from entitynet import protocol as P
 from sims.engine.clients import Fleet
 from sims.engine.decode_cache import DecodeCache
 from sims.engine.measure import Measure
-from sims.engine.population import Population, PopulationConfig
 from sims.engine.schedule import Schedule
+from sims.engine.source import MobilitySource, OurWorld
 from sims.engine.viewers import CellsAt, SimViewer, pvs_cells_at, radius_cells_at
-from sims.engine.world import World
 
 
 @dataclass
@@ -87,15 +86,20 @@ class SimConfig:
 
 class Sim:
     """The whole simulation as one sans-IO core (see the module docstring): every driver calls `start()`, then
-    `step()` per tick, hands arrivals to `deliver` and calls `maybe_sample`."""
+    `step()` per tick, hands arrivals to `deliver` and calls `maybe_sample`. The truth comes from a mobility
+    source (`sims.engine.source`): our own world by default, or `source` (a SUMO scenario) when given."""
 
     def __init__(self, topo, config: SimConfig, schedule: Schedule | None = None, cells_at: CellsAt | None = None,
-                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None):
+                 shards: int = 1, shard_at: Callable[[float, float], int] | None = None,
+                 source: MobilitySource | None = None):
         self.topo = topo
         self.config = config
-        self.world = World(topo, config.seed, start=config.start)
-        self.population = Population(self.world, PopulationConfig(config.entities, config.car_share,
-                                                                  transit=config.transit), schedule)
+        if source is None:
+            source = OurWorld(topo, config.seed, config.start, config.entities, config.car_share, config.transit,
+                              schedule)
+        self.source = source
+        self.world = source.world  # the truth: live entities, clock, counters
+        self.population = getattr(source, "population", None)  # our world's spawner (None for other sources)
         self.fleet = Fleet(self.world, config.connections, fix_interval=config.fix_interval,
                            gps_sigma=config.gps_sigma, seed=config.seed, threshold=config.threshold,
                            shards=shards, shard_at=shard_at,  # shards: `connections` to each, by where entities are
@@ -133,15 +137,15 @@ class Sim:
 
     def start(self) -> tuple[list[list[P.Message]], list[list[P.Subscribe]]]:
         """The first population and the viewers' first subscriptions: the messages to send before the first tick."""
-        for a in self.population.start():
+        for a in self.source.start():
             self.fleet.add(a)
         return self.fleet.step(self.now), [v.move(0.0) for v in self.viewers]
 
     def step(self) -> tuple[list[list[P.Message]], list[list[P.Subscribe]]]:
         """One tick: the truth moves, spawns happen, fixes are taken, cameras move."""
-        self.world.step(self.dt)
+        new = self.source.step(self.dt)
         self.ticks += 1
-        for a in self.population.step():
+        for a in new:
             self.fleet.add(a)
         return self.fleet.step(self.now), [v.move(self.dt) for v in self.viewers]
 
@@ -187,6 +191,7 @@ class Sim:
         v = self.viewers
         return {
             "config": asdict(self.config),
+            "mobility": self.source.report(),
             "subscribe_by": self.subscribe_by,
             "sim_time_s": self.ticks * self.dt,
             **self.counts(),

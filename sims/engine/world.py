@@ -244,16 +244,20 @@ class World:
         r = a.route
         best: Obstacle | None = None
         k = r.index(a.s)
+        behind = a.s - 0.01
         while k < len(r.edges) and r.cum[k] < ahead:
             e, d = r.edges[k]
             L = self.net.edge_len[e]
+            base = r.cum[k]
             for lo, hi, b, db in index.get(e, ()):
-                if b is a or not lanes_overlap(a, d, b, db):
+                if b is a:
                     continue
-                near = r.cum[k] + (lo if d > 0 else L - hi)
-                if near < a.s - 0.01 or near > ahead:  # behind the front, or overlapping it already
+                near = base + (lo if d > 0 else L - hi)
+                # behind the front, overlapping it already, beyond sight or no nearer than the best: the cheap
+                # tests first, the lanes' sideways overlap only for a candidate (the same leader either way)
+                if near < behind or near > ahead or (best is not None and near >= best.at):
                     continue
-                if best is None or near < best.at:
+                if lanes_overlap(a, d, b, db):
                     best = Obstacle(near, b.v if db == d else -b.v, "leader", b.id)
             if best is not None:
                 return best
@@ -268,7 +272,10 @@ class World:
             line = sn - JUNCTION_RADIUS
             if line > ahead:  # beyond sight, or behind this lane's leader
                 return None
-            if self.crossings.request(n, a.id, self._movement(a, sn, k), now):
+            move = a.movements.get(k)  # the same every time it asks (its route and lane do not change)
+            if move is None:
+                move = a.movements[k] = self._movement(a, sn, k)
+            if self.crossings.request(n, a.id, move, now):
                 a.held.add(n)
                 continue
             return Obstacle(max(line, a.s), 0.0, "crossing", n, s0=0.5)
