@@ -55,7 +55,7 @@ class _Collector:
         self.built: set[tuple[bool, int]] = set()  # (from a way, original id) of every area osmium built
         # closed polygon ways with every node located, as lon/lat rings: what `repair_unassembled` rebuilds a
         # polygon from when osmium builds no ring (a self-intersecting way, the usual OSM case)
-        self.poly_rings: dict[int, tuple[list[tuple[float, float]], dict]] = {}
+        self.poly_rings: dict[int, tuple[np.ndarray, dict]] = {}  # lon, lat of closed polygon ways not built yet
 
     def node(self, n) -> None:
         if n.tags and _is_stop_node(n.tags) and n.location.valid():
@@ -72,7 +72,8 @@ class _Collector:
             why = _why_no_polygon(w)
             self.poly_ways[w.id] = (kind, why)
             if why == "not_assembled":
-                self.poly_rings[w.id] = ([(nr.location.lon, nr.location.lat) for nr in w.nodes], tags)
+                # kept until osmium builds the area (then dropped): only self-intersecting ways stay
+                self.poly_rings[w.id] = (np.array([(nr.location.lon, nr.location.lat) for nr in w.nodes]), tags)
         bits = way_networks(tags)
         if not bits:
             if "highway" in tags or "railway" in tags:
@@ -133,6 +134,8 @@ class _Collector:
             return
         if rings:
             self.built.add((a.from_way(), a.orig_id()))
+            if a.from_way():
+                self.poly_rings.pop(a.orig_id(), None)
         elif not a.from_way():  # osmium could not close a ring (an open multipolygon)
             self.built.add((False, a.orig_id()))
             self.report[f"dropped:{kind}_no_rings"] += 1
