@@ -223,15 +223,23 @@ try:
 except ImportError:  # not built (no compiler at install time): the reference path
     COMPILED = None
 _impl: Any = PURE
+_route: Any = None
 
 
 def use_compiled(flag: bool = True) -> bool:
     """Select the fan-out loops for this process: the compiled ones when `flag` and they were built, else the
     pure-Python reference. Returns whether the compiled ones are now in use."""
-    global _impl
+    global _impl, _route
     _impl = COMPILED if flag and COMPILED is not None else PURE
+    _route = getattr(_impl, "route", None)
     Outboxes.fan_out_to = staticmethod(_impl.fan_out_to)  # type: ignore[method-assign]
     return _impl is COMPILED
+
+
+def compiled_route() -> Any:
+    """The compiled `Switchboard._route` (`_fanout.route`) when the compiled loops are in use, else None (the
+    core then routes in Python)."""
+    return _route
 
 
 def compiled_in_use() -> bool:
