@@ -90,7 +90,7 @@ class Outbox:
         self._overflow = False
 
     # ------------------------------------------------------------------------------------------ shell side
-    def take_states(self, max_messages: int, sure_fit: int, max_body: int) -> tuple[int, bytes] | None:
+    def take_states_py(self, max_messages: int, sure_fit: int, max_body: int) -> tuple[int, bytes] | None:
         """The writer's short path: when only states are pending (no replies, no close, not over bounds), at
         most `max_messages` of them, and they fit `max_body` bytes (certain below `sure_fit` states), take them
         all as (count, joined bytes); else None and nothing is taken (use `drain`)."""
@@ -102,6 +102,8 @@ class Outbox:
                 states.clear()
                 return n, body
         return None
+
+    take_states = take_states_py  # the reference; `use_compiled` installs `_fanout.take_states` in its place
 
     def drain(self, max_messages: int | None = None, max_bytes: int | None = None) -> list[bytes]:
         """Take queued messages for one frame: control first, then entity states in first-queued order.
@@ -232,6 +234,7 @@ def use_compiled(flag: bool = True) -> bool:
     global _impl, _route
     _impl = COMPILED if flag and COMPILED is not None else PURE
     _route = getattr(_impl, "route", None)
+    Outbox.take_states = getattr(_impl, "take_states", Outbox.take_states_py)  # type: ignore[method-assign]
     Outboxes.fan_out_to = staticmethod(_impl.fan_out_to)  # type: ignore[method-assign]
     return _impl is COMPILED
 
