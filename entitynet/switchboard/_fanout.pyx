@@ -25,6 +25,9 @@ from entitynet.protocol.codec import encode_leave as _encode_leave
 
 cdef extern from "Python.h":
     void PyObject_GC_UnTrack(void *op)
+    ctypedef struct PySetObject:
+        Py_ssize_t used
+        Py_ssize_t mask
 
 
 def fan_out(dict states, object cids, object entity, object encoded):
@@ -84,26 +87,23 @@ cdef unsigned int _next_gen():
     return _gen
 
 
-cdef tuple _cell_entry(object sb, object cell, dict subs, dict handles, dict cell_tick, long tick,
+cdef tuple _cell_entry(object sb, object cell, set members, dict handles, dict cell_tick, long tick,
                        long valid_from):
-    """The cell's cached (tick made, outbox handle, client ids) in `sb._cell_targets`, remade when the cell's
-    subscribers changed since (the rule of `Switchboard._deliver_to_cells`); None when nobody subscribes."""
+    """The cell's cached `(tick made, outbox handle)` in `sb._cell_targets` (the entries `_deliver_to_cells`
+    makes too), remade when the cell's subscribers changed since; the handle lists the outboxes of `members`
+    in the set's iteration order, which stays the same while the set is unchanged (the tick says so)."""
     cdef PyObject *p = PyDict_GetItem(handles, cell)
     cdef PyObject *ct
     cdef tuple h
     cdef long made
     if p != NULL:
         h = <tuple><object>p
-        if len(h) == 3:
-            made = PyLong_AsLong(h[0])
-            ct = PyDict_GetItem(cell_tick, cell)
-            if made >= valid_from and (ct == NULL or made >= PyLong_AsLong(<object>ct)):
-                return h
-    p = PyDict_GetItem(subs, cell)
-    if p == NULL or not <set><object>p:
-        return None
-    cids = tuple(<set><object>p)
-    h = (tick, sb.outboxes.targets(cids), cids)
+        made = PyLong_AsLong(h[0])
+        ct = PyDict_GetItem(cell_tick, cell)
+        if made >= valid_from and (ct == NULL or made >= PyLong_AsLong(<object>ct)) \
+                and len(<tuple>h[1]) == len(members):
+            return h
+    h = (tick, sb.outboxes.targets(members))
     handles[cell] = h
     return h
 
@@ -119,12 +119,12 @@ def route(object sb, object c, object e, tuple old, tuple new):
     cdef dict subs = sb.subscribers
     cdef dict handles = sb._cell_targets
     cdef set dirty = sb._dirty
-    cdef set viewers, old_viewers
+    cdef set viewers, old_viewers, members
     cdef dict states
     cdef object eid = e.eid
     cdef object enc = e.enc_plain
     cdef object cell, v, leave
-    cdef tuple h, dicts, cids, targets
+    cdef tuple h, dicts, targets
     cdef PyObject *ct
     cdef Py_ssize_t i, n, n_leaves
     cdef long iv
@@ -151,21 +151,25 @@ def route(object sb, object c, object e, tuple old, tuple new):
     gen = _next_gen()
     viewers = set()
     for cell in new:
-        h = _cell_entry(sb, cell, subs, handles, cell_tick, tick, valid_from)
-        if h is None:
+        ct = PyDict_GetItem(subs, cell)
+        if ct == NULL or not <set><object>ct:
             continue
+        members = <set><object>ct
+        h = _cell_entry(sb, cell, members, handles, cell_tick, tick, valid_from)
         dicts = <tuple>h[1]
-        cids = <tuple>h[2]
-        n = len(cids)
-        for i in range(n):
-            v = cids[i]
+        i = 0
+        for v in members:  # the handle's order (see _cell_entry)
             iv = PyLong_AsLong(v)
-            if _stamp[iv] == gen or iv == owner:
-                continue
-            _stamp[iv] = gen
-            PyDict_SetItem(<dict>dicts[i], eid, enc)
-            PySet_Add(viewers, v)
-            PySet_Add(dirty, v)
+            if _stamp[iv] != gen and iv != owner:
+                _stamp[iv] = gen
+                PyDict_SetItem(<dict>dicts[i], eid, enc)
+                PySet_Add(viewers, v)
+                PySet_Add(dirty, v)
+            i += 1
+    if (<PySetObject *>viewers).mask + 1 > 4 * (<PySetObject *>viewers).used + 8:
+        # grown one add at a time, the table can be 2-4 times what a union's presized one is: compact it (a copy
+        # presizes), so that the sets take no more memory than the reference's
+        viewers = set(viewers)
     if viewers:
         sb.stats["deliveries"] += len(viewers)
     old_viewers = e.viewers
