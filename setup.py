@@ -16,5 +16,7 @@ else:
         language_level=3,
         quiet=True,
     )
+    for ext in ext_modules:  # cythonize makes new Extension objects and drops `optional`: without it a missing
+        ext.optional = True  # C compiler fails the whole install instead of leaving the pure-Python paths
 
 setup(ext_modules=ext_modules)

@@ -34,7 +34,7 @@ import trio
 import trio_websocket
 
 from entitynet import protocol as P
-from entitynet.server import fdlimit, logs
+from entitynet.server import compiled, fdlimit, logs
 from entitynet.server.config import ConfigError, ServerConfig, check_ports
 from entitynet.server.http import HttpLimits, HttpServer, Router
 from entitynet.server.listen import Listeners
@@ -175,6 +175,7 @@ class Server(WritingMixin):
 
                     self.cluster = ClusterLink(self, cfg.cluster)
                     await nursery.start(self.cluster.run)
+                compiled.say_if_pure()
                 logs.event("listening", host=cfg.host, port=self.port, ws_port=self.ws_port,
                            metrics_port=self.metrics_port, http_port=self.http_port, n_cells=self.sb.config.n_cells,
                            digest=self.sb.config.digest[:16], tls=bool(self.ssl), fd_limit=self.admission.limit)

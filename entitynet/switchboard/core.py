@@ -23,6 +23,7 @@ from collections.abc import Callable
 from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
 from entitynet.switchboard import access
+from entitynet.switchboard import outbox as outbox_module
 from entitynet.switchboard.config import SwitchConfig
 from entitynet.switchboard.mirror import MirrorMixin
 from entitynet.switchboard.outbound import OutboundMixin
@@ -275,7 +276,17 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
             self.cluster.on_state(c, e, old, now)  # after delivery: it may REDIRECT the owner (LEAVEs follow)
 
     def _route(self, c: ClientState, e: EntityState, old: tuple[int, ...], new: tuple[int, ...]) -> None:
-        """Deliver the new state to the entity's viewers, LEAVE to those who no longer see it."""
+        """Deliver the new state to the entity's viewers, LEAVE to those who no longer see it: in C
+        (`_fanout.route`) where it was built and the entity has no followers and shows no identity (nearly every
+        PUBLISH), else `_route_py`, the reference; both leave the same tables and outboxes behind."""
+        fast = outbox_module.compiled_route()
+        if fast is not None and not e.followers and e.owner.identity is None:
+            fast(self, c, e, old, new)
+        else:
+            self._route_py(c, e, old, new)
+
+    def _route_py(self, c: ClientState, e: EntityState, old: tuple[int, ...], new: tuple[int, ...]) -> None:
+        """`_route` in Python: the reference of the compiled route, and the path for followers and identities."""
         eid = e.eid
         t = e.viewers_tick
         if t >= self._valid_from and (old is new or old == new):

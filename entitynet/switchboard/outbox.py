@@ -90,7 +90,7 @@ class Outbox:
         self._overflow = False
 
     # ------------------------------------------------------------------------------------------ shell side
-    def take_states(self, max_messages: int, sure_fit: int, max_body: int) -> tuple[int, bytes] | None:
+    def take_states_py(self, max_messages: int, sure_fit: int, max_body: int) -> tuple[int, bytes] | None:
         """The writer's short path: when only states are pending (no replies, no close, not over bounds), at
         most `max_messages` of them, and they fit `max_body` bytes (certain below `sure_fit` states), take them
         all as (count, joined bytes); else None and nothing is taken (use `drain`)."""
@@ -102,6 +102,8 @@ class Outbox:
                 states.clear()
                 return n, body
         return None
+
+    take_states = take_states_py  # the reference; `use_compiled` installs `_fanout.take_states` in its place
 
     def drain(self, max_messages: int | None = None, max_bytes: int | None = None) -> list[bytes]:
         """Take queued messages for one frame: control first, then entity states in first-queued order.
@@ -223,15 +225,24 @@ try:
 except ImportError:  # not built (no compiler at install time): the reference path
     COMPILED = None
 _impl: Any = PURE
+_route: Any = None
 
 
 def use_compiled(flag: bool = True) -> bool:
     """Select the fan-out loops for this process: the compiled ones when `flag` and they were built, else the
     pure-Python reference. Returns whether the compiled ones are now in use."""
-    global _impl
+    global _impl, _route
     _impl = COMPILED if flag and COMPILED is not None else PURE
+    _route = getattr(_impl, "route", None)
+    Outbox.take_states = getattr(_impl, "take_states", Outbox.take_states_py)  # type: ignore[method-assign]
     Outboxes.fan_out_to = staticmethod(_impl.fan_out_to)  # type: ignore[method-assign]
     return _impl is COMPILED
+
+
+def compiled_route() -> Any:
+    """The compiled `Switchboard._route` (`_fanout.route`) when the compiled loops are in use, else None (the
+    core then routes in Python)."""
+    return _route
 
 
 def compiled_in_use() -> bool:

@@ -222,6 +222,8 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
         "machine_busy_cores": busy / wall,  # every process on the machine: others' load shows here
         "cpu_s_per_million_deliveries": cpu / max(count / 1e6, 1e-9),
         "rss_bytes_per_entity": (rss_loaded - rss_viewers) / len(walkers.seq),
+        # the viewers' subscriptions: RSS growth from the empty server to all viewers subscribed, per cell held
+        "rss_bytes_per_subscription": (rss_viewers - rss_empty) / max(sum(map(len, view_cells)), 1),
         "rss_empty_bytes": rss_empty,
         "rss_loaded_bytes": rss_loaded,
         "loadgen_max_tick_lateness_ms": late * 1000.0,

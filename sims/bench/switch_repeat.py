@@ -27,7 +27,8 @@ from sims.bench.switch_systems import find_exe, pin_loadgen, pin_plan, started, 
 from sims.mobility import Walkers
 
 FIGURES = ("deliveries_per_s", "offered_deliveries_per_s", "latency_p50_ms", "latency_p99_ms",
-           "server_cpu_cores", "machine_busy_cores", "cpu_s_per_million_deliveries")
+           "server_cpu_cores", "machine_busy_cores", "cpu_s_per_million_deliveries", "rss_bytes_per_entity",
+           "rss_bytes_per_subscription")
 
 
 def runs_plan(systems: list[str], variants: dict[str, str], reps: int) -> list[tuple[int, str, str, str]]:

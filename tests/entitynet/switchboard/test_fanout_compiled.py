@@ -71,3 +71,38 @@ def test_forwarding_is_the_same_on_both_paths(fanout_path):
     assert got == want
     assert any(("Leave", None) in frame for step in want for frame in step)  # the scenario has LEAVEs ...
     assert sum(len(frame) for step in want for frame in step) > 30  # ... and plenty of UPDATEs
+
+
+@pytest.mark.skipif(outbox.COMPILED is None or not hasattr(outbox.COMPILED, "take_states"),
+                    reason="the compiled take_states was not built")
+def test_compiled_take_states_matches_the_reference():
+    """Same answer and same outbox afterwards, over the cases that refuse (replies, a close, overflow, too many,
+    too large) and those that take; the compiled one is what `use_compiled` installs as the method."""
+    rng = random.Random(5)
+    for _ in range(300):
+        boxes = [outbox.Outbox(50, 5) for _ in range(2)]
+        n = rng.randrange(0, 12)
+        sizes = [rng.randrange(1, 40) for _ in range(n)]
+        extra = rng.choice(["", "control", "close", "overflow"])
+        for ob in boxes:
+            for k, s in enumerate(sizes):
+                ob.put_state(k * 7, bytes([k]) * s)
+            if extra == "control":
+                ob.put_control(b"c")
+            elif extra == "close":
+                ob.put_last_word(b"e")
+            elif extra == "overflow":
+                for _ in range(7):
+                    ob.put_control(b"c")
+        args = (rng.randrange(1, 14), rng.randrange(0, 12), rng.randrange(0, 300))
+        want = outbox.Outbox.take_states_py(boxes[0], *args)
+        got = outbox.COMPILED.take_states(boxes[1], *args)
+        assert got == want and boxes[0].drain() == boxes[1].drain()
+    was = outbox.compiled_in_use()
+    try:
+        outbox.use_compiled(True)
+        assert outbox.Outbox.take_states is outbox.COMPILED.take_states
+        outbox.use_compiled(False)
+        assert outbox.Outbox.take_states is outbox.Outbox.take_states_py
+    finally:
+        outbox.use_compiled(was)
