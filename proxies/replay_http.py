@@ -6,7 +6,8 @@ Endpoints (any path not listed: 404):
 - `GET /gtfs-rt/vehicle-positions`, `GET /gtfs-rt/trip-updates`: protobuf FeedMessages;
 - `GET /truth`: JSON {"t": service seconds, "vehicles": {id: [lon, lat, journey]}};
 - `POST /control?outage=S` (no answers for S seconds: every request gets 503), `POST /control?fault=KIND&count=N`
-  (the next N answers fail as KIND), for tests and the benchmark.
+  (the next N answers fail as KIND; `none` answers them normally, to place faults later in the queue), for tests
+  and the benchmark.
 
 Fault kinds: `soap` (a SOAP Fault, HTTP 500), `http500`, `http503`, `http404`, `garbage` (200 with bytes that
 are neither XML nor protobuf), `truncated` (200 with the answer cut in half), `empty` (200, an empty delivery),
@@ -79,7 +80,8 @@ class ReplayService:
         if time.monotonic() < st.outage_until:
             return "http503"
         if st.forced:
-            return st.forced.pop(0)
+            kind = st.forced.pop(0)
+            return None if kind == "none" else kind
         if self.config.fault_rate > 0.0 and self.rng.random() < self.config.fault_rate:
             return self.rng.choice(FAULTS[:-1])  # random faults never hang: `slow` is asked for explicitly
         return None
@@ -93,7 +95,7 @@ class ReplayService:
                 self.state.outage_until = time.monotonic() + float(query["outage"][0])
             if "fault" in query:
                 kind = query["fault"][0]
-                if kind not in FAULTS:
+                if kind not in FAULTS and kind != "none":
                     return 400, "text/plain", f"unknown fault {kind!r}".encode(), 0.0
                 self.state.forced.extend([kind] * int(query.get("count", ["1"])[0]))
             return 200, "text/plain", b"ok", 0.0

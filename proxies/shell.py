@@ -83,6 +83,18 @@ class ProxyConfig:
     tick: float = 1.0
     timeout: float = 10.0
     stale_after: float = 300.0
+    poll_grace: float = 5.0  # seconds a poll may take past three timeouts (parsing its answers) before it is dropped
+
+    @property
+    def poll_limit(self) -> float:
+        """Seconds one poll may take before the shell gives up on it (and on all its answers)."""
+        return 3.0 * self.timeout + self.poll_grace
+
+    @property
+    def send_budget(self) -> float:
+        """Seconds into a poll after which no more requests are sent: the last one sent may take a timeout more,
+        which still leaves half the grace under `poll_limit` for parsing, so the answers got are kept."""
+        return 2.0 * self.timeout + self.poll_grace / 2.0
 
 
 class ProxyShell:
@@ -103,6 +115,9 @@ class ProxyShell:
         self.good_polls = 0
         self.last_error: str | None = None
         self.ready = trio.Event()  # set after the first good poll
+        # one poll thread at a time: a poll abandoned at its time limit still runs (and uses its client) until its
+        # request ends, and the next poll waits for it instead of sharing the client with it
+        self._poll_thread = trio.CapacityLimiter(1)
 
     def counts(self) -> dict:
         """Its vehicles by mode and the stops they served, in the shape of the simulation's counts: the demo runs
@@ -131,8 +146,8 @@ class ProxyShell:
             t0 = self.clock()
             self.metrics.polls.inc()
             try:
-                with trio.fail_after(self.config.timeout * 3 + 5.0):
-                    news = await trio.to_thread.run_sync(poller, abandon_on_cancel=True)
+                with trio.fail_after(self.config.poll_limit):
+                    news = await trio.to_thread.run_sync(poller, abandon_on_cancel=True, limiter=self._poll_thread)
                 self.last_error = None  # a poll that went on past failed requests names them (`_partly_failed`)
                 for apply in news:  # the fleet is only touched on the trio thread
                     apply()
@@ -185,7 +200,8 @@ class ProxyShell:
         stops = list(self.book.stops)
 
         def poll() -> list[Callable[[], None]]:
-            fetched = client.fetch(stops)  # raises when every request failed: the poll failed
+            deadline = time.monotonic() + self.config.send_budget  # the answers got by then are kept
+            fetched = client.fetch(stops, deadline)  # raises when every request failed: the poll failed
             received = self.clock()
             news, failures = [], list(fetched.failures)
             for raw in fetched.answers:

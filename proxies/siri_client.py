@@ -52,7 +52,7 @@ class Unreachable(SiriError):
 @dataclass
 class Fetched:
     """One poll's outcome: the raw answers of the requests that succeeded, the classified error of each that
-    failed, and how many requests were not sent because the failures had used up the poll's time. Why not raise
+    failed, and how many requests were not sent because the poll's time was used up. Why not raise
     at the first failure: with one request per stop (`--mode single`) a few failing stops stopped every poll
     before the others were asked, so no poll ever completed."""
 
@@ -136,12 +136,15 @@ class StopMonitoringClient:
         """How many requests one poll of `stops` takes in the chosen mode (reported at start-up)."""
         return (len(stops) + self.chunk - 1) // self.chunk if self.mode == "multiple" else len(stops)
 
-    def fetch(self, stops: list[str]) -> Fetched:
+    def fetch(self, stops: list[str], deadline: float | None = None) -> Fetched:
         """The raw answers for `stops` (one per request) and the classified failures of the requests that failed;
-        the other requests are sent all the same. Once failing requests have taken more than two timeouts, the
-        rest are not sent (a service that times out on every stop would hold one poll for a timeout per stop).
-        Raises the first failure when no request succeeded: the poll failed as a whole."""
+        the other requests are sent all the same. No request is sent once `time.monotonic()` has passed
+        `deadline` (default: two timeouts from now), so a poll ends by its deadline plus one timeout however many
+        stops time out or answer slowly: the caller keeps the answers it got instead of losing the whole poll to
+        its own time limit. Raises the first failure when no request succeeded: the poll failed as a whole."""
         now = datetime.now(UTC)
+        if deadline is None:
+            deadline = time.monotonic() + 2.0 * float(self.transport.operation_timeout or 0.0)
         if self.mode == "multiple":
             calls = [("GetMultipleStopMonitoring",
                       {"RequestTimestamp": now, "MessageIdentifier": f"entitynet-{next(self._ids)}",
@@ -152,17 +155,14 @@ class StopMonitoringClient:
             calls = [("GetStopMonitoring", {"RequestTimestamp": now, "PreviewInterval": self.preview,
                                             "MonitoringRef": s, "version": "2.0"}) for s in stops]
         out = Fetched()
-        failing_s, budget_s = 0.0, 2.0 * float(self.transport.operation_timeout or 0.0)
         for k, (op, req) in enumerate(calls):
-            if out.failures and failing_s > budget_s:
+            if k > 0 and time.monotonic() > deadline:
                 out.not_sent = len(calls) - k
                 break
-            t0 = time.monotonic()
             try:
                 out.answers.append(self._call(op, now, req))
             except SiriError as exc:
                 out.failures.append(exc)
-                failing_s += time.monotonic() - t0
         if out.failures and not out.answers:
             raise out.failures[0]
         return out

@@ -27,6 +27,7 @@ from entitynet.client.player import Player
 from entitynet.client.rules import OWN_ESTIMATE
 from entitynet.protocol import Publish
 from sims.bench.dr_data import MAIN_PEDESTRIANS, SAMPLE, SHARED, Entity, car_trace, pedestrians, vehicles
+from sims.bench.report import pyplot
 from sims.mobility import gps
 
 THRESHOLDS = (1.0, 2.0, 5.0, 10.0, 20.0)
@@ -364,10 +365,9 @@ def run(args, progress) -> dict:
 # ---- report helpers: `python -m sims.bench.dr_bench REPORT.json [--png docs/dr.png] [--md]` ------------------
 def plot(report: dict, png: str) -> None:
     """Updates per entity-minute against receiver p95 error, one line per model, one panel per dataset."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot(print)
+    if plt is None:
+        return
 
     table = report["results"]["table"]
     datasets = list(dict.fromkeys(r["dataset"] for r in table))

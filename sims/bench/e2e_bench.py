@@ -39,10 +39,21 @@ SYSTEMS = (
 STABLE = ("messages_per_viewer_s", "bytes_per_viewer_s", "server_cpu_ms_per_viewer_s", "error_p95_m")
 STABILITY = 0.15
 #: the systems also run idle (same viewers, cameras, subscriptions and barrier, no entities): what the broker
-#: spends on the lock step and the viewers' subscriptions alone, so the per-message cost can be told apart
+#: spends on the lock step and the viewers' subscriptions alone, so the per-message cost can be told apart.
+#: Idle runs go at the real runs' speed: the servers' wall-clock loops (our expiry, keep-alives) cost per second
+#: of wall time, so a faster idle run would give them less time and undercount the idle CPU.
 IDLE = ("entitynet", "mqtt-disc", "redis-disc")
-#: idle runs do per tick what the real ones do, so they can run faster than real time
-IDLE_SPEED = 4.0
+
+
+def with_idle(system: System, p: RunParams, run_at) -> dict:
+    """`run_at(params)`'s report for `system`, plus, for the systems in IDLE, the idle run's server CPU and the
+    real run's CPU net of it; the idle run has the real run's viewers, seconds and speed, no entities."""
+    rep = run_at(p)
+    if system.name in IDLE:
+        idle = run_at(replace(p, entities=0, transit=False))
+        rep["server_cpu_idle_ms_per_viewer_s"] = idle["server_cpu_ms_per_viewer_s"]
+        rep["server_cpu_net_ms_per_viewer_s"] = rep["server_cpu_ms_per_viewer_s"] - idle["server_cpu_ms_per_viewer_s"]
+    return rep
 
 
 def _fail(msg: str):
@@ -213,21 +224,16 @@ def run(args, progress) -> dict[str, Any]:
             order = SYSTEMS[r % len(SYSTEMS):] + SYSTEMS[:r % len(SYSTEMS)]
             for system in order:
                 progress(f"repetition {r + 1}/{reps}: {system.name}")
-                rep = _guarded(system, topo, artifact, schedule, p, exes, boxes, Path(tmp), progress)
+                rep = with_idle(system, p, lambda params, system=system: _guarded(
+                    system, topo, artifact, schedule, params, exes, boxes, Path(tmp), progress))
                 rep["repetition"] = r + 1
                 runs[system.name].append(rep)
                 progress(f"  {system.name}: {rep['bytes_per_viewer_s']:.0f} B and {rep['messages_per_viewer_s']:.1f} "
                          f"messages per viewer-s, server {rep['server_cpu_ms_per_viewer_s']:.2f} ms CPU per "
                          f"viewer-s, error p95 {rep['error_p95_m'] or float('nan'):.1f} m, missed "
                          f"{100 * rep['missed_visibility']:.1f} %")
-                if system.name in IDLE:
-                    idle = _guarded(system, topo, artifact, schedule,
-                                    replace(p, entities=0, transit=False, speed=IDLE_SPEED), exes, boxes, Path(tmp),
-                                    progress)
-                    rep["server_cpu_idle_ms_per_viewer_s"] = idle["server_cpu_ms_per_viewer_s"]
-                    rep["server_cpu_net_ms_per_viewer_s"] = (rep["server_cpu_ms_per_viewer_s"]
-                                                             - idle["server_cpu_ms_per_viewer_s"])
-                    progress(f"  {system.name} idle: server {idle['server_cpu_ms_per_viewer_s']:.2f} ms CPU per "
+                if "server_cpu_idle_ms_per_viewer_s" in rep:
+                    progress(f"  {system.name} idle: server {rep['server_cpu_idle_ms_per_viewer_s']:.2f} ms CPU per "
                              "viewer-s")
     load_after = _loadavg()
     summary = summarise(runs)

@@ -13,6 +13,7 @@ one JSON object (CPU microseconds per received message, median of alternated rou
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import tempfile
 import time
@@ -126,6 +127,7 @@ def main() -> None:
     if exe is None:
         raise SystemExit(f"mosquitto needed: {how}")
     rounds = {"paho-mqtt": [], "gmqtt": []}
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp, mosquitto(exe, Path(tmp), lambda m: None) as (_proc, port, ver):
         for r in range(5):
             for name in (("paho-mqtt", "gmqtt") if r % 2 else ("gmqtt", "paho-mqtt")):
@@ -136,7 +138,8 @@ def main() -> None:
                 rounds[name].append(1e6 * cpu / (MESSAGES * SUBSCRIBERS))
     print(json.dumps({"broker": ver, "messages": MESSAGES, "subscribers": SUBSCRIBERS,
                       "cpu_us_per_received_message": {k: statistics.median(v) for k, v in rounds.items() if v},
-                      "rounds": rounds}, indent=2))
+                      "rounds": rounds, "load_average_1_5_15_min": {"start": load_before, "end": os.getloadavg()},
+                      "cpu_count": os.cpu_count()}, indent=2))
 
 
 if __name__ == "__main__":

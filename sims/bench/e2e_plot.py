@@ -6,16 +6,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sims.bench.report import pyplot
+
 
 def plot(summary: dict, path: Path, progress) -> None:
     """Write the plot to `path` (log-scaled bytes: the systems lie over two orders of magnitude)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        progress("matplotlib not installed: no plot")
+    plt = pyplot(progress)
+    if plt is None:
         return
     fig, ax = plt.subplots(figsize=(7, 4.5))
     markers = "osD^v<>ph*"

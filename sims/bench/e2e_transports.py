@@ -60,8 +60,8 @@ def _alive(proc) -> None:
 
 class MqttTransport:
     """gmqtt clients (MQTT 3.1.1, QoS 0, clean sessions) on a private asyncio loop that runs only inside
-    `settle` and `sync` (the lock step is synchronous). gmqtt, not paho-mqtt, by measurement: 5 against 20
-    microseconds of the load generator's CPU per received message (`sims.bench.e2e_mqtt_clients`)."""
+    `settle` and `sync` (the lock step is synchronous). gmqtt, not paho-mqtt, because it costs the load generator
+    less CPU per received message (measured by `sims.bench.e2e_mqtt_clients`; the figures are in docs/e2e.md)."""
 
     name = "mqtt"
 
@@ -73,7 +73,17 @@ class MqttTransport:
             raise TransportError("gmqtt is not installed (pip install -e '.[bench]')") from None
         self._gmqtt = gmqtt
         self.proc, self.timeout, self.on_message = proc, timeout, on_message
+        self.pubs: list = []
+        self.views: list = []
         self.loop = asyncio.new_event_loop()
+        try:  # a failure part way closes the clients and the loop opened so far
+            self._start(port, publishers, viewers)
+        except BaseException:
+            self.close()
+            raise
+
+    def _start(self, port: int, publishers: int, viewers: int) -> None:
+        gmqtt = self._gmqtt
         self.changed = asyncio.Event()
         self.tick = -1
         self.marker = b""
@@ -82,6 +92,7 @@ class MqttTransport:
         self.lost: str | None = None
         self.pubs = [self._client(f"e2e-pub-{k}", None) for k in range(publishers)]
         self.views = [self._client(f"e2e-view-{i}", i) for i in range(viewers)]
+
         async def connect_all() -> None:
             await asyncio.gather(*[c.connect("127.0.0.1", port, keepalive=600, version=gmqtt.constants.MQTTv311)
                                    for c in self.pubs + self.views])
@@ -89,7 +100,6 @@ class MqttTransport:
         try:
             self._run(connect_all(), "CONNACK")
         except (OSError, gmqtt.mqtt.handler.MQTTConnectError) as exc:
-            self.close()
             raise TransportError(f"cannot reach mosquitto: {exc}") from None
         for i, c in enumerate(self.views):
             self.pending[i].add(c.subscribe(SYNC_TOPIC, qos=0))
@@ -201,16 +211,24 @@ class RedisTransport:
 
         self._errors = (redis.ConnectionError, redis.TimeoutError, OSError)
         self.proc, self.timeout, self.on_message = proc, timeout, on_message
-        try:
-            self.pubs = [redis.Redis(port=port, socket_timeout=timeout) for _ in range(publishers)]
-            self.pipes = [r.pipeline(transaction=False) for r in self.pubs]
-            self.views = [redis.Redis(port=port, socket_timeout=timeout).pubsub() for _ in range(viewers)]
-            for ps in self.views:
-                ps.subscribe(SYNC_CHANNEL)
-        except self._errors as exc:
-            raise TransportError(f"cannot reach redis: {exc}") from None
+        self.pubs: list = []
+        self.pipes: list = []
+        self.views: list = []
         self.pinged: set[int] = set()
-        self.settle(range(viewers))
+        try:  # a failure part way closes the connections opened so far
+            try:
+                for _ in range(publishers):
+                    self.pubs.append(redis.Redis(port=port, socket_timeout=timeout))
+                    self.pipes.append(self.pubs[-1].pipeline(transaction=False))
+                for _ in range(viewers):
+                    self.views.append(redis.Redis(port=port, socket_timeout=timeout).pubsub())
+                    self.views[-1].subscribe(SYNC_CHANNEL)
+            except self._errors as exc:
+                raise TransportError(f"cannot reach redis: {exc}") from None
+            self.settle(range(viewers))
+        except BaseException:
+            self.close()
+            raise
 
     def subscribe(self, viewer: int, added: list[str], removed: list[str]) -> None:
         """Change a viewer's channels (acknowledged by the next `settle`)."""
@@ -303,11 +321,19 @@ class OursTransport:
         self.proc, self.timeout, self.on_message = proc, timeout, on_message
         self.ping_no = 0
         hello = P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "e2e", digest)])
-        self.pubs = [self._open(port, hello) for _ in range(publishers)]
-        self.views = [self._open(port, hello) for _ in range(viewers)]
-        self.welcomes = [self._until(s, lambda m: isinstance(m, P.Welcome), "WELCOME", None)
-                         for s in self.pubs + self.views]
+        self.pubs: list[socket.socket] = []
+        self.views: list[socket.socket] = []
         self.asked: set[int] = set()
+        try:  # a failure part way closes the sockets opened so far
+            for _ in range(publishers):
+                self.pubs.append(self._open(port, hello))
+            for _ in range(viewers):
+                self.views.append(self._open(port, hello))
+            self.welcomes = [self._until(s, lambda m: isinstance(m, P.Welcome), "WELCOME", None)
+                             for s in self.pubs + self.views]
+        except BaseException:
+            self.close()
+            raise
 
     def _open(self, port: int, hello: bytes) -> socket.socket:
         try:

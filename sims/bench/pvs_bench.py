@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import shapely
 
+from sims.bench.report import pyplot
 from topology.polygons import Polygons
 from topology.pvs import PvsConfig, PvsIndex, compute_pvs
 from topology.pvs_codec import raw_nbytes
@@ -257,10 +258,9 @@ def run(args, progress) -> dict:
 
 def plot(report: dict, out: str) -> None:
     """docs/pvs.png: build time against false-negative rate per setting, and culling per layer."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot(print)
+    if plt is None:
+        return
 
     res = report["results"]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))

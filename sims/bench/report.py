@@ -60,3 +60,17 @@ def median_time(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
         result = fn()
         times.append(time.perf_counter() - t0)
     return statistics.median(times), result
+
+
+def pyplot(progress: Callable[[str], Any]):
+    """matplotlib's pyplot on the headless Agg backend, or None (with a note through `progress`) when matplotlib
+    is not installed: a plot is an extra (the `plot` extra), and the report is written without it."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        progress("matplotlib not installed: no plot")
+        return None
+    return plt

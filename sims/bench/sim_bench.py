@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sims.bench.report import pyplot
 from sims.engine.local import run_local
 from sims.engine.sim import Sim, SimConfig
 
@@ -235,13 +236,8 @@ def run(args, progress) -> dict[str, Any]:
 
 
 def _plot(sweep: list[dict], path: Path, progress) -> None:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        progress("matplotlib not installed: no plot")
+    plt = pyplot(progress)
+    if plt is None:
         return
     fig, ax = plt.subplots(figsize=(6, 4))
     xs = [s["updates_per_entity_min"] for s in sweep]

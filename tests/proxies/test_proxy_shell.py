@@ -3,6 +3,9 @@ Every fault of the tracker is injected through the replay's /control endpoint.""
 
 from __future__ import annotations
 
+import threading
+import time
+
 import requests
 import trio
 
@@ -218,3 +221,49 @@ def test_a_refused_handshake_is_a_clean_command_error(line_topo, line_book):
 
     trio.run(serve_and_run)
     assert got and "refused" in str(got[0]) and "digest" in str(got[0])
+
+
+async def test_a_single_mode_poll_with_slow_stops_keeps_its_good_answers(line_topo, line_book, line_feed):
+    """Answers that take time and stops that time out must not push a poll past the shell's limit: the poll
+    stops sending at its budget and keeps the answers it got (it used to be dropped whole as too slow)."""
+    service = make_service(line_feed, latency=0.6, slow_s=3.0)
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server, replay_running(service):
+        cfg = ProxyConfig(("127.0.0.1", server.port), poll=30.0, tick=0.2, timeout=1.0, poll_grace=0.5)
+        shell = ProxyShell(line_topo, line_book, cfg)
+        assert len(line_book.stops) == 6
+        await _control(service, "fault=none&count=4")  # four good answers of 0.6 s, then two stops time out
+        await _control(service, "fault=slow&count=2")
+        client = StopMonitoringClient(url(service), mode="single", timeout=1.0)
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, shell.siri_poller(client))
+            await _wait(lambda: shell.good_polls + shell.metrics.value("entitynet_proxy_errors_total",
+                                                                       kind="timeout") > 0)
+            assert shell.metrics.value("entitynet_proxy_errors_total", kind="timeout") == 0
+            assert shell.good_polls == 1 and shell.metrics.value("entitynet_proxy_calls_total") > 0
+            assert shell.metrics.value("entitynet_proxy_requests_not_sent_total") >= 1
+            n.cancel_scope.cancel()
+
+
+async def test_a_poll_abandoned_at_its_limit_holds_back_the_next_one(line_topo, line_book):
+    """A poll thread given up on at the time limit still runs: the next poll waits for it to end rather than use
+    the same client beside it."""
+    async with running(digest=line_topo.digest, n_cells=line_topo.n_cells) as server:
+        cfg = ProxyConfig(("127.0.0.1", server.port), poll=0.05, tick=0.2, timeout=0.1, poll_grace=0.0)
+        shell = ProxyShell(line_topo, line_book, cfg)
+        running_now, most = [0], [0]
+        lock = threading.Lock()
+
+        def poller():
+            with lock:
+                running_now[0] += 1
+                most[0] = max(most[0], running_now[0])
+            time.sleep(0.5)  # past the 0.3 s limit: abandoned
+            with lock:
+                running_now[0] -= 1
+            return []
+
+        async with trio.open_nursery() as n:
+            await n.start(shell.run, poller)
+            await _wait(lambda: shell.metrics.value("entitynet_proxy_errors_total", kind="timeout") >= 3)
+            n.cancel_scope.cancel()
+    assert most[0] == 1

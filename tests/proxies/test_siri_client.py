@@ -3,6 +3,8 @@ requests that validate against the CEN XSD, and every fault classified."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 import requests
 import trio
@@ -159,9 +161,9 @@ async def test_a_poll_whose_every_request_fails_raises_the_first_failure(line_fe
             await trio.to_thread.run_sync(client.fetch, STOPS)
 
 
-async def test_a_poll_stops_asking_once_its_failures_have_used_up_its_time(line_feed):
-    """Timeouts on every stop would make one poll last a timeout per stop: after two timeouts' worth of failing
-    requests the rest of the poll is not sent (and counted as such)."""
+async def test_a_poll_stops_asking_once_its_time_is_used_up(line_feed):
+    """Timeouts on every stop would make one poll last a timeout per stop: two timeouts into the poll (the default
+    deadline) the rest of the poll is not sent (and counted as such)."""
     service = make_service(line_feed, slow_s=3.0)
     async with replay_running(service):
         client = StopMonitoringClient(url(service), mode="single", timeout=0.4)
@@ -170,3 +172,14 @@ async def test_a_poll_stops_asking_once_its_failures_have_used_up_its_time(line_
             await trio.to_thread.run_sync(client.fetch, STOPS)
         # each timeout takes at least 0.4 s: after the second or third (> 0.8 s) the rest were not asked
         assert service.state.faults["slow"] in (2, 3), service.state.faults
+
+
+async def test_a_poll_sends_nothing_past_its_deadline_and_keeps_its_answers(line_feed):
+    """Slow good answers count against the deadline as much as failures: past it nothing more is sent, and the
+    answers got so far come back."""
+    service = make_service(line_feed, latency=0.3)
+    async with replay_running(service):
+        client = StopMonitoringClient(url(service), mode="single", timeout=2.0)
+        fetched = await trio.to_thread.run_sync(lambda: client.fetch(STOPS, time.monotonic() + 0.45))
+    # requests at 0, 0.3 (before the deadline) and 0.6 s (after it: the rest are not sent)
+    assert len(fetched.answers) == 2 and not fetched.failures and fetched.not_sent == len(STOPS) - 2

@@ -82,18 +82,21 @@ def test_a_malformed_report_is_counted_and_the_run_goes_on(helsinki, helsinki_pa
                                        ("entitynet", OursTransport)])
 def test_a_broker_dying_mid_run_is_an_error_not_a_hang(name, cls, helsinki, helsinki_path, tmp_path, monkeypatch):
     orig = cls.sync
+    killed_at: list[float] = []
 
     def dying(self, tick):
         if tick == 3:
             self.proc.kill()
             self.proc.wait()
+            killed_at.append(time.monotonic())
         return orig(self, tick)
 
     monkeypatch.setattr(cls, "sync", dying)
-    t0 = time.monotonic()
     with pytest.raises(TransportError):
         _run(BY_NAME[name], helsinki, helsinki_path, tmp_path)
-    assert time.monotonic() - t0 < 10 + P.timeout_s
+    # timed from the kill (not the broker's start and the world's build, slow on a loaded machine): the error
+    # comes within the transport's timeout plus the time to stop the run
+    assert killed_at and time.monotonic() - killed_at[0] < P.timeout_s + 5.0
 
 
 def test_the_suite_reports_a_broker_failure_as_a_command_error(helsinki, helsinki_path, tmp_path, monkeypatch):
