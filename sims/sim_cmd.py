@@ -43,7 +43,7 @@ def register(sub) -> None:
     """Add the `sim` subcommand and its options to the CLI's subparsers (called by `entitynet.cli`)."""
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
                                    "clients and PVS viewers, with a live summary and a JSON report",
-                       epilog="How large a run keeps real time: on a 2-core machine about 800 entities with 80 "
+                       epilog="How large a run keeps real time: on a 2-core machine about 1,600 entities with 160 "
                               "viewers, the server in the same process (entitynet bench sim, "
                               "entities_realtime_max). A larger run still steps every tick, late: the live summary "
                               "shows the tick lateness, and a warning says when the run falls behind (then every "
