@@ -51,7 +51,8 @@ class Bounded:
         if value in self.special:
             return value
         low_ok = value > self.lo if self.lo_open else value >= self.lo
-        if not (math.isfinite(value) and low_ok and value <= self.hi):
+        finite = self.kind is int or math.isfinite(value)  # isfinite(int) overflows past ~1e308: a traceback
+        if not (finite and low_ok and value <= self.hi):
             raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
         return value
 
