@@ -133,10 +133,14 @@ def run_bench_command(args: argparse.Namespace) -> int:
     """Import the suite's module only now (a suite's heavy imports cost nothing to the other commands)."""
     from sims.bench import all_suites
     from sims.bench.report import write_report
+    from topology.artifact import ArtifactError
 
     module = importlib.import_module(all_suites()[args.suite])
-    body = module.run(args, progress)
-    report = write_report(args.suite, body, args.out)
+    try:  # here once, not per suite: a bad --topology or an unwritable --out is one line in every suite
+        body = module.run(args, progress)
+        report = write_report(args.suite, body, args.out)
+    except (ArtifactError, OSError) as exc:
+        raise CommandError(str(exc)) from None
     print(json.dumps(report["results"], indent=2, default=float))
     if args.out:
         progress(f"report written to {args.out}")
