@@ -139,12 +139,19 @@ def _run_shell(args, topo, book, make_poller) -> int:
     if args.metrics_port is not None:
         from prometheus_client import start_http_server
 
-        start_http_server(args.metrics_port, addr="127.0.0.1", registry=shell.metrics.registry)
+        from entitynet.server.config import ListenError, bind_reason
+
+        try:
+            start_http_server(args.metrics_port, addr="127.0.0.1", registry=shell.metrics.registry)
+        except OSError as exc:  # the port in use, or not ours to bind
+            raise _command_error(str(ListenError("metrics_port", "127.0.0.1", args.metrics_port,
+                                                 bind_reason(exc)))) from None
 
     async def main():
         async with trio.open_nursery() as n:
-            await n.start(shell.run, make_poller(shell))
-            start = time.monotonic()
+            start = time.monotonic()  # before the first connection: an unreachable server must not stop the clock
+            n.start_soon(shell.run, make_poller(shell))
+            n.start_soon(_say_while_unreachable, shell, "{}:{}".format(*args.server))
             while args.duration is None or time.monotonic() - start < args.duration:
                 await trio.sleep(min(10.0, args.duration or 10.0))
                 c = shell.fleet.counters
@@ -164,6 +171,23 @@ def _run_shell(args, topo, book, make_poller) -> int:
     if refused is not None:
         raise _command_error(str(refused))
     return 0
+
+
+#: seconds without a first connection before the proxy says the server is unreachable, then between repeats
+UNREACHABLE_AFTER, UNREACHABLE_REPEAT = 5.0, 300.0
+
+
+async def _say_while_unreachable(shell, server: str) -> None:
+    """One line when the server has not answered after a few seconds (the connection keeps retrying by
+    itself), then rarely while it stays so: before, a proxy of an unreachable server ran silently forever."""
+    import trio
+
+    waited = UNREACHABLE_AFTER
+    await trio.sleep(UNREACHABLE_AFTER)
+    while shell.conn.connects == 0:
+        _say(f"server {server} unreachable, retrying" + (f" ({waited:.0f} s)" if waited > UNREACHABLE_AFTER else ""))
+        await trio.sleep(UNREACHABLE_REPEAT)
+        waited += UNREACHABLE_REPEAT
 
 
 def _find(exc: BaseException, kind: type) -> BaseException | None:
