@@ -3,13 +3,12 @@
 
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
 import time
 from pathlib import Path
 
-from entitynet.commands.options import SEED, bounded_float, port, positive_seconds
+from entitynet.commands.options import SEED, bounded_float, host_port, port, positive_seconds, time_of_day
 
 log = logging.getLogger("proxies")
 
@@ -18,21 +17,6 @@ def _command_error(msg: str) -> Exception:
     from entitynet.cli import CommandError
 
     return CommandError(msg)
-
-
-def _hms(text: str) -> float:
-    try:
-        h, m, s = (int(p) for p in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected HH:MM:SS, got {text!r}") from None
-    return float(h * 3600 + m * 60 + s)
-
-
-def _hostport(text: str) -> tuple[str, int]:
-    host, _, port = text.rpartition(":")
-    if not host or not port.isdigit():
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
-    return host, int(port)
 
 
 def register(sub) -> None:
@@ -60,7 +44,7 @@ def register(sub) -> None:
     r.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS zip")
     r.add_argument("--host", default="127.0.0.1")
     r.add_argument("--port", type=port(), default=8080, help="HTTP port (default 8080; 0 = any free port)")
-    r.add_argument("--start", type=_hms, default=_hms("08:00:00"), metavar="HH:MM:SS",
+    r.add_argument("--start", type=time_of_day, default=8 * 3600.0, metavar="HH:MM[:SS]",
                    help="service time at startup (default 08:00:00); runs with the wall clock")
     r.add_argument("--delay-sigma", type=bounded_float(0, 3600),
                    default=90.0, metavar="S", help="spread of initial delays")
@@ -81,7 +65,7 @@ def register(sub) -> None:
 
 
 def _common(p) -> None:
-    p.add_argument("--server", type=_hostport, required=True, metavar="HOST:PORT", help="the switchboard")
+    p.add_argument("--server", type=host_port, required=True, metavar="HOST:PORT", help="the switchboard")
     p.add_argument("--token", default="", help="auth token for the server")
     p.add_argument("--topology", metavar="ART", help="topology artifact (default: the bundled Helsinki map)")
     p.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS schedule: routes and stops of the vehicles")

@@ -97,3 +97,44 @@ def test_bounded_types(kind, good, bad):
     for text in bad:
         with pytest.raises(argparse.ArgumentTypeError, match="expected"):
             kind(text)
+
+
+def test_host_port():
+    from entitynet.commands.options import host_port
+
+    assert host_port("127.0.0.1:7400") == ("127.0.0.1", 7400)
+    assert host_port("::1:65535") == ("::1", 65535)
+    for bad in ("127.0.0.1:99999", "h:0", "h:", ":7400", "7400", "h:74x0", "h:-1", "h:" + "9" * 400):
+        with pytest.raises(argparse.ArgumentTypeError, match="HOST:PORT"):
+            host_port(bad)
+
+
+def test_time_of_day():
+    from entitynet.commands.options import time_of_day
+
+    assert time_of_day("08:00") == 8 * 3600.0 and time_of_day("25:10:30") == 25 * 3600 + 630.0
+    for bad in ("99:99:99", "08:60", "08:00:60", "48:00", "8", "x:00", "-1:00", "08:00:00:00", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="HH:MM"):
+            time_of_day(bad)
+
+
+def test_every_host_port_and_clock_time_option_uses_the_shared_types():
+    """Two HOST:PORT parsers (one took port 99999) and two clock-time parsers (one took 99:99:99) became one each."""
+    from entitynet.commands.options import host_port, time_of_day
+
+    seen = {"--server": 0, "--start": 0}
+
+    def walk(parser):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    walk(sub)
+            elif "--server" in action.option_strings and action.metavar == "HOST:PORT":
+                assert action.type is host_port
+                seen["--server"] += 1
+            elif "--start" in action.option_strings and action.type is not None:
+                assert action.type is time_of_day, action
+                seen["--start"] += 1
+
+    walk(build_parser())
+    assert seen["--server"] >= 3 and seen["--start"] >= 3, seen
