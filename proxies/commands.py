@@ -143,13 +143,14 @@ def _run_shell(args, topo, book, make_poller) -> int:
                      f"{c.discarded_fraction:.1%} | publishes {c.publishes} | last error {shell.last_error}")
             n.cancel_scope.cancel()
 
+    from entitynet.cli import leaves
     from entitynet.connection import HandshakeRefused
 
     refused = None
     try:
         trio.run(main)
     except BaseException as exc:  # noqa: B036 - only a refusal (maybe inside exception groups) is ours to report
-        refused = _find(exc, HandshakeRefused)
+        refused = next((e for e in leaves(exc) if isinstance(e, HandshakeRefused)), None)
         if refused is None:
             raise
     if refused is not None:
@@ -172,18 +173,6 @@ async def _say_while_unreachable(shell, server: str) -> None:
         _say(f"server {server} unreachable, retrying" + (f" ({waited:.0f} s)" if waited > UNREACHABLE_AFTER else ""))
         await trio.sleep(UNREACHABLE_REPEAT)
         waited += UNREACHABLE_REPEAT
-
-
-def _find(exc: BaseException, kind: type) -> BaseException | None:
-    """The first exception of `kind` in `exc` or the exception groups nested in it."""
-    if isinstance(exc, kind):
-        return exc
-    if isinstance(exc, BaseExceptionGroup):
-        for e in exc.exceptions:
-            got = _find(e, kind)
-            if got is not None:
-                return got
-    return None
 
 
 def run_siri(args) -> int:
