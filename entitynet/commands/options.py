@@ -47,17 +47,22 @@ class Bounded:
         try:
             value = self.kind(text)
         except (TypeError, ValueError):
-            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {_shown(text)}") from None
         if value in self.special:
             return value
         low_ok = value > self.lo if self.lo_open else value >= self.lo
         finite = self.kind is int or math.isfinite(value)  # isfinite(int) overflows past ~1e308: a traceback
         if not (finite and low_ok and value <= self.hi):
-            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {_shown(text)}")
         return value
 
     def __repr__(self) -> str:
         return f"Bounded({self.describe()})"
+
+
+def _shown(text: str) -> str:
+    """The refused text for an error line: a 400-digit number is shown by its start and its length."""
+    return repr(text) if len(text) <= 40 else f"{text[:20]!r}... ({len(text)} characters)"
 
 
 def bounded_float(lo: float, hi: float, *, lo_open: bool = False,
@@ -105,7 +110,8 @@ def host_port(text: str) -> tuple[str, int]:
         number = int(digits)
         if PORT_MIN <= number <= PORT_MAX:
             return host, number
-    raise argparse.ArgumentTypeError(f"expected HOST:PORT with a port from {PORT_MIN} to {PORT_MAX}, got {text!r}")
+    raise argparse.ArgumentTypeError(
+        f"expected HOST:PORT with a port from {PORT_MIN} to {PORT_MAX}, got {_shown(text)}")
 
 
 #: the latest service-day time a clock option takes: GTFS's hours run past 24 for trips after midnight
@@ -127,5 +133,5 @@ def time_of_day(text: str) -> float:
             raise GtfsError(text)
     except GtfsError:
         raise argparse.ArgumentTypeError(f"expected a service-day time HH:MM[:SS] (hours up to "
-                                         f"{LAST_SERVICE_HOUR}), got {text!r}") from None
+                                         f"{LAST_SERVICE_HOUR}), got {_shown(text)}") from None
     return float(seconds)

@@ -138,3 +138,9 @@ def test_every_host_port_and_clock_time_option_uses_the_shared_types():
 
     walk(build_parser())
     assert seen["--server"] >= 3 and seen["--start"] >= 3, seen
+
+
+def test_a_huge_number_is_shown_short_in_the_error():
+    with pytest.raises(argparse.ArgumentTypeError) as info:
+        bounded_int(0, 10)("9" * 400)
+    assert "(400 characters)" in str(info.value) and len(str(info.value)) < 120
