@@ -67,7 +67,7 @@ def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
 def test_sizes_too_small_to_build_are_refused_while_parsing(tmp_path, capsys, argv):
     """0.001 m view cells ended in a numpy MemoryError traceback, 0.5 m ran for hours."""
     with pytest.raises(SystemExit) as info:
-        main(["topology", "build", "--geojson", str(write_map(tmp_path)), *argv])
+        main(["topology", "build", "--geojson", str(write_map(tmp_path)), "--out", str(tmp_path / "o"), "-q", *argv])
     err = capsys.readouterr().err
     assert info.value.code == 2 and f"argument {argv[0]}" in err and "Traceback" not in err
 
