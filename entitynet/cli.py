@@ -15,7 +15,7 @@ import argparse
 import importlib
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from importlib.metadata import entry_points
 
 from entitynet import __version__
@@ -91,12 +91,12 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.close()
         return 0
     except BaseExceptionGroup as group:
-        leaves = list(_leaves(group))
-        errors = [e for e in leaves if isinstance(e, CommandError)]
+        found = list(leaves(group))
+        errors = [e for e in found if isinstance(e, CommandError)]
         if errors:
             return _command_failed(errors[0])
-        if any(isinstance(e, KeyboardInterrupt) for e in leaves) and all(
-                isinstance(e, KeyboardInterrupt) or _is_cancellation(e) for e in leaves):
+        if any(isinstance(e, KeyboardInterrupt) for e in found) and all(
+                isinstance(e, KeyboardInterrupt) or _is_cancellation(e) for e in found):
             return _interrupted()
         raise  # a bug: its traceback is what a report needs
 
@@ -111,11 +111,12 @@ def _interrupted() -> int:
     return 130
 
 
-def _leaves(exc: BaseException):
-    """The exceptions in `exc` and in the groups nested in it, groups themselves left out."""
+def leaves(exc: BaseException) -> Iterator[BaseException]:
+    """The exceptions in `exc` and in the groups nested in it, in order, groups themselves left out: the one
+    walker of exception groups (trio nurseries raise them) for the CLI, `serve` and the proxies."""
     if isinstance(exc, BaseExceptionGroup):
         for inner in exc.exceptions:
-            yield from _leaves(inner)
+            yield from leaves(inner)
     else:
         yield exc
 

@@ -3,13 +3,12 @@
 
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
 import time
 from pathlib import Path
 
-from entitynet.commands.options import SEED, bounded_float, port, positive_seconds
+from entitynet.commands.options import SEED, bounded_float, host_port, port, positive_seconds, time_of_day
 
 log = logging.getLogger("proxies")
 
@@ -18,21 +17,6 @@ def _command_error(msg: str) -> Exception:
     from entitynet.cli import CommandError
 
     return CommandError(msg)
-
-
-def _hms(text: str) -> float:
-    try:
-        h, m, s = (int(p) for p in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected HH:MM:SS, got {text!r}") from None
-    return float(h * 3600 + m * 60 + s)
-
-
-def _hostport(text: str) -> tuple[str, int]:
-    host, _, port = text.rpartition(":")
-    if not host or not port.isdigit():
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
-    return host, int(port)
 
 
 def register(sub) -> None:
@@ -60,7 +44,7 @@ def register(sub) -> None:
     r.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS zip")
     r.add_argument("--host", default="127.0.0.1")
     r.add_argument("--port", type=port(), default=8080, help="HTTP port (default 8080; 0 = any free port)")
-    r.add_argument("--start", type=_hms, default=_hms("08:00:00"), metavar="HH:MM:SS",
+    r.add_argument("--start", type=time_of_day, default=8 * 3600.0, metavar="HH:MM[:SS]",
                    help="service time at startup (default 08:00:00); runs with the wall clock")
     r.add_argument("--delay-sigma", type=bounded_float(0, 3600),
                    default=90.0, metavar="S", help="spread of initial delays")
@@ -81,7 +65,7 @@ def register(sub) -> None:
 
 
 def _common(p) -> None:
-    p.add_argument("--server", type=_hostport, required=True, metavar="HOST:PORT", help="the switchboard")
+    p.add_argument("--server", type=host_port, required=True, metavar="HOST:PORT", help="the switchboard")
     p.add_argument("--token", default="", help="auth token for the server")
     p.add_argument("--topology", metavar="ART", help="topology artifact (default: the bundled Helsinki map)")
     p.add_argument("--gtfs", required=True, metavar="FEED", help="GTFS schedule: routes and stops of the vehicles")
@@ -139,12 +123,19 @@ def _run_shell(args, topo, book, make_poller) -> int:
     if args.metrics_port is not None:
         from prometheus_client import start_http_server
 
-        start_http_server(args.metrics_port, addr="127.0.0.1", registry=shell.metrics.registry)
+        from entitynet.server.config import ListenError, bind_reason
+
+        try:
+            start_http_server(args.metrics_port, addr="127.0.0.1", registry=shell.metrics.registry)
+        except OSError as exc:  # the port in use, or not ours to bind
+            raise _command_error(str(ListenError("metrics_port", "127.0.0.1", args.metrics_port,
+                                                 bind_reason(exc)))) from None
 
     async def main():
         async with trio.open_nursery() as n:
-            await n.start(shell.run, make_poller(shell))
-            start = time.monotonic()
+            start = time.monotonic()  # before the first connection: an unreachable server must not stop the clock
+            n.start_soon(shell.run, make_poller(shell))
+            n.start_soon(_say_while_unreachable, shell, "{}:{}".format(*args.server))
             while args.duration is None or time.monotonic() - start < args.duration:
                 await trio.sleep(min(10.0, args.duration or 10.0))
                 c = shell.fleet.counters
@@ -152,13 +143,14 @@ def _run_shell(args, topo, book, make_poller) -> int:
                      f"{c.discarded_fraction:.1%} | publishes {c.publishes} | last error {shell.last_error}")
             n.cancel_scope.cancel()
 
+    from entitynet.cli import leaves
     from entitynet.connection import HandshakeRefused
 
     refused = None
     try:
         trio.run(main)
     except BaseException as exc:  # noqa: B036 - only a refusal (maybe inside exception groups) is ours to report
-        refused = _find(exc, HandshakeRefused)
+        refused = next((e for e in leaves(exc) if isinstance(e, HandshakeRefused)), None)
         if refused is None:
             raise
     if refused is not None:
@@ -166,16 +158,21 @@ def _run_shell(args, topo, book, make_poller) -> int:
     return 0
 
 
-def _find(exc: BaseException, kind: type) -> BaseException | None:
-    """The first exception of `kind` in `exc` or the exception groups nested in it."""
-    if isinstance(exc, kind):
-        return exc
-    if isinstance(exc, BaseExceptionGroup):
-        for e in exc.exceptions:
-            got = _find(e, kind)
-            if got is not None:
-                return got
-    return None
+#: seconds without a first connection before the proxy says the server is unreachable, then between repeats
+UNREACHABLE_AFTER, UNREACHABLE_REPEAT = 5.0, 300.0
+
+
+async def _say_while_unreachable(shell, server: str) -> None:
+    """One line when the server has not answered after a few seconds (the connection keeps retrying by
+    itself), then rarely while it stays so: before, a proxy of an unreachable server ran silently forever."""
+    import trio
+
+    waited = UNREACHABLE_AFTER
+    await trio.sleep(UNREACHABLE_AFTER)
+    while shell.conn.connects == 0:
+        _say(f"server {server} unreachable, retrying" + (f" ({waited:.0f} s)" if waited > UNREACHABLE_AFTER else ""))
+        await trio.sleep(UNREACHABLE_REPEAT)
+        waited += UNREACHABLE_REPEAT
 
 
 def run_siri(args) -> int:

@@ -12,14 +12,13 @@ import time
 from pathlib import Path
 
 from entitynet.cli import CommandError
-from entitynet.commands.options import SEED, bounded_int, port, positive_seconds
+from entitynet.commands.options import SEED, bounded_int, port, positive_seconds, time_of_day
 
 
 # ---- entitynet demo ----------------------------------------------------------------------------------------
 def register_demo(sub) -> None:
     """`entitynet demo`: a preset of `entitynet sim` on the bundled Helsinki map and schedule, in real time, with
     the 3D browser viewer (sims/demo.py)."""
-    from sims.sim_cmd import service_time
 
     p = sub.add_parser("demo", help="run a live city on loopback (a preset of `sim`): server, trams and buses on "
                                     "the bundled schedule, pedestrians and cars, PVS viewers, the 3D viewer")
@@ -41,7 +40,7 @@ def register_demo(sub) -> None:
                    help="serve the 3D browser viewer here (default 8400; 0 = any free port; -1 = no viewer)")
     p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
                                                   "extract); 'none' for no transit")
-    p.add_argument("--start", type=service_time, default=8 * 3600.0, metavar="HH:MM",
+    p.add_argument("--start", type=time_of_day, default=8 * 3600.0, metavar="HH:MM",
                    help="service-day time the demo starts at (default 08:00)")
     p.add_argument("--transit", metavar="GTFS", help="instead of the simulated schedule, trams and buses from this "
                    "GTFS feed through the SIRI replay producer and the transit proxy (needs the proxies package)")
@@ -133,10 +132,14 @@ def run_bench_command(args: argparse.Namespace) -> int:
     """Import the suite's module only now (a suite's heavy imports cost nothing to the other commands)."""
     from sims.bench import all_suites
     from sims.bench.report import write_report
+    from topology.artifact import ArtifactError
 
     module = importlib.import_module(all_suites()[args.suite])
-    body = module.run(args, progress)
-    report = write_report(args.suite, body, args.out)
+    try:  # here once, not per suite: a bad --topology or an unwritable --out is one line in every suite
+        body = module.run(args, progress)
+        report = write_report(args.suite, body, args.out)
+    except (ArtifactError, OSError) as exc:
+        raise CommandError(str(exc)) from None
     print(json.dumps(report["results"], indent=2, default=float))
     if args.out:
         progress(f"report written to {args.out}")

@@ -12,31 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from entitynet.commands.options import SEED, bounded_float, bounded_int, positive_seconds
-
-
-def _hostport(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
-    return host, int(port)
-
-
-def service_time(text: str) -> float:
-    """argparse type of `--start`: "HH:MM[:SS]" (hours up to 47, GTFS's times past midnight) to service-day
-    seconds; a usage error otherwise. Shared by `entitynet sim` and `entitynet demo`."""
-    parts = text.split(":")
-    try:
-        if len(parts) not in (2, 3):
-            raise ValueError
-        h, m = int(parts[0]), int(parts[1])
-        s = int(parts[2]) if len(parts) == 3 else 0
-        if not (0 <= h < 48 and 0 <= m < 60 and 0 <= s < 60):
-            raise ValueError
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a service-day time HH:MM[:SS] (hours up to 47), got {text!r}") \
-            from None
-    return float(h * 3600 + m * 60 + s)
+from entitynet.commands.options import SEED, bounded_float, bounded_int, host_port, positive_seconds, time_of_day
 
 
 def register(sub) -> None:
@@ -56,14 +32,14 @@ def register(sub) -> None:
     p.add_argument("--gtfs", metavar="FEED", help="GTFS zip for the trams and buses (default: the bundled HSL "
                                                   "extract); 'none' for no transit")
     p.add_argument("--date", metavar="YYYYMMDD", help="service day of the feed (default: its busiest)")
-    p.add_argument("--start", type=service_time, default=8 * 3600.0, metavar="HH:MM",
+    p.add_argument("--start", type=time_of_day, default=8 * 3600.0, metavar="HH:MM",
                    help="service-day time the run starts at (default 08:00)")
     p.add_argument("--duration", type=positive_seconds(), help="simulated seconds to run (default: until Ctrl-C)")
     p.add_argument("--speed", type=bounded_float(0, 1000, lo_open=True),
                    default=1.0, help="times real time (default 1; e.g. 10)")
     p.add_argument("--tick-hz", type=bounded_float(0, 1000, lo_open=True),
                    default=2.0, help="simulation ticks per second (default 2)")
-    p.add_argument("--server", type=_hostport, metavar="HOST:PORT",
+    p.add_argument("--server", type=host_port, metavar="HOST:PORT",
                    help="an existing shard server (default: start one in this process)")
     p.add_argument("--token", default="", help="auth token for --server")
     p.add_argument("--shards", type=bounded_int(1, 64),

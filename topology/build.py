@@ -151,15 +151,18 @@ def build(raw: RawMap, config: BuildConfig | None = None, progress: Progress | N
         from topology.pvs import compute_pvs
 
         say("computing view cells and their PVS")
-        result = compute_pvs(
-            topo.building_footprints,
-            topo.building_height,
-            topo.cell_footprints,
-            topo.cell_height,
-            tuple(topo.meta["bounds"]),
-            config.pvs,
-            progress=say,
-        )
+        try:
+            result = compute_pvs(
+                topo.building_footprints,
+                topo.building_height,
+                topo.cell_footprints,
+                topo.cell_height,
+                tuple(topo.meta["bounds"]),
+                config.pvs,
+                progress=say,
+            )
+        except ValueError as exc:  # settings the PVS refuses (too many view cells): one line, not a traceback
+            raise BuildError(str(exc)) from None
         topo.extra.update(result.to_extra())
         pvs_meta = result.meta()
         stats = pvs_meta.get("stats", {})

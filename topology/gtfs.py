@@ -178,7 +178,7 @@ def read_feed(path: str | FsPath, modes: tuple[str, ...] = ("tram", "bus")) -> F
         _read_calendars(zf, names, feed)
         for s in _rows(zf, "stops.txt"):
             try:
-                feed.stops[s["stop_id"]] = (s.get("stop_name") or "", float(s["stop_lon"]), float(s["stop_lat"]))
+                feed.stops[s["stop_id"]] = (s.get("stop_name") or "", *_lonlat(s["stop_lon"], s["stop_lat"]))
             except (KeyError, TypeError, ValueError):
                 report["skipped:stops_bad_row"] += 1
         wanted = {t.shape_id for t in feed.trips.values() if t.shape_id}
@@ -188,14 +188,22 @@ def read_feed(path: str | FsPath, modes: tuple[str, ...] = ("tram", "bus")) -> F
                 sid = s.get("shape_id") or ""
                 if sid in wanted:
                     try:
-                        pts[sid].append((int(s["shape_pt_sequence"]), float(s["shape_pt_lon"]),
-                                         float(s["shape_pt_lat"])))
+                        pts[sid].append((int(s["shape_pt_sequence"]), *_lonlat(s["shape_pt_lon"],
+                                                                                s["shape_pt_lat"])))
                     except (KeyError, TypeError, ValueError):
                         report["skipped:shapes_bad_row"] += 1
     feed.shapes = {sid: np.array([(lon, lat) for _q, lon, lat in sorted(p)], dtype=np.float64)
                    for sid, p in pts.items() if len(p) >= 2}
     _assign_shapes(feed)
     return feed
+
+
+def _lonlat(lon_text: str, lat_text: str) -> tuple[float, float]:
+    """A WGS84 position from a row, or ValueError: one NaN stop made every shape built from stops all NaN."""
+    lon, lat = float(lon_text), float(lat_text)
+    if not (-180.0 <= lon <= 180.0 and -90.0 <= lat <= 90.0):  # also False for NaN
+        raise ValueError(f"coordinate out of range: {lon_text}, {lat_text}")
+    return lon, lat
 
 
 def _read_stop_times(zf: zipfile.ZipFile, feed: Feed) -> None:
@@ -212,7 +220,20 @@ def _read_stop_times(zf: zipfile.ZipFile, feed: Feed) -> None:
                              dep if dep is not None else arr))
         except (KeyError, TypeError, ValueError):
             feed.report["skipped:stop_times_bad_row"] += 1
-    feed.stop_times = {tid: sorted(rows) for tid, rows in out.items()}
+    feed.stop_times = {tid: _by_sequence(rows, feed.report) for tid, rows in out.items()}
+
+
+def _by_sequence(rows: list[tuple[int, str, int | None, int | None]],
+                 report: Counter) -> list[tuple[int, str, int | None, int | None]]:
+    """One trip's rows in stop_sequence order; a repeated stop_sequence keeps its first row and counts the rest
+    as bad rows (sorting whole rows compared an untimed row's None with a time: TypeError)."""
+    kept: dict[int, tuple[int, str, int | None, int | None]] = {}
+    for row in rows:
+        if row[0] in kept:
+            report["skipped:stop_times_bad_row"] += 1
+        else:
+            kept[row[0]] = row
+    return [kept[q] for q in sorted(kept)]
 
 
 def _read_calendars(zf: zipfile.ZipFile, names: set[str], feed: Feed) -> None:

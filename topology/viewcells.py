@@ -19,7 +19,12 @@ import shapely
 from topology.polygons import Polygons
 from topology.viewgrid import ViewGrid
 
-__all__ = ["ViewGrid", "build_view_grid", "column_squares"]  # ViewGrid lives in the shapely-free viewgrid
+# ViewGrid lives in the shapely-free viewgrid
+__all__ = ["MAX_VIEW_CELLS", "ViewGrid", "build_view_grid", "column_squares"]
+
+#: the most view cells one grid may have: a 20 km x 20 km city in 20 m cubes up to 100 m is 5 million; past
+#: this the grid's arrays take gigabytes and its PVS days (0.001 m cells ended in a numpy MemoryError)
+MAX_VIEW_CELLS = 10_000_000
 
 
 def column_squares(x0: float, y0: float, size: float, nx: int, ny: int) -> np.ndarray:
@@ -51,6 +56,9 @@ def build_view_grid(
     nx = max(1, math.ceil((xmax - xmin) / size - 1e-9))
     ny = max(1, math.ceil((ymax - ymin) / size - 1e-9))
     nz = max(1, math.ceil(max_height / size - 1e-9))
+    if nx * ny * nz > MAX_VIEW_CELLS:
+        raise ValueError(f"{nx} x {ny} x {nz} view cells of {size:g} m is more than {MAX_VIEW_CELLS:,}: "
+                         "choose a larger --view-cell-size (or a lower --view-max-height)")
     inside = np.zeros((nz, ny, nx), dtype=bool)
     polys = building_footprints.to_shapely()
     if len(polys):

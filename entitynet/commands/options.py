@@ -47,16 +47,22 @@ class Bounded:
         try:
             value = self.kind(text)
         except (TypeError, ValueError):
-            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {_shown(text)}") from None
         if value in self.special:
             return value
         low_ok = value > self.lo if self.lo_open else value >= self.lo
-        if not (math.isfinite(value) and low_ok and value <= self.hi):
-            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
+        finite = self.kind is int or math.isfinite(value)  # isfinite(int) overflows past ~1e308: a traceback
+        if not (finite and low_ok and value <= self.hi):
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {_shown(text)}")
         return value
 
     def __repr__(self) -> str:
         return f"Bounded({self.describe()})"
+
+
+def _shown(text: str) -> str:
+    """The refused text for an error line: a 400-digit number is shown by its start and its length."""
+    return repr(text) if len(text) <= 40 else f"{text[:20]!r}... ({len(text)} characters)"
 
 
 def bounded_float(lo: float, hi: float, *, lo_open: bool = False,
@@ -94,3 +100,38 @@ LOCAL_COORDINATE = bounded_float(-1e7, 1e7)
 
 #: the most switchboards (regions) one cluster map may have
 MAX_SHARDS = 256
+
+
+def host_port(text: str) -> tuple[str, int]:
+    """An argparse type: "HOST:PORT" (the last colon splits, so "::1:7400" works) with a port 1..65535; one
+    parser for every option that names a server (a copy of it took port 99999)."""
+    host, sep, digits = text.rpartition(":")
+    if sep and host and digits.isascii() and digits.isdigit() and len(digits) <= 5:
+        number = int(digits)
+        if PORT_MIN <= number <= PORT_MAX:
+            return host, number
+    raise argparse.ArgumentTypeError(
+        f"expected HOST:PORT with a port from {PORT_MIN} to {PORT_MAX}, got {_shown(text)}")
+
+
+#: the latest service-day time a clock option takes: GTFS's hours run past 24 for trips after midnight
+LAST_SERVICE_HOUR = 47
+
+
+def time_of_day(text: str) -> float:
+    """An argparse type: a service-day time "HH:MM[:SS]" (hours up to 47, GTFS's times past midnight) to seconds
+    since the service day's midnight. The GTFS reader's `parse_time` does the parsing, so a clock on the command
+    line means what it means in a feed; this adds the optional seconds and the ranges (a copy took 99:99:99)."""
+    from topology.gtfs import GtfsError, parse_time  # here: the reader's imports only when a time is given
+
+    parts = text.split(":")
+    try:
+        if len(parts) not in (2, 3):
+            raise GtfsError(text)
+        seconds = parse_time(text if len(parts) == 3 else text + ":00")
+        if int(parts[0]) > LAST_SERVICE_HOUR or int(parts[-1] if len(parts) == 3 else 0) >= 60:
+            raise GtfsError(text)
+    except GtfsError:
+        raise argparse.ArgumentTypeError(f"expected a service-day time HH:MM[:SS] (hours up to "
+                                         f"{LAST_SERVICE_HOUR}), got {_shown(text)}") from None
+    return float(seconds)

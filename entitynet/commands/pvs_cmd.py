@@ -13,12 +13,16 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from entitynet.cli import CommandError
-from entitynet.commands.options import LOCAL_COORDINATE, METRES, bounded_int
+from entitynet.commands.options import LOCAL_COORDINATE, METRES, bounded_float, bounded_int
 from topology.pvs_index import PvsIndex
 from topology.pvs_quality import QUALITY
 
 if TYPE_CHECKING:
     from topology.pvs import PvsConfig
+
+#: view-cell cube side: below 2 m a city is billions of view cells (0.001 m was a MemoryError, 0.5 m hours);
+#: m-LOMA's cubes are a little under a building's height (docs/pvs.md)
+VIEW_CELL_SIZE = bounded_float(2.0, 1000.0)
 
 
 def add_pvs_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +30,8 @@ def add_pvs_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("visibility (view cells and PVS)")
     g.add_argument("--pvs-quality", choices=sorted(QUALITY), default="default",
                    help="speed/accuracy preset of the PVS (default: default; see docs/pvs.md)")  # fmt: skip
-    g.add_argument("--view-cell-size", type=METRES, metavar="M", help="view-cell cube side (default 20 m)")
+    g.add_argument("--view-cell-size", type=VIEW_CELL_SIZE, metavar="M",
+                   help="view-cell cube side, 2 to 1000 m (default 20 m)")  # fmt: skip
     g.add_argument("--view-max-height", type=METRES, metavar="M", help="top of the view cells (default 100 m)")
     g.add_argument("--view-distance", type=METRES, metavar="M", help="PVS range (default 500 m)")
     g.add_argument("--pvs-workers", type=bounded_int(1, 256), metavar="N", help="worker processes (default 2)")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from entitynet.cli import CommandError
+from entitynet.cli import CommandError, leaves
 from entitynet.commands.options import bounded_float, port
 
 
@@ -76,7 +76,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         trio.run(serve_until_signal, config)
     except BaseExceptionGroup as group:  # raised inside the server's nurseries: the first user-facing cause
-        raise CommandError(_first_failure(group)) from None
+        # the first user-facing cause (a ListenError names its option and port); anything else is a bug
+        first = next((e for e in leaves(group) if isinstance(e, ConfigError | OSError)), None)
+        if first is None:
+            raise
+        raise CommandError(_message(first)) from None
     except (ConfigError, OSError) as exc:
         raise CommandError(_message(exc)) from None
     return 0
@@ -98,15 +102,3 @@ def _message(exc: BaseException) -> str:
     return str(exc) if isinstance(exc, ConfigError) else f"cannot listen: {exc}"
 
 
-def _first_failure(group: BaseExceptionGroup) -> str:
-    """The message of the first ConfigError (a ListenError names its option and port) or OSError in a group;
-    anything else is a bug and keeps its traceback."""
-    from entitynet.server import ConfigError
-
-    found = group.subgroup(lambda e: isinstance(e, (ConfigError, OSError)))
-    if found is None:
-        raise group
-    first: BaseException = found
-    while isinstance(first, BaseExceptionGroup):
-        first = first.exceptions[0]
-    return _message(first)

@@ -41,7 +41,8 @@ def register(sub) -> None:
         "--junction-radius", type=METRES, metavar="M", help="junction arm length (default: street width)"
     )
     b.add_argument(
-        "--max-cell-length", type=METRES, default=60.0, metavar="M", help="street cell length cap (60 m)"
+        "--max-cell-length", type=bounded_float(5.0, 10_000.0), default=60.0, metavar="M",
+        help="street cell length cap, 5 to 10,000 m (60 m; shorter cells multiply the cells and the PVS)",
     )
     b.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     b.add_argument("--no-pvs", action="store_true", help="skip view cells and the PVS (faster; no visibility)")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,6 +26,16 @@ class ListenError(ConfigError):
     def __init__(self, setting: str, host: str, port: int, reason: str):
         self.setting, self.host, self.port, self.reason = setting, host, port, reason
         super().__init__(f"cannot listen on {host}:{port} ({PORT_SETTINGS.get(setting, setting)}): {reason}")
+
+
+def bind_reason(exc: OSError) -> str:
+    """Why a bind failed, in words ("address already in use"), without trio's repetition of the address (the
+    server's listeners and the proxies' metrics port say it the same way)."""
+    if isinstance(exc, socket.gaierror):
+        return f"cannot resolve the host ({exc.strerror})"
+    if exc.errno is not None and exc.errno > 0:
+        return os.strerror(exc.errno).lower()
+    return str(exc)
 
 
 def check_ports(config: ServerConfig) -> None:

@@ -15,8 +15,6 @@ and no stage waits longer than the handshake timeout for a peer that does nothin
 from __future__ import annotations
 
 import logging
-import os
-import socket
 import ssl
 from collections.abc import Awaitable, Callable
 
@@ -26,7 +24,7 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server.accept import HandshakeLog, Throttled, accept_loop, peer_of, tls_handshake
-from entitynet.server.config import ListenError, ServerConfig
+from entitynet.server.config import ListenError, ServerConfig, bind_reason
 from entitynet.server.fdlimit import Admission
 from entitynet.server.http import HttpServer, error_bytes
 from entitynet.server.wsgate import CLOSED, HandoffListener, PrefixedStream, read_upgrade_head
@@ -83,7 +81,7 @@ class Listeners:
         try:
             listeners = await trio.open_tcp_listeners(port, host=self.config.host)
         except OSError as exc:
-            raise ListenError(setting, self.config.host, port, _bind_reason(exc)) from exc
+            raise ListenError(setting, self.config.host, port, bind_reason(exc)) from exc
         for listener in listeners:
             nursery.start_soon(accept_loop, listener, handler, nursery)
         return listeners[0].socket.getsockname()[1]
@@ -146,15 +144,6 @@ class Listeners:
         finally:
             self.admission.leave(client=True, admitted=reason is None)
             await trio.aclose_forcefully(stream if stream is not None else sock)
-
-
-def _bind_reason(exc: OSError) -> str:
-    """Why a bind failed, in words ("address already in use"), without trio's repetition of the address."""
-    if isinstance(exc, socket.gaierror):
-        return f"cannot resolve the host ({exc.strerror})"
-    if exc.errno is not None and exc.errno > 0:
-        return os.strerror(exc.errno).lower()
-    return str(exc)
 
 
 async def _send_quietly(stream: trio.abc.Stream, data: bytes) -> None:

@@ -88,3 +88,19 @@ def test_a_bug_inside_an_exception_group_keeps_its_traceback(monkeypatch):
     monkeypatch.setattr(cli, "discover_plugins", lambda group_=cli.PLUGIN_GROUP: [("boom", _raising(group))])
     with pytest.raises(BaseExceptionGroup):
         cli.main(["boom"])
+
+
+def test_leaves_walks_nested_exception_groups_in_order():
+    """One walker of exception groups for the CLI, `serve` and the proxies (there were three)."""
+    a, b, c = ValueError("a"), KeyError("b"), OSError("c")
+    group = BaseExceptionGroup("outer", [a, ExceptionGroup("inner", [b, ExceptionGroup("deep", [c])])])
+    assert list(cli.leaves(group)) == [a, b, c]
+    assert list(cli.leaves(a)) == [a]
+
+
+def test_the_group_walkers_of_serve_and_the_proxies_are_gone():
+    import entitynet.commands.serve_cmd as serve_cmd
+    import proxies.commands as proxy_commands
+
+    assert not hasattr(cli, "_leaves") and not hasattr(proxy_commands, "_find")
+    assert not hasattr(serve_cmd, "_first_failure")

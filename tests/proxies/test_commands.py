@@ -77,3 +77,50 @@ def test_ctrl_c_stops_replay_and_siri_without_a_traceback(tmp_path, line_topo, l
     rc, err = _interrupted(["proxy", "siri", "--url", "http://127.0.0.1:1/siri", "--server", "127.0.0.1:1",
                             "--topology", str(art), "--gtfs", str(line_feed)], "request(s) per poll", tmp_path)
     assert rc == 130 and "Traceback" not in err and "entitynet: interrupted" in err, err
+
+
+def _gtfsrt_argv(tmp_path, line_topo, line_feed, *extra: str) -> list[str]:
+    from topology.artifact import save
+
+    art = tmp_path / "line.enttopo"
+    save(line_topo, art)
+    return ["proxy", "gtfs-rt", "--vehicle-positions", "http://127.0.0.1:1/vp", "--topology", str(art),
+            "--gtfs", str(line_feed), *extra]
+
+
+def test_a_metrics_port_in_use_is_one_line_naming_it(tmp_path, capsys, line_topo, line_feed):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        taken = busy.getsockname()[1]
+        argv = _gtfsrt_argv(tmp_path, line_topo, line_feed, "--server", "127.0.0.1:1", "--duration", "1",
+                            "--metrics-port", str(taken))
+        assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"entitynet: error: cannot listen on 127.0.0.1:{taken} (--metrics-port)" in err, err
+    assert "in use" in err and "Traceback" not in err, err
+
+
+def test_an_unreachable_server_is_reported_and_the_duration_still_ends_the_run(tmp_path, line_topo, line_feed):
+    """The duration clock waited for the first connection: a proxy of an unreachable server ran forever, silently."""
+    import os
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    with socket.socket() as probe:  # a port nothing listens on (bound, never listening: connections are refused)
+        probe.bind(("127.0.0.1", 0))
+        dead = probe.getsockname()[1]
+        argv = _gtfsrt_argv(tmp_path, line_topo, line_feed, "--server", f"127.0.0.1:{dead}", "--duration", "6")
+        t0 = time.monotonic()
+        try:
+            proc = subprocess.run([sys.executable, "-m", "entitynet", *argv], cwd=tmp_path, capture_output=True,
+                                  text=True, timeout=60, env={**os.environ, "ENTITYNET_CACHE": str(tmp_path)})
+        except subprocess.TimeoutExpired as exc:
+            raise AssertionError(f"still running after 60 s with --duration 6: {exc.stderr}") from None
+    assert time.monotonic() - t0 < 40
+    assert f"server 127.0.0.1:{dead} unreachable, retrying" in proc.stderr, proc.stderr
+    assert proc.stderr.count("unreachable") == 1 and "Traceback" not in proc.stderr, proc.stderr

@@ -48,3 +48,15 @@ def test_sim_args_are_the_sim_parsers_defaults_and_refuse_unknown_names():
     assert (args.entities, args.measure_share, args.speed, args.server) == (7, 0.25, 1.0, None)
     with pytest.raises(TypeError, match="no option 'nonesuch'"):
         sim_args(nonesuch=1)
+
+
+@pytest.mark.parametrize("suite", ["e2e", "sim", "dr", "pvs"])
+@pytest.mark.parametrize("artifact", ["missing", "junk"])
+def test_bench_with_a_bad_topology_is_one_line(tmp_path, capsys, suite, artifact):
+    """`bench SUITE --topology BAD` printed an ArtifactError traceback; the dispatcher turns it into one line."""
+    path = tmp_path / "bad.enttopo"
+    if artifact == "junk":
+        path.write_bytes(b"\x00" * 64)
+    assert main(["bench", suite, "--quick", "--topology", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "entitynet: error:" in err and str(path) in err and "Traceback" not in err

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import zipfile
 
+import numpy as np
 import pytest
 
 from entitynet.client.network import netview
@@ -98,3 +99,38 @@ def test_malformed_rows_are_skipped_and_counted(tmp_path, route_map):
     assert list(feed.shapes) == ["sh1"] and len(feed.shapes["sh1"]) == 4
     m = _matched(feed, route_map)
     assert len(m.stop_xy) == 4  # the stop_times row without a sequence is skipped
+
+
+def _append(path, name: str, rows: str):
+    """The feed at `path` with `rows` added to its file `name`."""
+    with zipfile.ZipFile(path) as zf:
+        files = {n: zf.read(n).decode() for n in zf.namelist()}
+    files[name] += rows
+    with zipfile.ZipFile(path, "w") as zf:
+        for n, body in files.items():
+            zf.writestr(n, body)
+    return path
+
+
+def test_a_repeated_stop_sequence_is_a_counted_bad_row_not_a_crash(tmp_path):
+    """Two rows with one stop_sequence, one timed and one not: sorting whole rows compared None with an int."""
+    path = _append(write_feed(tmp_path / "f.zip"), "stop_times.txt", "t1,,,s2,2\n")
+    feed = read_feed(path, modes=("bus",))
+    assert feed.report["skipped:stop_times_bad_row"] == 1
+    assert [s for _q, s, *_t in feed.stop_times["t1"]] == [i for i, *_ in STOPS]
+    assert all(a is not None for _q, _s, a, _d in feed.stop_times["t1"])
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "200", "1e400"])
+def test_a_non_finite_or_out_of_range_coordinate_is_a_counted_bad_row(tmp_path, value):
+    """One stop at stop_lat=nan made every stop-to-stop shape all NaN, silently."""
+    shapes = ("shape_id,shape_pt_lat,shape_pt_lon,shape_pt_sequence\n"
+              + "".join(f"sh1,{LAT0 + y * D},{LON0 + x * D},{k}\n" for k, (_i, _n, x, y) in enumerate(STOPS))
+              + f"sh1,{value},{LON0},9\nsh1,{LAT0},{value},10\n")
+    path = _append(write_feed(tmp_path / "f.zip", shapes=shapes, shape_id="sh1"), "stops.txt",
+                   f"x1,Lat,{value},{LON0}\nx2,Lon,{LAT0},{value}\n")
+    feed = read_feed(path, modes=("bus",))
+    assert feed.report["skipped:stops_bad_row"] == 2 and feed.report["skipped:shapes_bad_row"] == 2
+    assert set(feed.stops) == {i for i, *_ in STOPS}
+    assert len(feed.shapes["sh1"]) == 4
+    assert all(np.isfinite(s).all() for s in feed.shapes.values())

@@ -58,3 +58,25 @@ def test_bad_inputs_exit_2_with_a_message(tmp_path, capsys):
     out = tmp_path / "t.enttopo"
     assert main(["topology", "build", "--geojson", str(src), "--out", str(out), "-q"]) == 0
     assert main(["topology", "export", str(out), "--geojson", str(tmp_path / "x.json"), "--layers", "nope"]) == 2
+
+
+@pytest.mark.parametrize("argv", [
+    ["--view-cell-size", "0.001"], ["--view-cell-size", "0.5"], ["--max-cell-length", "0.001"],
+    ["--max-cell-length", "0.5"],
+])
+def test_sizes_too_small_to_build_are_refused_while_parsing(tmp_path, capsys, argv):
+    """0.001 m view cells ended in a numpy MemoryError traceback, 0.5 m ran for hours."""
+    with pytest.raises(SystemExit) as info:
+        main(["topology", "build", "--geojson", str(write_map(tmp_path)), "--out", str(tmp_path / "o"), "-q", *argv])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and f"argument {argv[0]}" in err and "Traceback" not in err
+
+
+def test_too_many_view_cells_is_one_line_before_allocating(tmp_path, capsys):
+    src = write_map(tmp_path)
+    argv = ["topology", "build", "--geojson", str(src), "--out", str(tmp_path / "o"), "-q",
+            "--view-cell-size", "2", "--view-max-height", "90000"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "entitynet: error:" in err and "--view-cell-size" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
