@@ -30,7 +30,7 @@ def _bbox(text: str) -> tuple[float, float, float, float]:
 
 def register(sub) -> None:
     """Add `entitynet sumo` (subcommand `scenario`) to the CLI's subparsers."""
-    from sims.sim_cmd import service_time
+    from entitynet.commands.options import SEED, bounded_float, positive_seconds, time_of_day
 
     p = sub.add_parser("sumo", help="Eclipse SUMO scenarios for `entitynet sim --mobility sumo` (needs the [sumo] "
                                     "extra)")
@@ -38,14 +38,15 @@ def register(sub) -> None:
     s = subs.add_parser("scenario", help="make a SUMO scenario from the bundled map (network in the topology's "
                                          "projection, random cars and walks, bus and tram lines at the bundled "
                                          "GTFS feed's frequencies), cached; prints its .sumocfg")
-    s.add_argument("--cars-per-hour", type=float, default=1800.0, help="car trips inserted per hour (default "
-                                                                       "1800)")
-    s.add_argument("--pedestrians-per-hour", type=float, default=3600.0, help="walks inserted per hour (default "
-                                                                              "3600)")
-    s.add_argument("--duration", type=float, default=3600.0, help="scenario length in seconds (default 3600)")
-    s.add_argument("--start", type=service_time, default=8 * 3600.0, metavar="HH:MM",
+    s.add_argument("--cars-per-hour", type=bounded_float(0, 100_000), default=1800.0,
+                   help="car trips inserted per hour (default 1800)")
+    s.add_argument("--pedestrians-per-hour", type=bounded_float(0, 100_000), default=3600.0,
+                   help="walks inserted per hour (default 3600)")
+    s.add_argument("--duration", type=positive_seconds(7 * 86400.0), default=3600.0,
+                   help="scenario length in seconds (default 3600)")
+    s.add_argument("--start", type=time_of_day, default=8 * 3600.0, metavar="HH:MM",
                    help="service-day time the scenario's time 0 stands for (the GTFS window; default 08:00)")
-    s.add_argument("--seed", type=int, default=1, help="random seed of the trips (default 1)")
+    s.add_argument("--seed", type=SEED, default=1, help="random seed of the trips (default 1)")
     s.add_argument("--no-transit", action="store_true", help="no bus and tram lines")
     s.add_argument("--bbox", type=_bbox, metavar="XMIN,YMIN,XMAX,YMAX",
                    help="keep only the streets inside this box (local metres of the topology): a small scenario")
