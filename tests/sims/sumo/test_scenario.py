@@ -128,11 +128,3 @@ def test_the_scenario_command_without_the_extra_says_how_to_install(capsys, monk
     assert main(["sumo", "scenario"]) == 2
     err = capsys.readouterr().err
     assert "entitynet[sumo]" in err and "Traceback" not in err
-
-
-class _no_raise:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
