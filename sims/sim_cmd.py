@@ -66,6 +66,10 @@ def register(sub) -> None:
     p.add_argument("--server", type=_hostport, metavar="HOST:PORT",
                    help="an existing shard server (default: start one in this process)")
     p.add_argument("--token", default="", help="auth token for --server")
+    p.add_argument("--server-process", choices=("auto", "yes", "no"), default="auto",
+                   help="run the shard server in a child process (`entitynet serve`, the second core) instead of "
+                        "this one: auto (default) from 1000 entities or 100 viewers at --speed 1 or more "
+                        "(docs/simulation.md)")
     p.add_argument("--shards", type=bounded_int(1, 64),
                    metavar="K", help="start a local cluster of K switchboard processes "
                    "joined by nats-server and run against it (entities and viewers by where they are)")
@@ -123,6 +127,13 @@ def run(args: argparse.Namespace) -> int:
         problems.append("--shards starts its own cluster: give either --shards or --server")
     if args.nats_nodes < 1:
         problems.append("--nats-nodes must be at least 1")
+    from sims.server_child import wants_server_process
+
+    try:
+        child_server, child_why = wants_server_process(args.server_process, args.entities, args.viewers, args.speed,
+                                                       external=args.server is not None or args.shards is not None)
+    except ValueError as exc:
+        problems.append(str(exc))
     if problems:
         raise CommandError("; ".join(problems))
     import trio
@@ -170,7 +181,10 @@ def run(args: argparse.Namespace) -> int:
         f"speed x{args.speed:g}")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path), say)
-    if regions is None:
+    shell.server_info = {"process": child_server, "why": child_why}
+    if child_server:
+        report = _on_child_server(shell, path, child_why, say)
+    elif regions is None:
         report = trio.run(shell.run)
     else:
         report = trio.run(_on_cluster, shell, topo, path, regions, args.nats_nodes, say)
@@ -179,6 +193,25 @@ def run(args: argparse.Namespace) -> int:
             return 130
     emit_report(report, args.report, say)
     return 0
+
+
+def _on_child_server(shell, path: Path, why: str, say) -> dict:
+    """Run the shell against a child `entitynet serve` that lives exactly as long as the run (sims.server_child):
+    stopped on the way out whatever the way (the end, Ctrl-C, an error); a child that dies mid-run is one clear
+    error line naming its last log lines."""
+    import trio
+
+    from entitynet.cli import CommandError
+    from sims.server_child import ServerChild, ServerChildDied
+
+    try:
+        with ServerChild(path) as child:
+            host, port = shell.config.server = child.address
+            shell.server_info = child.report(why)
+            say(f"shard server listening on {host}:{port} (a child process, pid {child.pid}: {why})")
+            return trio.run(child.run_shell, shell)
+    except ServerChildDied as exc:
+        raise CommandError(str(exc)) from None
 
 
 async def _on_cluster(shell, topo, path: Path, regions, nats_nodes: int, say) -> dict | None:
