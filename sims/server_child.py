@@ -113,8 +113,14 @@ class ServerChild:
 
     def death_message(self, code: int) -> str:
         """One line for the user: the child's exit status and its last log lines (joined with ' | ')."""
+        import signal
+
         tail = " | ".join(last_lines(self.log, n=4, max_chars=600).splitlines())
-        return f"the sim's server process (pid {self.pid}) exited with {code} mid-run; the end of {self.log}: {tail}"
+        try:
+            how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
+        except ValueError:
+            how = f"exited with {code}"
+        return f"the sim's server process (pid {self.pid}) {how} mid-run; the end of {self.log}: {tail}"
 
     def stop(self) -> None:
         """Terminate the child (kill after 5 s) and remove its log folder unless something failed."""
