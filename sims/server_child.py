@@ -70,12 +70,12 @@ class ServerChild:
     """One `entitynet serve --open` child on a free loopback port for the length of a run (a context manager:
     started on enter, stopped on every exit). Start it from the main thread: it dies with this process."""
 
-    def __init__(self, artifact: Path, timeout: float = 30.0):
+    def __init__(self, artifact: Path, timeout: float = 30.0, serve_options: tuple[str, ...] = ()):
         self.artifact = Path(artifact)
         self.timeout = timeout
         self.log_dir = Path(tempfile.mkdtemp(prefix="entitynet-sim-server-"))
         self._shards = LocalShards(topology=self.artifact, regions=None, nats_urls=None, k=1, log_dir=self.log_dir,
-                                   tie_to_parent=True)
+                                   extra=list(serve_options), tie_to_parent=True)
         self.failed = False
 
     def __enter__(self) -> ServerChild:
@@ -110,6 +110,17 @@ class ServerChild:
     def exit_code(self) -> int | None:
         """The child's exit status once it has exited; None while it runs."""
         return self._shards.procs[0].poll()
+
+    def cpu_seconds(self) -> float | None:
+        """CPU time (user + system) the child has used so far; None once it is gone. Why: what the server costs
+        beside the simulation's own process, the figure that says what moving it out can gain."""
+        import psutil
+
+        try:
+            t = psutil.Process(self.pid).cpu_times()
+        except psutil.Error:
+            return None
+        return t.user + t.system
 
     def death_message(self, code: int) -> str:
         """One line for the user: the child's exit status and its last log lines (joined with ' | ')."""

@@ -5,6 +5,8 @@ Figures (keys of `results`):
   real time with the shard server in the same process on this machine, over real loopback sockets: tick
   lateness p99 under one tick and no tick more than one tick behind (no backlog). Populations double until one
   fails; `realtime_trials` lists every trial.
+- each real-time trial also has `sim_process_cpu_s` (this process's CPU time over the run, the in-process
+  server's included) and `server_process_cpu_s` (the child server's, None in-process): what the server costs.
 - `entities_realtime_max_server_process`: the same ladder with the server in a child `entitynet serve`
   (`entitynet sim --server-process yes`, sims/server_child.py), its trials in `realtime_trials_server_process`;
   the two ladders alternate at each population, so both see the same load on the machine;
@@ -68,12 +70,15 @@ def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: flo
     sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=RT_MEASURE_SHARE), schedule)
     shell = Shell(sim, ShellConfig(duration=seconds + WARMUP_TICKS * sim.dt, speed=1.0, summary_every=1e9,
                                    artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS), lambda m: None)
+    cpu0, server_cpu = time.process_time(), None
     if server_process:
         with ServerChild(artifact) as child:
             shell.config.server = child.address
             rep = trio.run(child.run_shell, shell)
+            server_cpu = child.cpu_seconds()
     else:
         rep = trio.run(shell.run)
+    sim_cpu = time.process_time() - cpu0
     rt = rep["realtime"]
     tick_ms = 1000.0 * sim.dt
     ok = rt["tick_lateness_p99_ms"] < tick_ms and rt["ticks_behind"] == 0
@@ -81,6 +86,7 @@ def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: flo
             "server": "a child process" if server_process else "in this process",
             "measure_share": RT_MEASURE_SHARE, "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"],
             "ticks_behind": rt["ticks_behind"], "ok": ok,
+            "sim_process_cpu_s": sim_cpu, "server_process_cpu_s": server_cpu,
             "missed_visibility": (rep["truth_vs_viewer"].get("all") or {}).get("missed_visibility")}
 
 
