@@ -116,3 +116,18 @@ def test_ctrl_c_stops_the_run_and_its_child_server(grid_path, tmp_path):
     assert proc.returncode == 0 and "Traceback" not in rest
     rep = json.loads((tmp_path / "rep.json").read_text())
     assert rep["server"]["pid"] == pid and not psutil.pid_exists(pid)
+
+
+def test_a_sim_killed_outright_leaves_no_server_behind(grid_path, tmp_path):
+    """SIGKILL gives the sim no chance to stop its child: the child is tied to it (PDEATHSIG) and goes too."""
+    proc, pid, _ = _sim_child(grid_path, tmp_path)
+    proc.kill()
+    proc.communicate(timeout=30)
+    deadline = time.monotonic() + 10
+    while psutil.pid_exists(pid) and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE \
+            and time.monotonic() < deadline:
+        time.sleep(0.05)
+    gone = not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    if not gone:  # the failure must not leave it behind either
+        os.kill(pid, signal.SIGKILL)
+    assert gone
