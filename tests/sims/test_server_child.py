@@ -73,7 +73,7 @@ def _sim_child(grid_path: Path, tmp_path: Path) -> tuple[subprocess.Popen, int, 
            "--entities", "12", "--viewers", "3", "--start", "00:00", "--duration", "600", "--server-process",
            "yes", "--report", str(tmp_path / "rep.json")]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1", "TMPDIR": str(tmp_path)})  # its logs
     lines: list[str] = []
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
