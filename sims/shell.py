@@ -30,6 +30,7 @@ import trio
 
 from entitynet import protocol as P
 from entitynet.connection import Connection
+from sims.engine.payload_ids import PayloadIds
 from sims.engine.sim import Sim
 
 Say = Callable[[str], None]
@@ -89,6 +90,8 @@ class Shell:
         self._part_states: list[Any] = []  # what each part's task_status.started gave (see `counts`)
         self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
         self._frozen = sim.now  # the clock while paused
+        self.ids = PayloadIds()  # an external server's entity ids -> ours (truth against viewers)
+        self.server_info: dict = {}  # more about where the server ran (a child process: its pid), for the report
 
     def clock(self) -> float:
         """The simulation's time now, between ticks too (the in-process server's clock, see the module
@@ -162,11 +165,13 @@ class Shell:
         return pubs, views
 
     def _on_view(self, i: int):
-        sim = self.sim
+        sim, ids = self.sim, self.ids
 
         def on_message(m: P.Message) -> None:
             if isinstance(m, P.Redirect):
                 self.redirects += 1
+            elif type(m) is P.Update and m.entity not in ids.local_of:
+                ids.learn(m.entity, m.payload)
             size = self._size(m) if isinstance(m, P.Update | P.Leave) else 0
             sim.deliver(i, m, size)
 
@@ -233,12 +238,15 @@ class Shell:
     async def _send(self, pubs, views, out_pubs, out_subs) -> None:
         for c, msgs in zip(pubs, out_pubs, strict=True):
             ps = [m for m in msgs if isinstance(m, P.Publish)]
+            if ps and self.server is None:
+                self.ids.published(ps)
             if ps:
                 await c.publish(*ps)
                 self._window["published"] += len(ps)
                 self.published += len(ps)
             for m in msgs:
                 if isinstance(m, P.Unpublish):
+                    self.ids.forget(m.entity)
                     await c.unpublish(m.entity)
         for i, (c, msgs) in enumerate(zip(views, out_subs, strict=True)):
             if self.config.cluster is not None:  # shards hand viewers on by their camera (CAMERA)
@@ -254,9 +262,10 @@ class Shell:
 
     def _eid_map(self, pubs: list[Connection]) -> dict[int, int] | None:
         """Server entity id -> simulated entity, for the entities our publishers own (the demo's transit proxy
-        publishes others into the same server, with local ids of its own)."""
+        publishes others into the same server, with local ids of its own). An external server's ids (a child
+        process, `--server`, a cluster) are learnt from the payloads (`PayloadIds`)."""
         if self.server is None:
-            return None  # an external server's ids cannot be mapped back to the truth
+            return self.ids.local_of
         ours = {c.welcome.session for c in pubs if c.welcome is not None}
         return {eid: e.local for eid, e in self.server.sb.entities.items() if e.owner.session in ours}
 
@@ -360,8 +369,8 @@ class Shell:
                 f"viewers, {self.counts()['stops_served']} bus and tram stops served")
 
     def report(self) -> dict:
-        """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps.
-        Against an external server truth-vs-viewer is not measured (its entity ids cannot be mapped back)."""
+        """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps and
+        where the server ran."""
         rep = self.sim.report()
         parts = self.part_counts()
         if parts:  # every entity the viewers saw, the parts' too; each part's own figures beside
@@ -374,10 +383,12 @@ class Shell:
             "tick_lateness_p99_ms": float(np.percentile(lat, 99) * 1000),
             "ticks_behind": self.behind,
         }
-        rep["server"] = {"in_process": self.server is not None, "gap_s": self.gap_s, "outages": self.outages}
+        rep["server"] = {"in_process": self.server is not None, **self.server_info, "gap_s": self.gap_s,
+                         "outages": self.outages}
         if self.config.cluster is not None:
             cl = self.config.cluster
             rep["cluster"] = {"shards": cl.per_shard(), "nats": cl.nats_urls, "viewer_redirects": self.redirects}
-        if self.server is None:
-            rep["truth_vs_viewer"] = "not measured: the server's entity ids are not known outside its process"
+        if self.server is None and isinstance(rep.get("truth_vs_viewer"), dict):
+            rep["truth_vs_viewer"]["ids"] = ("an external server's entity ids, mapped to the simulation's by the "
+                                             "payload each entity last published")
         return rep

@@ -20,8 +20,10 @@ def register(sub) -> None:
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
                                    "clients and PVS viewers, with a live summary and a JSON report",
                        epilog="How large a run keeps real time: on a 2-core machine about 1,600 entities with 160 "
-                              "viewers, the server in the same process (entitynet bench sim, "
-                              "entities_realtime_max). A larger run still steps every tick, late: the live summary "
+                              "viewers, with the server in this process or in a child process (entitynet bench "
+                              "sim, entities_realtime_max and entities_realtime_max_server_process; the server is "
+                              "about a tenth of the work, docs/simulation.md). A larger run still steps every tick, "
+                              "late: the live summary "
                               "shows the tick lateness, and a warning says when the run falls behind (then every "
                               "30 s while it lasts). --speed 0.5 halves the load.")
     p.add_argument("--entities", type=bounded_int(0, 1_000_000),
@@ -42,6 +44,11 @@ def register(sub) -> None:
     p.add_argument("--server", type=host_port, metavar="HOST:PORT",
                    help="an existing shard server (default: start one in this process)")
     p.add_argument("--token", default="", help="auth token for --server")
+    p.add_argument("--server-process", choices=("auto", "yes", "no"), default="no",
+                   help="run the shard server in a child process (`entitynet serve`, the second core) instead of "
+                        "this one; auto: from 1000 entities or 100 viewers at --speed 1 or more. Default no: on 2 "
+                        "cores a child kept no more in real time, and the truth measure samples before its "
+                        "deliveries arrive (docs/simulation.md)")
     p.add_argument("--shards", type=bounded_int(1, 64),
                    metavar="K", help="start a local cluster of K switchboard processes "
                    "joined by nats-server and run against it (entities and viewers by where they are)")
@@ -106,6 +113,13 @@ def run(args: argparse.Namespace) -> int:
         problems.append("--nats-nodes must be at least 1")
     if getattr(args, "sumocfg", None) and getattr(args, "mobility", "ours") != "sumo":
         problems.append("--sumocfg needs --mobility sumo")
+    from sims.server_child import wants_server_process
+
+    try:
+        child_server, child_why = wants_server_process(args.server_process, args.entities, args.viewers, args.speed,
+                                                       external=args.server is not None or args.shards is not None)
+    except ValueError as exc:
+        problems.append(str(exc))
     if problems:
         raise CommandError("; ".join(problems))
     import trio
@@ -159,7 +173,10 @@ def run(args: argparse.Namespace) -> int:
         f"speed x{args.speed:g}")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path), say)
-    if regions is None:
+    shell.server_info = {"process": child_server, "why": child_why}
+    if child_server:
+        report = _on_child_server(shell, path, child_why, say)
+    elif regions is None:
         report = trio.run(shell.run)
     else:
         report = trio.run(_on_cluster, shell, topo, path, regions, args.nats_nodes, say)
@@ -168,6 +185,25 @@ def run(args: argparse.Namespace) -> int:
             return 130
     emit_report(report, args.report, say)
     return 0
+
+
+def _on_child_server(shell, path: Path, why: str, say) -> dict:
+    """Run the shell against a child `entitynet serve` that lives exactly as long as the run (sims.server_child):
+    stopped on the way out whatever the way (the end, Ctrl-C, an error); a child that dies mid-run is one clear
+    error line naming its last log lines."""
+    import trio
+
+    from entitynet.cli import CommandError
+    from sims.server_child import ServerChild, ServerChildDied
+
+    try:
+        with ServerChild(path) as child:
+            host, port = shell.config.server = child.address
+            shell.server_info = child.report(why)
+            say(f"shard server listening on {host}:{port} (a child process, pid {child.pid}: {why})")
+            return trio.run(child.run_shell, shell)
+    except ServerChildDied as exc:
+        raise CommandError(str(exc)) from None
 
 
 async def _on_cluster(shell, topo, path: Path, regions, nats_nodes: int, say) -> dict | None:

@@ -33,6 +33,7 @@ DOCUMENTED = (
     "sims/engine",
     "sims/shell.py",
     "sims/sim_cmd.py",
+    "sims/server_child.py",
     "sims/data/make_hsl_extract.py",
     "sims/mobility",
     "sims/sumo",

@@ -5,6 +5,12 @@ Figures (keys of `results`):
   real time with the shard server in the same process on this machine, over real loopback sockets: tick
   lateness p99 under one tick and no tick more than one tick behind (no backlog). Populations double until one
   fails; `realtime_trials` lists every trial.
+- each real-time trial also has `sim_process_cpu_s` (this process's CPU time over the run, the in-process
+  server's included) and `server_process_cpu_s` (the child server's, None in-process): what the server costs.
+- `entities_realtime_max_server_process`: the same ladder with the server in a child `entitynet serve`
+  (`entitynet sim --server-process yes`, sims/server_child.py), its trials in `realtime_trials_server_process`;
+  the two ladders alternate at each population, so both see the same load on the machine;
+  `ratio.server_process_vs_in_process_realtime_max` their ratio.
 - `fleet_fixes_per_s`: honest-client fixes per second on one core (GPS fix, client-core decision, message)
   through the fleet core (`Fleet(core="fleet")`, entitynet/client/fleet.py); `fleet_fixes_per_s_player`: the same
   population, truth and seed through per-entity Players (`core="player"`), a second fleet stepped every tick
@@ -59,21 +65,34 @@ def _local(topo, schedule, cfg: SimConfig, seconds: float) -> tuple[Sim, dict]:
     return sim, rep
 
 
-def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: float) -> dict[str, Any]:
+def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: float,
+                    server_process: bool = False) -> dict[str, Any]:
     import trio
 
+    from sims.server_child import ServerChild
     from sims.shell import Shell, ShellConfig
 
     sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=RT_MEASURE_SHARE), schedule)
     shell = Shell(sim, ShellConfig(duration=seconds + WARMUP_TICKS * sim.dt, speed=1.0, summary_every=1e9,
                                    artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS), lambda m: None)
-    rep = trio.run(shell.run)
+    cpu0, server_cpu = time.process_time(), None
+    if server_process:
+        with ServerChild(artifact) as child:
+            shell.config.server = child.address
+            rep = trio.run(child.run_shell, shell)
+            server_cpu = child.cpu_seconds()
+    else:
+        rep = trio.run(shell.run)
+    sim_cpu = time.process_time() - cpu0
     rt = rep["realtime"]
     tick_ms = 1000.0 * sim.dt
     ok = rt["tick_lateness_p99_ms"] < tick_ms and rt["ticks_behind"] == 0
     return {"entities": n, "on_map": sum(rep["entities"].values()), "viewers": viewers,
-            "server": "in this process", "measure_share": RT_MEASURE_SHARE,
-            "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"], "ticks_behind": rt["ticks_behind"], "ok": ok}
+            "server": "a child process" if server_process else "in this process",
+            "measure_share": RT_MEASURE_SHARE, "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"],
+            "ticks_behind": rt["ticks_behind"], "ok": ok,
+            "sim_process_cpu_s": sim_cpu, "server_process_cpu_s": server_cpu,
+            "missed_visibility": (rep["truth_vs_viewer"].get("all") or {}).get("missed_visibility")}
 
 
 class _Removals:
@@ -175,21 +194,11 @@ def run(args, progress) -> dict[str, Any]:
     progress("fleet core: fixes per second on one core")
     fleet = _fleet_rates(topo, 300 if quick else 1000, 3 if quick else 10, 3 if quick else 20)
 
-    progress("real time with the server in this process")
-    trials = []
-    n = 100
+    progress("real time with the server in this process and in a child process (alternating)")
     rt_seconds = 6.0 if quick else 20.0  # simulated = wall seconds at speed 1, after the warm-up
-    best = 0
-    lateness = None
-    while n <= (200 if quick else 20000):
-        trial = _realtime_trial(topo, artifact, schedule, n, max(10, n // 10), rt_seconds)
-        trials.append(trial)
-        progress(f"  {n} entities: lateness p99 {trial['tick_lateness_p99_ms']:.0f} ms, behind "
-                 f"{trial['ticks_behind']} -> {'ok' if trial['ok'] else 'not real time'}")
-        if not trial["ok"]:
-            break
-        best, lateness = n, trial["tick_lateness_p99_ms"]
-        n *= 2
+    ladders = _realtime_ladders(topo, artifact, schedule, rt_seconds, 200 if quick else 20000, progress)
+    trials, best, lateness = ladders[False]
+    child_trials, child_best, child_lateness = ladders[True]
 
     from sims.sumo.compare import bench_rows  # skipped, with the reason, without the [sumo] extra
 
@@ -198,6 +207,8 @@ def run(args, progress) -> dict[str, Any]:
     all_pvs = pvs["truth_vs_viewer"]["all"]
     results = {
         "entities_realtime_max": best,
+        "entities_realtime_max_server_process": child_best,
+        "tick_lateness_p99_ms_server_process": child_lateness,
         "fleet_fixes_per_s": fleet["fleet"],
         "fleet_fixes_per_s_player": fleet["player"],
         "fleet_core_speedup": fleet["ratio"],
@@ -215,6 +226,7 @@ def run(args, progress) -> dict[str, Any]:
         "error_vs_updates": sweep,
         "truth_vs_viewer": {"pvs": pvs["truth_vs_viewer"], "radius": rad["truth_vs_viewer"]},
         "realtime_trials": trials,
+        "realtime_trials_server_process": child_trials,
         "sumo": sumo,
     }
     out = getattr(args, "out", None)
@@ -231,8 +243,33 @@ def run(args, progress) -> dict[str, Any]:
                                  "missed_visibility": rad["truth_vs_viewer"]["all"]["missed_visibility"]}},
         "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"],
                   "fleet_core_vs_player": fleet["ratio"],
+                  "server_process_vs_in_process_realtime_max": child_best / best if best else None,
                   "world_step_ours_vs_sumo": [c["ours_vs_sumo"] for c in sumo.get("step_cost", [])] or None},
     }
+
+
+def _realtime_ladders(topo, artifact, schedule, seconds: float, top: int, progress) -> dict[bool, tuple]:
+    """The real-time ladder (populations doubling from 100, a tenth as many viewers, until one misses real time)
+    with the server in this process (key False) and in a child process (True), the two alternating at each
+    population so that both see the same load on the machine; each: (trials, largest ok, its lateness p99)."""
+    out: dict[bool, tuple[list, int, float | None]] = {False: ([], 0, None), True: ([], 0, None)}
+    going = {False: True, True: True}
+    n = 100
+    while n <= top and any(going.values()):
+        for child in (False, True):
+            if not going[child]:
+                continue
+            trial = _realtime_trial(topo, artifact, schedule, n, max(10, n // 10), seconds, server_process=child)
+            trials, best, lateness = out[child]
+            trials.append(trial)
+            progress(f"  {n} entities, server {trial['server']}: lateness p99 {trial['tick_lateness_p99_ms']:.0f} "
+                     f"ms, behind {trial['ticks_behind']} -> {'ok' if trial['ok'] else 'not real time'}")
+            if trial["ok"]:
+                out[child] = (trials, n, trial["tick_lateness_p99_ms"])
+            else:
+                going[child] = False
+        n *= 2
+    return out
 
 
 def _plot(sweep: list[dict], path: Path, progress) -> None:
