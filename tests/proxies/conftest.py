@@ -61,6 +61,11 @@ def write_feed(path: Path, *, headway: int = 300, start: str = "07:50:00", end: 
             hms = f"{t // 3600:02d}:{t % 3600 // 60:02d}:{t % 60:02d}"
             rows.append(f"{trip},{hms},{hms},S{i},{seq + 1}")
     files["stop_times.txt"] = "\n".join(rows) + "\n"
+    return write_zip(path, files)
+
+
+def write_zip(path: Path, files: dict[str, str]) -> Path:
+    """A GTFS zip of the given files (name -> CSV text) at `path`."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w") as zf:
         for name, text in files.items():

@@ -4,14 +4,12 @@ proxy found a matched route for one trip in each group (53 of 2,077 trips of a r
 
 from __future__ import annotations
 
-import io
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from proxies.routes import build_routes
-from tests.proxies.conftest import LINE_Y, STOP_X, _lonlat
+from tests.proxies.conftest import LINE_Y, STOP_X, _lonlat, write_zip
 
 
 def write_shapeless_feed(path: Path, runs: int = 6) -> Path:
@@ -39,12 +37,7 @@ def write_shapeless_feed(path: Path, runs: int = 6) -> Path:
         "trips.txt": "\n".join(trips) + "\n",
         "stop_times.txt": "\n".join(rows) + "\n",
     }
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zf:
-        for name, text in files.items():
-            zf.writestr(name, text)
-    path.write_bytes(buf.getvalue())
-    return path
+    return write_zip(path, files)
 
 
 def test_every_trip_of_a_feed_without_shapes_gets_its_route(tmp_path, line_topo):

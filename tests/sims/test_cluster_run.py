@@ -13,22 +13,12 @@ import time
 import psutil
 import pytest
 
-from entitynet.cluster.natsd import NatsServerMissing, nats_server_binary
-from tests.topology.mapfixtures import collection, grid
-from topology.artifact import save
-from topology.build import build
-from topology.geojson_reader import geojson_to_raw
+from tests.entitynet.cluster.shard_helpers import town_artifact
 
 
 @pytest.fixture(scope="module")
 def town(tmp_path_factory):
-    try:
-        nats_server_binary()
-    except NatsServerMissing as exc:
-        pytest.skip(str(exc))
-    path = tmp_path_factory.mktemp("simcluster") / "town.enttopo"
-    save(build(geojson_to_raw(collection(*grid(5, 5)))), path)  # 500 m x 500 m, with a PVS and a view grid
-    return path
+    return town_artifact(tmp_path_factory, "simcluster", 5)  # 500 m x 500 m, with a PVS and a view grid
 
 
 def _sim(town, *extra: str) -> subprocess.Popen:

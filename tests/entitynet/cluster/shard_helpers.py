@@ -67,3 +67,24 @@ async def until(pred, timeout: float = 5.0) -> None:
     with trio.fail_after(timeout):
         while not pred():
             await trio.sleep(0.01)
+
+
+def town_artifact(tmp_path_factory, name: str, blocks: int, build_config=None):
+    """A small grid town's artifact (`blocks` x `blocks`, 100 m blocks) for tests that start shard processes,
+    which need nats-server: the test is skipped, with the reason, where it is not installed."""
+    import pytest
+
+    from entitynet.cluster.natsd import NatsServerMissing, nats_server_binary
+    from tests.topology.mapfixtures import collection, grid
+    from topology.artifact import save
+    from topology.build import build
+    from topology.geojson_reader import geojson_to_raw
+
+    try:
+        nats_server_binary()
+    except NatsServerMissing as exc:
+        pytest.skip(str(exc))
+    path = tmp_path_factory.mktemp(name) / "town.enttopo"
+    raw = geojson_to_raw(collection(*grid(blocks, blocks)))
+    save(build(raw) if build_config is None else build(raw, build_config), path)
+    return path

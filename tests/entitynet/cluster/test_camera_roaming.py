@@ -9,11 +9,10 @@ import trio
 
 from entitynet import protocol as P
 from entitynet.cluster.local import LocalShards
-from entitynet.cluster.natsd import NatsCluster, NatsServerMissing, nats_server_binary
-from tests.topology.mapfixtures import collection, grid
-from topology.artifact import load, save
-from topology.build import BuildConfig, build
-from topology.geojson_reader import geojson_to_raw
+from entitynet.cluster.natsd import NatsCluster
+from tests.entitynet.cluster.shard_helpers import town_artifact
+from topology.artifact import load
+from topology.build import BuildConfig
 from topology.pvs import PvsConfig
 from topology.regions import build_regions
 
@@ -75,14 +74,8 @@ async def test_only_a_shard_announces_camera_and_a_single_server_ignores_it(nats
 
 @pytest.fixture(scope="module")
 def town_pvs(tmp_path_factory):
-    try:
-        nats_server_binary()
-    except NatsServerMissing as exc:
-        pytest.skip(str(exc))
-    path = tmp_path_factory.mktemp("camera") / "town.enttopo"
     pvs = PvsConfig(max_height=20.0, view_distance=300.0, workers=1)  # a view grid, built in a few seconds
-    save(build(geojson_to_raw(collection(*grid(5, 5))), BuildConfig(pvs=pvs)), path)
-    return path
+    return town_artifact(tmp_path_factory, "camera", 5, BuildConfig(pvs=pvs))
 
 
 def _border_on_line(regions, a, b) -> float:

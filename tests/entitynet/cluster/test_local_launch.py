@@ -9,22 +9,12 @@ import sys
 import pytest
 
 from entitynet.cluster.local import LocalShards
-from entitynet.cluster.natsd import NatsServerMissing, nats_server_binary
-from tests.topology.mapfixtures import collection, grid
-from topology.artifact import save
-from topology.build import build
-from topology.geojson_reader import geojson_to_raw
+from tests.entitynet.cluster.shard_helpers import town_artifact
 
 
 @pytest.fixture(scope="module")
 def town(tmp_path_factory):
-    try:
-        nats_server_binary()
-    except NatsServerMissing as exc:
-        pytest.skip(str(exc))
-    path = tmp_path_factory.mktemp("launch") / "town.enttopo"
-    save(build(geojson_to_raw(collection(*grid(3, 3)))), path)
-    return path
+    return town_artifact(tmp_path_factory, "launch", 3)
 
 
 @pytest.fixture
