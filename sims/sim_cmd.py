@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from entitynet.commands.options import SEED, bounded_float, bounded_int, host_port, positive_seconds, time_of_day
+from sims.engine import TICK_HZ_RANGE
 
 
 def register(sub) -> None:
@@ -39,7 +40,7 @@ def register(sub) -> None:
     p.add_argument("--duration", type=positive_seconds(), help="simulated seconds to run (default: until Ctrl-C)")
     p.add_argument("--speed", type=bounded_float(0, 1000, lo_open=True),
                    default=1.0, help="times real time (default 1; e.g. 10)")
-    p.add_argument("--tick-hz", type=bounded_float(0, 1000, lo_open=True),
+    p.add_argument("--tick-hz", type=bounded_float(*TICK_HZ_RANGE),
                    default=2.0, help="simulation ticks per second (default 2)")
     p.add_argument("--server", type=host_port, metavar="HOST:PORT",
                    help="an existing shard server (default: start one in this process)")

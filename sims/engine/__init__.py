@@ -8,3 +8,7 @@
 - `spawn`, `schedule`: random OD spawns and GTFS-scheduled transit;
 - `clients`, `viewers`, `measure`, `harness`: honest clients, PVS viewers, truth against what viewers see.
 """
+
+#: the tick rates (Hz) a simulation takes: one home for `SimConfig`'s check and `entitynet sim --tick-hz`'s range
+#: (here, so that building the CLI's parser loads nothing of the engine)
+TICK_HZ_RANGE = (0.1, 100.0)

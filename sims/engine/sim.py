@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from entitynet import protocol as P
+from sims.engine import TICK_HZ_RANGE
 from sims.engine.clients import Fleet
 from sims.engine.decode_cache import DecodeCache
 from sims.engine.measure import Measure
@@ -62,8 +63,9 @@ class SimConfig:
             problems.append(f"viewers must be >= 0, got {self.viewers}")
         if self.connections < 1:
             problems.append(f"connections must be >= 1, got {self.connections}")
-        if not 0.1 <= self.tick_hz <= 100.0:
-            problems.append(f"tick rate must be within 0.1..100 Hz, got {self.tick_hz}")
+        if not TICK_HZ_RANGE[0] <= self.tick_hz <= TICK_HZ_RANGE[1]:
+            lo, hi = TICK_HZ_RANGE
+            problems.append(f"tick rate must be within {lo:g}..{hi:g} Hz, got {self.tick_hz}")
         if not self.fix_interval > 0:
             problems.append(f"fix interval must be > 0, got {self.fix_interval}")
         if not self.gps_sigma > 0:  # the client core refuses fixes that claim no error at all

@@ -68,10 +68,12 @@ async def test_server_going_away_mid_run_is_survived_and_reported():
 
 
 def test_cli_refuses_bad_options(capsys):
-    for option in ("--speed", "--tick-hz"):  # usage errors: refused while parsing (entitynet/commands/options.py)
+    for option, value, said in (("--speed", "0", "expected a number above 0"),  # refused while parsing
+                                ("--tick-hz", "0", "expected a number from 0.1 to 100"),  # SimConfig's range
+                                ("--tick-hz", "500", "expected a number from 0.1 to 100")):
         with pytest.raises(SystemExit) as info:
-            main(["sim", option, "0", "--duration", "1"])
-        assert info.value.code == 2 and f"argument {option}: expected a number above 0" in capsys.readouterr().err
+            main(["sim", option, value, "--duration", "1"])
+        assert info.value.code == 2 and f"argument {option}: {said}" in capsys.readouterr().err
 
 
 def test_cli_refuses_a_missing_feed(capsys, tmp_path):
