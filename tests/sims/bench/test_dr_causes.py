@@ -27,7 +27,19 @@ def test_breakdown_agrees_with_the_benchmark_and_classifies_every_bad_sample(hel
         assert where in {"expired", "front", "aft", "mid", "body"} and model in {"standing model", "moving model"}
 
 
-def test_a_fixed_look_ahead_is_taken_and_reported(helsinki):
+def test_a_fixed_look_ahead_is_taken_and_reported(helsinki, monkeypatch):
+    given = []
+
+    class Recording(dr_causes.Player):
+        def __init__(self, *args, **kw):
+            given.append(kw.get("lookahead", "default"))
+            super().__init__(*args, **kw)
+
+    monkeypatch.setattr(dr_causes, "Player", Recording)
     rep = dr_causes.causes(helsinki, "pedestrians", lookahead=0.0, progress=lambda _m: None, walkers=2)
     assert rep["params"]["lookahead_m"] == 0.0
+    assert given and set(given) == {0.0}  # every replayed client got the fixed look-ahead
     assert 0.0 <= rep["occupation_error"] <= 1.0
+    given.clear()
+    dr_causes.causes(helsinki, "pedestrians", progress=lambda _m: None, walkers=2)
+    assert given and set(given) == {"default"}  # and without one, the client's own rule
