@@ -45,11 +45,10 @@ def register(sub) -> None:
     p.add_argument("--server", type=host_port, metavar="HOST:PORT",
                    help="an existing shard server (default: start one in this process)")
     p.add_argument("--token", default="", help="auth token for --server")
-    p.add_argument("--server-process", choices=("auto", "yes", "no"), default="no",
+    p.add_argument("--server-process", choices=("auto", "yes", "no"), default="auto",
                    help="run the shard server in a child process (`entitynet serve`, the second core) instead of "
-                        "this one; auto: from 1000 entities or 100 viewers at --speed 1 or more. Default no: on 2 "
-                        "cores a child kept no more in real time, and the truth measure samples before its "
-                        "deliveries arrive (docs/simulation.md)")
+                        "this one; auto (the default): from 1000 entities or 100 viewers at --speed 1 or more "
+                        "(docs/simulation.md)")
     p.add_argument("--shards", type=bounded_int(1, 64),
                    metavar="K", help="start a local cluster of K switchboard processes "
                    "joined by nats-server and run against it (entities and viewers by where they are)")

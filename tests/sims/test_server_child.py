@@ -52,6 +52,22 @@ def test_cli_refuses_a_child_server_beside_an_external_one(capsys):
     assert exc.value.code == 2 and "invalid choice" in capsys.readouterr().err
 
 
+def test_the_default_is_auto_a_child_for_large_runs(grid_path, tmp_path, capsys):
+    from sims.sim_cmd import sim_args
+
+    assert sim_args().server_process == "auto"
+    out = tmp_path / "rep.json"  # no --server-process: PROCESS_MIN_VIEWERS viewers make it a large run
+    assert main(["sim", "--topology", str(grid_path), "--gtfs", "none", "--entities", "5", "--viewers",
+                 str(PROCESS_MIN_VIEWERS), "--start", "00:00", "--duration", "1", "--speed", "2",
+                 "--report", str(out)]) == 0
+    server = json.loads(out.read_text())["server"]
+    assert server["process"] is True and "large run" in server["why"] and not psutil.pid_exists(server["pid"])
+    small = tmp_path / "small.json"
+    assert main(["sim", "--topology", str(grid_path), "--gtfs", "none", "--entities", "5", "--viewers", "2",
+                 "--start", "00:00", "--duration", "1", "--speed", "2", "--report", str(small)]) == 0
+    assert json.loads(small.read_text())["server"]["in_process"] is True
+
+
 def test_sim_runs_against_a_child_server_that_it_stops(grid_path, tmp_path, capsys):
     out = tmp_path / "rep.json"
     assert main(["sim", "--topology", str(grid_path), "--gtfs", "none", "--entities", "12", "--viewers", "3",
