@@ -9,6 +9,7 @@ after a reconnect) is handed to the consumer, which must then forget the entitie
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import ssl
@@ -75,7 +76,9 @@ class Connection:
 
     `address` is (host, port) for TCP or a ws:// / wss:// URL. Incoming UPDATE/LEAVE/ERROR/REDIRECT/WELCOME
     messages go to `on_message` if given, else to the bounded `incoming` channel (a slow consumer there slows
-    only this connection's reading; the server then coalesces for us).
+    only this connection's reading; the server then coalesces for us). `decode` turns a frame's payload into its
+    messages (default: the codec's `decode_payload` under `limits`); one that returns and raises the same may be
+    shared by many connections (a simulation's viewers: `sims.engine.message_cache`).
     """
 
     def __init__(
@@ -96,6 +99,7 @@ class Connection:
         alternates: tuple[tuple[str, int] | str, ...] = (),
         failover_s: float = 3.0,
         failover_attempts: int = 2,
+        decode: Callable[[bytes], list[P.Message]] | None = None,
     ):
         # alternates: the cluster's other shards, where this client fails over when its shard keeps failing
         # (`failover_attempts` attempts in a row, or for `failover_s`: ClientSession)
@@ -109,6 +113,9 @@ class Connection:
         self.on_message = on_message
         self.clock = clock
         self.limits = limits
+        # decode: payload -> messages, the codec's decode_payload under `limits` unless given one that returns
+        # and raises the same (a simulation's viewers share one that decodes each distinct message once)
+        self.decode = decode if decode is not None else functools.partial(P.decode_payload, limits=limits)
         self._in_send, self.incoming = trio.open_memory_channel[P.Message](incoming_size)
         self.connected = trio.Event()
         self._streams: dict[int, _Stream] = {}
@@ -314,14 +321,14 @@ class Connection:
             data = await s.stream.get_message()
             if not isinstance(data, bytes):
                 raise P.ProtocolError(P.ErrorCode.MALFORMED, "text WebSocket message")
-            return P.decode_payload(data, self.limits)
+            return self.decode(data)
         dec = s.decoder
         if dec is None:
             dec = s.decoder = P.FrameDecoder(self.limits)
         while True:
-            msgs = dec.next_messages()
-            if msgs is not None:
-                return msgs
+            payload = dec.next_payload()
+            if payload is not None:
+                return self.decode(payload)
             data = await s.stream.receive_some(65536)
             if not data:
                 raise trio.BrokenResourceError("server closed the connection")

@@ -30,6 +30,7 @@ import trio
 
 from entitynet import protocol as P
 from entitynet.connection import Connection
+from sims.engine.message_cache import MessageCache
 from sims.engine.payload_ids import PayloadIds
 from sims.engine.sim import Sim
 
@@ -84,6 +85,8 @@ class Shell:
         self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
         self._cameras: dict[int, tuple[float, float]] = {}  # viewer -> where its camera was last sent
         self._sizes: dict[P.Update | P.Leave, int] = {}  # this tick's arrivals -> encoded size (`_size`)
+        #: the viewer connections' one frame decoder: a message fanned out to many viewers is decoded once
+        self.messages = MessageCache()
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
         self.published = 0
         self.publishers: list[Connection] = []
@@ -134,7 +137,8 @@ class Shell:
                 else:
                     pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
                             for _ in range(self.sim.config.connections)]
-                    views = [Connection(address, digest, cfg.token, on_message=self._on_view(i))
+                    views = [Connection(address, digest, cfg.token, on_message=self._on_view(i),
+                                        decode=self.messages.decode)
                              for i in range(len(self.sim.viewers))]
                 self.publishers = pubs
                 for c in pubs + views:
@@ -161,7 +165,7 @@ class Shell:
         pubs = [Connection(cl.addresses[j // fleet.per_shard], digest, cfg.token, on_message=lambda m: None,
                            alternates=alts) for j in range(fleet.connections)]
         views = [Connection(cl.address_at(*v.traj.position()), digest, cfg.token, on_message=self._on_view(i),
-                            alternates=alts) for i, v in enumerate(self.sim.viewers)]
+                            alternates=alts, decode=self.messages.decode) for i, v in enumerate(self.sim.viewers)]
         return pubs, views
 
     def _on_view(self, i: int):
@@ -182,9 +186,11 @@ class Shell:
         fans one UPDATE out to every viewer of its cells, and re-encoding each copy cost more than the viewer's
         own handling of it; equal messages (frozen dataclasses, every field in the key) encode alike. Cleared
         every tick, so it holds one tick's distinct messages."""
-        size = self._sizes.get(m)
+        size = self.messages.size(m)  # decoded from the frame by the shared decoder: its bytes' length
         if size is None:
-            size = self._sizes[m] = len(P.encode_message(m))
+            size = self._sizes.get(m)
+            if size is None:
+                size = self._sizes[m] = len(P.encode_message(m))
         return size
 
     async def _loop(self, pubs: list[Connection], views: list[Connection], stop: trio.Event) -> None:
@@ -225,6 +231,7 @@ class Shell:
                              "stepping on and reconnecting")
             self._was_down = bool(down)
             self._sizes.clear()
+            self.messages.clear()
             # the truth measure samples here, before the world steps: the truth is still the last tick's and the
             # deliveries of that tick's messages have had the tick's wait to arrive (`sample_before_step`)
             self.sample_before_step(pubs)

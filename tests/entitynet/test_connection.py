@@ -139,3 +139,29 @@ async def test_redirect_moves_viewer_and_entities_to_the_named_shard():
         await _wait(lambda: any(isinstance(m, P.Update) and m.payload == b"at-b" for m in seen))
         n.cancel_scope.cancel()
     await listeners[0].aclose()
+
+
+async def test_a_decoder_shared_by_two_viewers_gets_every_frame():
+    decoded: list[int] = []
+
+    def decode(payload: bytes) -> list[P.Message]:  # any callable that returns what the codec returns
+        msgs = P.decode_payload(payload)
+        decoded.append(len(msgs))
+        return msgs
+
+    async with running() as server, trio.open_nursery() as n:
+        seen: list[dict[int, P.Update]] = [{}, {}]
+        views = []
+        for i in range(2):
+            v = Connection(("127.0.0.1", server.port), DIGEST, decode=decode,
+                           on_message=lambda m, s=seen[i]: s.__setitem__(m.entity, m) if isinstance(m, P.Update)
+                           else None)
+            await v.subscribe((3,))
+            await n.start(v.run)
+            views.append(v)
+        proxy = Connection(("127.0.0.1", server.port), DIGEST)
+        await n.start(proxy.run)
+        await proxy.publish(*[P.Publish(i, 1, (3,), 30_000, b"%d" % i) for i in range(5)])
+        await _wait(lambda: all(len(s) == 5 for s in seen))
+        assert sum(decoded) >= 10 + 2  # both viewers' UPDATEs and WELCOMEs went through it
+        n.cancel_scope.cancel()

@@ -39,3 +39,27 @@ def test_cli_refuses_a_bad_measure_share(capsys):
     with pytest.raises(SystemExit) as info:  # a usage error: refused while parsing (entitynet/commands/options.py)
         main(["sim", "--measure-share", "0", "--duration", "1"])
     assert info.value.code == 2 and "argument --measure-share" in capsys.readouterr().err
+
+
+async def test_viewers_share_one_decoder_and_count_each_arrival_at_its_encoded_size(helsinki, helsinki_path):
+    import trio
+
+    sim = Sim(helsinki, SimConfig(entities=30, viewers=4, connections=2, tick_hz=4.0, transit=False, seed=4,
+                                  subscribe="radius"))
+    shell = Shell(sim, ShellConfig(duration=2.0, speed=2.0, summary_every=1e9, artifact=helsinki_path, keys=False),
+                  lambda m: None)
+    got: list[tuple[P.Message, int]] = []
+    deliver = sim.deliver
+
+    def recording(i, m, size=0):
+        got.append((m, size))
+        deliver(i, m, size)
+
+    sim.deliver = recording
+    with trio.fail_after(60):
+        rep = await shell.run()
+    arrivals = [(m, size) for m, size in got if isinstance(m, P.Update | P.Leave)]
+    assert len(arrivals) > 50 and rep["viewers"]["bytes"] == sum(size for _, size in arrivals)
+    assert all(size == len(P.encode_message(m)) for m, size in arrivals)
+    # the viewers' frames carried the same messages: decoded once, the same object handed to each viewer
+    assert shell.messages.hits > shell.messages.misses > 0

@@ -1,0 +1,93 @@
+"""One frame decoder shared by all the simulation's viewer connections: each distinct message decoded once.
+
+Why: the server encodes an UPDATE once and writes the same bytes into the frame of every viewer subscribed to
+the entity's cells, so with V viewers one message arrives up to V times (about 26 times at 1,600 entities and
+160 viewers), and the codec's per-message checks and dataclass (`entitynet.protocol.codec._decode_one`) were
+the largest single part of the viewers' side of a real-time tick. Here msgpack's C unpacker only finds where
+each message of a frame starts and ends (`Unpacker.skip` and `tell`, no Python objects built), and the message's
+bytes are looked up in a table of the messages already decoded; a new one is decoded by the codec itself (the
+one reader of the wire format), alone in a one-message payload, so the same checks apply to it. Messages are
+frozen dataclasses: one object serves every viewer, and its payload bytes are then one object too, so the
+ghost stores' payload cache (`decode_cache.DecodeCache`) hashes it once.
+
+Equivalence: `decode(payload)` returns what `protocol.decode_payload(payload, limits)` returns (equal messages,
+in order) and raises what it raises: a frame the fast walk does not accept whole (over `max_frame`, not one
+array, more than `max_messages`, trailing bytes, anything msgpack refuses) is handed to the codec, which gives
+the answer or the error (tests/sims/engine/test_message_cache.py). Bounded: cleared when it holds
+`max_entries` messages, and by its owner each tick (`clear`).
+"""
+
+from __future__ import annotations
+
+import msgpack
+
+from entitynet import protocol as P
+
+
+class MessageCache:
+    """Frame payload -> messages, each distinct message's bytes decoded once (see the module docstring);
+    `size(msg)` is the encoded size of a message it returned (the viewers' byte counts without re-encoding)."""
+
+    def __init__(self, limits: P.CodecLimits = P.DEFAULT_LIMITS, max_entries: int = 100_000) -> None:
+        if max_entries < 1:
+            raise ValueError(f"max_entries must be >= 1, got {max_entries}")
+        self.limits = limits
+        self.max_entries = max_entries
+        self._messages: dict[bytes, P.Message] = {}
+        self._sizes: dict[int, tuple[P.Message, int]] = {}  # id(message) -> (the message, its encoded size)
+        self.hits = 0
+        self.misses = 0
+        self._one = P.array_header(1)
+
+    def __len__(self) -> int:
+        return len(self._messages)
+
+    def clear(self) -> None:
+        """Forget every message (the shell calls it each tick: a message is shared within a tick's fan-out)."""
+        self._messages.clear()
+        self._sizes.clear()
+
+    def size(self, msg: P.Message) -> int | None:
+        """The encoded size of `msg` if this cache returned that very object since the last clear, else None."""
+        got = self._sizes.get(id(msg))
+        return got[1] if got is not None and got[0] is msg else None
+
+    def decode(self, payload: bytes) -> list[P.Message]:
+        """The messages of one frame payload, as `protocol.decode_payload(payload, limits)` gives them (and
+        its ProtocolError for a bad frame)."""
+        lim = self.limits
+        if len(payload) > lim.max_frame:
+            return P.decode_payload(payload, lim)  # raises FRAME_TOO_LARGE
+        try:
+            up = msgpack.Unpacker(max_buffer_size=max(len(payload), 1))
+            up.feed(payload)
+            n = up.read_array_header()
+            if n > lim.max_messages:
+                return P.decode_payload(payload, lim)  # raises
+            spans = []
+            at = up.tell()
+            for _ in range(n):
+                up.skip()
+                end = up.tell()
+                spans.append((at, end))
+                at = end
+        except Exception:  # not one array of whole msgpack objects: the codec says what is wrong
+            return P.decode_payload(payload, lim)
+        if at != len(payload):
+            return P.decode_payload(payload, lim)  # trailing bytes
+        table = self._messages
+        out = []
+        for a, b in spans:
+            piece = payload[a:b]
+            m = table.get(piece)
+            if m is None:
+                self.misses += 1
+                (m,) = P.decode_payload(self._one + piece, lim)  # raises the codec's error for a bad message
+                if len(table) >= self.max_entries:
+                    self.clear()
+                table[piece] = m
+                self._sizes[id(m)] = (m, b - a)
+            else:
+                self.hits += 1
+            out.append(m)
+        return out
