@@ -22,7 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from entitynet.client.network import NetView
 from sims.engine.source import Truth
+from sims.engine.truth_arrays import EdgeArrays, truth_arrays
 from sims.engine.viewers import SimViewer
 
 
@@ -59,26 +61,30 @@ class Measure:
 
     def __init__(self) -> None:
         self.tallies: dict[str, Tally] = defaultdict(Tally)
+        self._edges: EdgeArrays | None = None
+        self._edges_net: NetView | None = None
 
     def sample(self, now: float, world: Truth, viewers: list[SimViewer], eid_to_agent: dict[int, int]) -> None:
         """One sample of every viewer against the truth at `now`: errors of shown entities in subscribed cells,
-        misses, and stale ghosts (see the module docstring for the rules)."""
-        where: dict[int, list[int]] = defaultdict(list)
-        truth: dict[int, tuple[float, float]] = {}
-        cells_of: dict[int, tuple[int, ...]] = {}
-        for a in world.agents.values():
-            truth[a.id] = a.xy()
-            cells_of[a.id] = cs = a.cells()
-            for c in cs:
-                where[c].append(a.id)
+        misses, and stale ghosts (see the module docstring for the rules). Over arrays: the truth once
+        (`truth_arrays`), then per viewer its subscribed cells as a mask over every (entity, cell) the truth
+        occupies; only the viewer's ghosts are walked one by one (`_drawn`)."""
+        truth = truth_arrays(world.agents, self._edge_arrays(world))
+        n = len(truth.ids)
+        pair_row = np.repeat(np.arange(n), np.diff(truth.cell_off))
+        pair_cell = truth.cells
+        n_cells = int(getattr(world.topo, "n_cells", 0) or 0)
+        n_cells = max(n_cells, int(pair_cell.max()) + 1 if len(pair_cell) else 0)
         memo: dict[tuple[int, float], tuple[float, float]] = {}  # (model, t) -> xy: viewers share models
         for v in viewers:
             t = self.tallies["roof" if v.high else "street"]
             t.viewer_samples += 1
-            inside: set[int] = set()
-            for c in v.subs.cells:
-                inside.update(where.get(c, ()))
-            shown = {}
+            mask = np.zeros(n_cells + 1, dtype=bool)
+            sub = np.fromiter(v.subs.cells, dtype=np.int64, count=len(v.subs.cells))
+            mask[np.clip(sub, 0, n_cells)] = True
+            mask[n_cells] = False  # a subscribed cell beyond the map holds no entity
+            inside_rows = np.unique(pair_row[mask[pair_cell]])
+            shown: dict[int, tuple[float, float]] = {}
             claimed: dict[int, tuple[int, ...]] = {}
             for eid, (xy, cells) in _drawn(v, now, memo).items():
                 aid = eid_to_agent.get(eid, -1)
@@ -86,19 +92,38 @@ class Measure:
                     continue
                 shown[aid] = xy
                 claimed[aid] = cells
-            t.visible += len(inside)
+            t.visible += len(inside_rows)
             t.shown += len(shown)
-            for aid in inside:
-                g = shown.get(aid)
-                if g is None:
-                    t.missed += 1
-                else:
-                    tx, ty = truth[aid]
-                    d = math.hypot(g[0] - tx, g[1] - ty)
-                    t.errors.append(d)
-            for aid in shown:
-                if aid not in inside and not set(cells_of.get(aid, ())) & set(claimed[aid]):
+            aids = np.fromiter(shown, dtype=np.int64, count=len(shown))
+            rows = truth.rows(aids)
+            ghost_at = np.full(n, -1, dtype=np.int64)  # row -> index into `aids` of its ghost
+            live = rows >= 0
+            ghost_at[rows[live]] = np.flatnonzero(live)
+            g = ghost_at[inside_rows]
+            hit = g >= 0
+            t.missed += int(len(g) - hit.sum())
+            if hit.any():
+                xy = np.array(list(shown.values()), dtype=np.float64).reshape(-1, 2)
+                dx = (xy[g[hit], 0] - truth.x[inside_rows[hit]]).tolist()
+                dy = (xy[g[hit], 1] - truth.y[inside_rows[hit]]).tolist()
+                t.errors.extend(map(math.hypot, dx, dy))
+            inside = np.zeros(n, dtype=bool)
+            inside[inside_rows] = True
+            for aid, row in zip(aids.tolist(), rows.tolist(), strict=True):
+                if row >= 0 and inside[row]:
+                    continue
+                own = truth.cells_of(row) if row >= 0 else ()
+                if set(own).isdisjoint(claimed[aid]):
                     t.stale += 1
+
+    def _edge_arrays(self, world: Truth) -> EdgeArrays | None:
+        """The map's `EdgeArrays` for the truth's positions (built once per map)."""
+        net = getattr(world, "net", None)
+        if not isinstance(net, NetView):
+            return None
+        if self._edges is None or self._edges_net is not net:
+            self._edges, self._edges_net = EdgeArrays(net), net
+        return self._edges
 
     def summary(self) -> dict:
         """The figures per group ("roof", "street") and "all", the latter from the groups' summed raw counts."""

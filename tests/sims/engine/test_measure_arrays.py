@@ -1,0 +1,92 @@
+"""The truth measure over arrays (issue 23) counts what the per-entity measure counted: the same visible,
+missed, shown and stale counts and the same errors (as a multiset: the order of the list may differ)."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import pytest
+
+from sims.engine.local import LocalSwitch
+from sims.engine.measure import Measure, Tally, _drawn
+from sims.engine.sim import Sim, SimConfig
+
+
+def reference_sample(tallies, now, world, viewers, eid_to_agent) -> None:
+    """The measure as it was written per entity (sets and dicts), the reference the arrays are held to."""
+    where: dict[int, list[int]] = defaultdict(list)
+    truth, cells_of = {}, {}
+    for a in world.agents.values():
+        truth[a.id] = a.xy()
+        cells_of[a.id] = cs = a.cells()
+        for c in cs:
+            where[c].append(a.id)
+    memo: dict = {}
+    for v in viewers:
+        t = tallies["roof" if v.high else "street"]
+        t.viewer_samples += 1
+        inside: set[int] = set()
+        for c in v.subs.cells:
+            inside.update(where.get(c, ()))
+        shown, claimed = {}, {}
+        for eid, (xy, cells) in _drawn(v, now, memo).items():
+            aid = eid_to_agent.get(eid, -1)
+            if aid < 0:
+                continue
+            shown[aid] = xy
+            claimed[aid] = cells
+        t.visible += len(inside)
+        t.shown += len(shown)
+        for aid in inside:
+            g = shown.get(aid)
+            if g is None:
+                t.missed += 1
+            else:
+                t.errors.append(math.hypot(g[0] - truth[aid][0], g[1] - truth[aid][1]))
+        for aid in shown:
+            if aid not in inside and not set(cells_of.get(aid, ())) & set(claimed[aid]):
+                t.stale += 1
+
+
+def _compare(ours: Measure, ref: dict[str, Tally]) -> None:
+    assert set(ours.tallies) == set(ref)
+    for k, t in ours.tallies.items():
+        r = ref[k]
+        assert (t.visible, t.missed, t.shown, t.stale, t.viewer_samples) == \
+               (r.visible, r.missed, r.shown, r.stale, r.viewer_samples), k
+        assert sorted(t.errors) == sorted(r.errors), k
+
+
+@pytest.mark.parametrize("subscribe", ["radius", "pvs"])
+def test_the_array_measure_counts_what_the_per_entity_measure_counted(helsinki, subscribe):
+    sim = Sim(helsinki, SimConfig(entities=120, viewers=8, connections=2, tick_hz=2.0, transit=False, seed=6,
+                                  subscribe=subscribe, radius=300.0, measure_after=1.0))
+    ref: dict[str, Tally] = defaultdict(Tally)
+    sample = sim.measure.sample
+
+    def both(now, world, viewers, eid_to_agent):
+        reference_sample(ref, now, world, viewers, eid_to_agent)
+        sample(now, world, viewers, eid_to_agent)
+
+    sim.measure.sample = both
+    sw = LocalSwitch(sim)
+    sw.exchange(*sim.start())
+    ids = sw.eid_to_agent()
+    for k in range(60):
+        sw.exchange(*sim.step())
+        ids = sw.eid_to_agent()
+        if k == 40:  # an entity the switchboard still has but the world has removed, and an unknown id
+            gone = max(ids.values()) + 10_000
+            ids = {**ids, next(iter(ids)): gone}
+        sim.maybe_sample(ids)
+    m = sim.measure
+    assert m.tallies["street"].visible > 200 and m.tallies["street"].missed > 0
+    assert sum(t.stale for t in ref.values()) > 0 or subscribe == "pvs"
+    _compare(m, ref)
+
+
+def test_a_sample_at_a_time_that_is_not_finite_is_refused(helsinki):
+    sim = Sim(helsinki, SimConfig(entities=5, viewers=2, transit=False, subscribe="radius"))
+    with pytest.raises(ValueError):
+        sim.measure.sample(float("nan"), sim.world, sim.viewers, {})
