@@ -10,7 +10,7 @@ engine move a tram the same way.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from sims.mobility.kinds import kind
 
@@ -42,15 +42,15 @@ class TypeParams:
     accept_for: float
     delete_after: float
 
-    @property
-    def length(self) -> float:
-        """Body length: the sum of the parts (a two-part tram is both parts end to end)."""
-        return float(sum(self.parts))
+    #: body length: the sum of the parts (a two-part tram is both parts end to end); computed once (the world's
+    #: step reads it several times per entity and tick)
+    length: float = field(init=False, repr=False, compare=False)
+    #: whether this type takes part in collision avoidance (bodies with a length do)
+    avoids: bool = field(init=False, repr=False, compare=False)
 
-    @property
-    def avoids(self) -> bool:
-        """Whether this type takes part in collision avoidance (bodies with a length do)."""
-        return self.length > 0.0
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "length", float(sum(self.parts)))
+        object.__setattr__(self, "avoids", self.length > 0.0)
 
 
 def _from_kind(name: str, *, lateral: float, lateral_spread: float = 0.0, gap: float = 2.0, headway: float = 1.5,
