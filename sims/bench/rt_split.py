@@ -1,4 +1,5 @@
-"""Where a real-time tick's time goes: `python -m sims.bench.rt_split ENTITIES VIEWERS [SECONDS] [SHARE]`.
+"""Where a real-time tick's time goes: `python -m sims.bench.rt_split ENTITIES VIEWERS [SECONDS] [SHARE]
+[--server-process]`.
 
 Why: `entities_realtime_max` says only pass or fail; to cut a tick one needs its parts. This builds the sim and
 shell as the bench's real-time trial does (server in this process, loopback), runs the shell as fast as it can
@@ -21,9 +22,12 @@ from collections import defaultdict
 WARM = 6
 
 
-def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topology=None) -> dict:
+def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topology=None,
+          server_process: bool = False) -> dict:
     """The per-tick split (ms) of a real-time run of `n` entities and `viewers` viewers (see the docstring).
-    `topology`: (topo, artifact path) to run on instead of the bundled map and schedule (no transit then)."""
+    `topology`: (topo, artifact path) to run on instead of the bundled map and schedule (no transit then).
+    `server_process`: the server in a child `entitynet serve` (as `entitynet sim` runs large runs): its CPU time
+    per tick is `server_process_cpu`, and `rest` is then the sends and the viewer connections only."""
     import trio
 
     from entitynet.topology_cache import bundled_topology, cache_dir
@@ -89,19 +93,43 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
             server = await nursery.start(shell.run)
             timed(server.sb, "receive", "server_core")
 
-    trio.run(main)
+    server_cpu = None
+    if server_process:
+        from sims.server_child import ServerChild
+
+        with ServerChild(artifact) as child:
+            shell.config.server = child.address
+            cpu: list[float | None] = []
+
+            def mark_child_cpu():
+                if sim.ticks == WARM:
+                    cpu.append(child.cpu_seconds())
+                return first_timed_step()
+            sim.step = mark_child_cpu
+            trio.run(child.run_shell, shell)
+            end = child.cpu_seconds()
+            if cpu and cpu[0] is not None and end is not None:
+                server_cpu = end - cpu[0]
+    else:
+        trio.run(main)
     ticks = sim.ticks - WARM
     out = {k: round(1000 * x / ticks, 1) for k, x in sorted(acc.items())}
+    if server_cpu is not None:
+        out["server_process_cpu"] = round(1000 * server_cpu / ticks, 1)
     out["tick"] = round(1000 * (time.perf_counter() - t0[0]) / ticks, 1)
     outside = ("world", "fleet", "population", "viewer_move", "measure")
-    out["rest (sends, server, viewer connections)"] = round(out["tick"] - sum(out.get(k, 0.0) for k in outside), 1)
+    rest = "rest (sends, viewer connections)" if server_process else "rest (sends, server, viewer connections)"
+    out[rest] = round(out["tick"] - sum(out.get(k, 0.0) for k in outside), 1)
     return {"entities": n, "viewers": viewers, "on_map": len(sim.world.agents), "ticks": ticks,
-            "measure_share": share, "load": os.getloadavg()[0], "ms_per_tick": out}
+            "measure_share": share, "server": "a child process" if server_process else "in this process",
+            "load": os.getloadavg()[0], "ms_per_tick": out}
 
 
 if __name__ == "__main__":
     a = sys.argv[1:]
     if len(a) < 2:
         sys.exit(__doc__.splitlines()[0])
+    child = "--server-process" in a
+    a = [x for x in a if x != "--server-process"]
     print(json.dumps(split(int(a[0]), int(a[1]), float(a[2]) if len(a) > 2 else 10.0,
-                           float(a[3]) if len(a) > 3 else 0.25), indent=1))
+                           float(a[3]) if len(a) > 3 else 0.25, server_process=child), indent=1))
