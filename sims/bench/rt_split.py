@@ -7,7 +7,9 @@ shell as the bench's real-time trial does (server in this process, loopback), ru
 the fleet, the viewers' camera moves and arrivals, the measure, the shell's sends and the server's
 switchboard core. The sends await the sockets, so the server shell and the viewer connections run inside
 them: `rest` = the tick less the parts outside the sends. Figures are ms per tick after `WARM` ticks (the
-start's burst). Timings move with the machine's load: say the load average with them.
+start's burst), in wall time (`ms_per_tick`) and in this process's CPU time (`cpu_ms_per_tick`, steadier when
+other processes load the machine; the tick's CPU less the parts is then the sends and the connections' CPU).
+Timings move with the machine's load: say the load average with them.
 """
 
 from __future__ import annotations
@@ -43,18 +45,20 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
     sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=share,
                               transit=schedule is not None), schedule)
     acc: dict[str, float] = defaultdict(float)
+    cpu: dict[str, float] = defaultdict(float)  # the same parts in this process's CPU time (steadier under load)
 
     def timed(obj, name: str, key: str) -> None:
         f = getattr(obj, name)
 
         @functools.wraps(f)
         def wrapper(*a, **k):
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             try:
                 return f(*a, **k)
             finally:
                 if sim.ticks >= WARM:
                     acc[key] += time.perf_counter() - t
+                    cpu[key] += time.process_time() - c
         setattr(obj, name, wrapper)
 
     def atimed(obj, name: str, key: str) -> None:
@@ -82,9 +86,14 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
     t0: list[float] = []
     step = sim.step
 
+    delivered: list[int] = []
+    c0: list[float] = []
+
     def first_timed_step():
         if sim.ticks == WARM:
             t0.append(time.perf_counter())
+            c0.append(time.process_time())
+            delivered.append(sum(v.deliveries for v in sim.viewers))
         return step()
     sim.step = first_timed_step
 
@@ -99,30 +108,35 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
 
         with ServerChild(artifact) as child:
             shell.config.server = child.address
-            cpu: list[float | None] = []
+            child_cpu0: list[float | None] = []
 
             def mark_child_cpu():
                 if sim.ticks == WARM:
-                    cpu.append(child.cpu_seconds())
+                    child_cpu0.append(child.cpu_seconds())
                 return first_timed_step()
             sim.step = mark_child_cpu
             trio.run(child.run_shell, shell)
             end = child.cpu_seconds()
-            if cpu and cpu[0] is not None and end is not None:
-                server_cpu = end - cpu[0]
+            if child_cpu0 and child_cpu0[0] is not None and end is not None:
+                server_cpu = end - child_cpu0[0]
     else:
         trio.run(main)
     ticks = sim.ticks - WARM
     out = {k: round(1000 * x / ticks, 1) for k, x in sorted(acc.items())}
+    cpu_out = {k: round(1000 * x / ticks, 1) for k, x in sorted(cpu.items())}
+    cpu_out["tick"] = round(1000 * (time.process_time() - c0[0]) / ticks, 1)
     if server_cpu is not None:
-        out["server_process_cpu"] = round(1000 * server_cpu / ticks, 1)
+        out["server_process_cpu"] = cpu_out["server_process_cpu"] = round(1000 * server_cpu / ticks, 1)
     out["tick"] = round(1000 * (time.perf_counter() - t0[0]) / ticks, 1)
     outside = ("world", "fleet", "population", "viewer_move", "measure")
     rest = "rest (sends, viewer connections)" if server_process else "rest (sends, server, viewer connections)"
     out[rest] = round(out["tick"] - sum(out.get(k, 0.0) for k in outside), 1)
+    cpu_out[rest] = round(cpu_out["tick"] - sum(cpu_out.get(k, 0.0) for k in outside), 1)
+    deliveries = (sum(v.deliveries for v in sim.viewers) - delivered[0]) / ticks if delivered else None
     return {"entities": n, "viewers": viewers, "on_map": len(sim.world.agents), "ticks": ticks,
+            "deliveries_per_tick": deliveries,
             "measure_share": share, "server": "a child process" if server_process else "in this process",
-            "load": os.getloadavg()[0], "ms_per_tick": out}
+            "load": os.getloadavg()[0], "ms_per_tick": out, "cpu_ms_per_tick": cpu_out}
 
 
 if __name__ == "__main__":

@@ -18,4 +18,5 @@ def test_the_split_with_the_server_in_a_child_process_counts_its_cpu(helsinki, h
     ms = rep["ms_per_tick"]
     assert rep["server"] == "a child process" and "server_core" not in ms
     assert ms["server_process_cpu"] >= 0.0 and "rest (sends, viewer connections)" in ms
-    assert rep["viewers"] == 2 and ms["viewer_receive"] >= 0.0
+    assert rep["cpu_ms_per_tick"]["tick"] > 0.0 and "world" in rep["cpu_ms_per_tick"]
+    assert rep["viewers"] == 2 and ms["viewer_receive"] >= 0.0 and rep["deliveries_per_tick"] >= 0.0
