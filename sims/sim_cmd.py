@@ -21,10 +21,10 @@ def register(sub) -> None:
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
                                    "clients and PVS viewers, with a live summary and a JSON report",
                        epilog="How large a run keeps real time: on a 2-core machine about 1,600 entities with 160 "
-                              "viewers, with the server in this process or in a child process (entitynet bench "
-                              "sim, entities_realtime_max and entities_realtime_max_server_process; the server is "
-                              "about a tenth of the work, docs/simulation.md). A larger run still steps every tick, "
-                              "late: the live summary "
+                              "viewers (entitynet bench sim, entities_realtime_max; from 1,000 entities or 100 "
+                              "viewers the server runs in a child process, --server-process). At 3,000 entities "
+                              "and 300 viewers a tick costs about 1.4x real time, most of it the viewers "
+                              "(docs/simulation.md). A larger run still steps every tick, late: the live summary "
                               "shows the tick lateness, and a warning says when the run falls behind (then every "
                               "30 s while it lasts). --speed 0.5 halves the load.")
     p.add_argument("--entities", type=bounded_int(0, 1_000_000),
