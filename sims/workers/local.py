@@ -2,7 +2,8 @@
 
 Why fork: a child starts with the map and the schedule already loaded (copy-on-write), so a worker is ready in
 milliseconds instead of loading them again, and it runs the same `WorkerCore` as a worker on another machine.
-Each child dies with its parent (PR_SET_PDEATHSIG) and also ends when its pipe closes; it ignores SIGINT (a
+Each child dies with its parent (PR_SET_PDEATHSIG) and also ends when its pipe closes (so it needs no silence
+timeout: a paused coordinator is not a dead one); it ignores SIGINT (a
 terminal's Ctrl-C reaches the whole process group: the coordinator stops the run and then its workers, in
 order, with no traceback from any child). `close` joins every child, killing one that does not end in time.
 """
@@ -39,10 +40,6 @@ def _child(conn: Connection, topo, schedule: Schedule | None, index: int) -> Non
     core = WorkerCore(f"local-{index}", socket.gethostname(), os.getpid(), build)
     try:
         while True:
-            if not conn.poll(1.0):
-                if core.expire(time.monotonic()):
-                    return
-                continue
             data = conn.recv_bytes()
             for frame in core.receive(data, time.monotonic()):
                 conn.send_bytes(frame)

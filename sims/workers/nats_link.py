@@ -32,6 +32,8 @@ from sims.workers.worker import WorkerCore
 HELLO = "entitynet.sim.hello"
 #: frames waiting for the coordinator's thread, at most (a tick's output is one frame per worker, or a few parts)
 QUEUE_FRAMES = 4096
+#: how often the coordinator tells its workers it is alive (s)
+BEAT_S = 1.0
 
 
 def worker_subject(worker: str) -> str:
@@ -79,7 +81,10 @@ class NatsWorkers:
                 nc.subscribe(self.reply, self._on_up)
                 await nc.flush()
                 self._up.set()
-                await self._closing.wait()
+                async with trio.open_nursery() as beats:
+                    beats.start_soon(self._beat, nc)
+                    await self._closing.wait()
+                    beats.cancel_scope.cancel()
                 with trio.move_on_after(1.0):  # what is queued (the stop frames) reaches the server first
                     try:
                         await nc.flush(1.0)
@@ -88,6 +93,14 @@ class NatsWorkers:
         except BaseException as exc:  # noqa: BLE001 (reported to the caller's thread, which raises it)
             self._error = exc
             self._up.set()
+
+    async def _beat(self, nc: NatsClient) -> None:
+        """Tell the chosen workers every second that the coordinator is alive (see `wire`: "alive")."""
+        frame = wire.encode("alive", run=self.run)
+        while True:
+            for w in list(self.workers):
+                nc.publish(worker_subject(w), frame)
+            await trio.sleep(BEAT_S)
 
     def _on_hello(self, _subject: str, _reply: str | None, payload: bytes) -> None:
         try:

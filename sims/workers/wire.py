@@ -4,7 +4,7 @@ Why checked field by field: a worker may run on another machine, another version
 same NATS subject; a frame that does not have the fields of its kind, of their types, is a `WireError` (the
 receiver counts it and carries on), never a KeyError deep inside a tick. Frames are bounded (`MAX_FRAME`).
 
-Kinds (coordinator -> worker: assign, tick, stop; worker -> coordinator: hello, ready, refuse, out, bye):
+Kinds (coordinator -> worker: assign, tick, stop, alive; worker -> coordinator: hello, ready, refuse, out, bye):
 - hello: a NATS worker announces itself while idle (worker id, host, pid);
 - assign: join run `run` as worker `index` of `n`, with the run's `config` and the `digests` its topology and
   schedule must have; `reply`: the subject to answer on (NATS), `timeout`: how long a worker waits for a tick
@@ -14,7 +14,9 @@ Kinds (coordinator -> worker: assign, tick, stop; worker -> coordinator: hello, 
 - out: what the worker's honest clients sent in tick `k` (`frame`: a protocol payload of PUBLISH / UNPUBLISH),
   in `part`s when large (`last` marks the final one), its cumulative client counters, the seconds its step
   took and how many entities it carries;
-- bye: the worker's final counters (after stop); stop: the run ends (why).
+- bye: the worker's final counters (after stop); stop: the run ends (why);
+- alive: the coordinator is still there (sent over NATS every second, by its transport's own thread, so that
+  a pause or a long wait for another worker does not look like a dead coordinator).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ FIELDS: dict[str, dict[str, Any]] = {
             "counters": _DICT, "step_s": _FLOAT, "owned": _INT},
     "bye": {"run": _STR, "index": _INT, "counters": _DICT},
     "stop": {"run": _STR, "why": _STR},
+    "alive": {"run": _STR},
 }
 
 

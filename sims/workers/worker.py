@@ -20,6 +20,10 @@ from sims.workers.run import RefusedRun, WorkerShare
 #: an out frame's protocol frame is cut into parts of at most this many bytes (NATS' default max_payload is 1 MiB)
 PART_BYTES = 512 << 10
 
+#: a worker gives a run up after the coordinator's timeout of silence, but never sooner than this (s): its
+#: transport says "alive" every second (`sims.workers.nats_link`)
+SILENCE_MIN_S = 5.0
+
 Build = Callable[[dict, dict, int, int], WorkerShare]
 
 
@@ -67,13 +71,16 @@ class WorkerCore:
             return self._tick(f)
         if kind == "stop":
             return self._end(f["why"])
+        if kind == "alive":
+            return []
         self.ignored += 1
         return []
 
     def expire(self, now: float) -> bool:
         """Give the run up when the coordinator has been silent for longer than its timeout (True then)."""
-        if self.run is not None and now - self.heard > self.timeout:
-            self._end(f"the coordinator was silent for over {self.timeout:g} s")
+        limit = max(self.timeout, SILENCE_MIN_S)
+        if self.run is not None and now - self.heard > limit:
+            self._end(f"the coordinator was silent for over {limit:g} s")
             return True
         return False
 
