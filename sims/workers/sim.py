@@ -160,7 +160,15 @@ class WorkerSim(Sim):
         self.wait_s.append(self.clock() - t0)
         out: list[list[P.Message]] = [[] for _ in range(self.fleet.connections)]
         for i in sorted(core.outs):
-            for m in P.decode_payload(core.outs[i], _LIMITS) if core.outs[i] else ():
+            try:
+                msgs = P.decode_payload(core.outs[i], _LIMITS) if core.outs[i] else []
+            except P.ProtocolError:
+                core.bad_frames += 1  # a worker's garbled output: its tick is lost, counted, the run goes on
+                continue
+            for m in msgs:
+                if type(m) is not P.Publish and type(m) is not P.Unpublish:
+                    core.bad_frames += 1  # a worker's clients only publish and unpublish
+                    continue
                 entity = m.entity
                 out[self.fleet.conn_of(entity)].append(m)
                 if type(m) is P.Publish:

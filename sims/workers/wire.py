@@ -21,6 +21,7 @@ Kinds (coordinator -> worker: assign, tick, stop, alive; worker -> coordinator: 
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import msgpack
@@ -83,6 +84,10 @@ def _check(frame: Any) -> None:
         raise WireError("tick frame: negative tick or bad dead worker list")
     if kind in ("assign", "ready", "refuse", "out", "bye") and frame["index"] < 0:
         raise WireError(f"{kind} frame: negative worker index")
+    if kind == "out" and not (math.isfinite(frame["step_s"]) and frame["step_s"] >= 0 and frame["owned"] >= 0):
+        raise WireError("out frame: step time not a finite number of seconds, or a negative entity count")
+    if kind == "assign" and not math.isfinite(frame["timeout"]) or kind == "assign" and frame["timeout"] <= 0:
+        raise WireError("assign frame: the timeout must be a positive number of seconds")
     if kind == "assign" and not 0 <= frame["index"] < frame["n"]:
         raise WireError(f"assign frame: worker {frame['index']} of {frame['n']}")
 
