@@ -158,12 +158,14 @@ def run_worker(args: argparse.Namespace) -> int:
                                  "give this worker the same --topology / --gtfs")
         return WorkerShare(topo, schedule, cfg, index, n)
 
-    from sims.workers.nats_link import serve_worker
+    from sims.workers.nats_link import leaf_text, only, serve_worker
 
     t0 = time.monotonic()
     try:
         runs = trio.run(lambda: serve_worker(args.nats, build, say, once=args.once, token=args.token))
-    except (OSError, trio.TooSlowError) as exc:
-        raise CommandError(f"cannot reach NATS at {args.nats}: {exc or type(exc).__name__}") from None
+    except BaseException as exc:  # noqa: BLE001 (one line for a NATS that cannot be reached, else re-raised)
+        if only(exc, (OSError, trio.TooSlowError)) is None:
+            raise
+        raise CommandError(f"cannot reach NATS at {args.nats}: {leaf_text(exc)}") from None
     say(f"worker served {runs} run(s) in {time.monotonic() - t0:.0f} s")
     return 0

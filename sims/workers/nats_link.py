@@ -46,6 +46,27 @@ def up_subject(run: str) -> str:
     return f"entitynet.sim.run.{run}.up"
 
 
+def leaf_text(exc: BaseException) -> str:
+    """What went wrong, in words: the first leaf of an exception group (trio's nurseries wrap errors), by its
+    text or else its type's name ("TooSlowError" for a connect that timed out)."""
+    while isinstance(exc, BaseExceptionGroup) and exc.exceptions:
+        exc = exc.exceptions[0]
+    text = str(exc)
+    return text if text else {"TooSlowError": "no answer within the connect timeout"}.get(type(exc).__name__,
+                                                                                          type(exc).__name__)
+
+
+def only(group: BaseException, types: tuple[type[BaseException], ...]) -> BaseException | None:
+    """The first leaf of `group` when every leaf is one of `types` (else None): an error to report in one line."""
+    if isinstance(group, types):
+        return group
+    if isinstance(group, BaseExceptionGroup):
+        match, rest = group.split(types)
+        if match is not None and rest is None:
+            return match
+    return None
+
+
 class NatsWorkers:
     """The coordinator's NATS transport: connect (a clear error naming the URL when it cannot), `choose` the
     workers that announced themselves, then the `Link` calls for `WorkerSim`."""
@@ -68,9 +89,9 @@ class NatsWorkers:
                                         name="entitynet-sim-nats", daemon=True)
         self._thread.start()
         if not self._up.wait(connect_timeout * max(2, len(self.servers)) + 5.0) or self._error is not None:
-            why = self._error or "no answer"
+            why = leaf_text(self._error) if self._error is not None else "no answer"
             self.close()
-            raise RuntimeError(f"cannot reach NATS at {url}: {str(why) or type(why).__name__}")
+            raise RuntimeError(f"cannot reach NATS at {url}: {why}")
 
     async def _main(self, token: str | None, connect_timeout: float) -> None:
         try:
@@ -176,7 +197,7 @@ class NatsWorkers:
 
 
 async def serve_worker(url: str, build, say: Callable[[str], None], *, once: bool = False,
-                       token: str | None = None, connect_timeout: float = 2.0) -> int:
+                       token: str | None = None, connect_timeout: float = 1.0) -> int:
     """`entitynet sim worker`: announce this worker on NATS, take part in runs (`build` makes the share of a
     run from its assign frame), until Ctrl-C / SIGTERM, or after one run with `once`; the number of runs."""
     import signal
