@@ -99,11 +99,16 @@ def model_entities(cost: dict[str, float], machines: int, tick_s: float = 0.5) -
             "entities": min(worker, coordinator), "limited_by": "workers" if worker < coordinator else "coordinator"}
 
 
-def worker_rows(topo, schedule, quick: bool, progress) -> dict[str, Any]:
-    """The worker figures of `bench sim` (see the module docstring)."""
-    entities, viewers = (300, 20) if quick else (3000, 100)
+def worker_rows(topo, schedule, quick: bool, progress, *, entities: int | None = None,
+                viewers: int | None = None, transit: bool = True) -> dict[str, Any]:
+    """The worker figures of `bench sim` (see the module docstring); `entities` / `viewers` / `transit`
+    override the suite's sizes (tests run it on a small map)."""
+    entities = entities if entities is not None else 300 if quick else 3000
+    viewers = viewers if viewers is not None else 20 if quick else 100
     seconds, repeats, warmup = (5.0, 1, 4) if quick else (20.0, 3, 20)
-    cfg = SimConfig(entities=entities, viewers=viewers, seed=13, measure_share=0.25)
+    cfg = SimConfig(entities=entities, viewers=viewers, seed=13, measure_share=0.25, transit=transit)
+    if not transit:
+        cfg.subscribe, cfg.start = "radius", 0.0
     progress(f"workers: cost split per entity-tick ({entities} entities, {viewers} viewers)")
     cost = cost_split(topo, schedule, cfg, 10 if quick else 40, 4 if quick else 20)
     runs: list[dict] = []
