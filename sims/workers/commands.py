@@ -90,7 +90,7 @@ def make_sim(args: argparse.Namespace, topo, config, schedule, *, shards: int = 
         say(f"{len(names)} worker(s) joined over NATS ({args.nats}): {', '.join(names)}")
         sim = WorkerSim(topo, config, schedule, link, len(names), transport=f"nats {args.nats}", timeout=timeout,
                         start_timeout=max(args.join_timeout, 60.0), run_id=link.run, reply=link.reply,
-                        shards=shards, shard_at=shard_at)
+                        shards=shards, shard_at=shard_at, say=say)
         sim.core.digests.update(feed=str(args.gtfs or ""), date=str(args.date or ""))
         return sim
     from sims.workers.local import LocalWorkers
@@ -98,7 +98,7 @@ def make_sim(args: argparse.Namespace, topo, config, schedule, *, shards: int = 
     link = LocalWorkers(n, topo, schedule)
     say(f"{n} worker process(es) on this machine (pids {', '.join(map(str, link.pids))})")
     return WorkerSim(topo, config, schedule, link, n, transport="local", timeout=timeout, shards=shards,
-                     shard_at=shard_at)
+                     shard_at=shard_at, say=say)
 
 
 def close_sim(sim) -> None:

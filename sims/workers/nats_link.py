@@ -217,7 +217,6 @@ async def serve_worker(url: str, build, say: Callable[[str], None], *, once: boo
     async with NatsClient(url, name="entitynet-sim-worker", token=token, connect_timeout=connect_timeout) as nc:
         nc.subscribe(worker_subject(worker), on_frame)
         await nc.flush()
-        say(f"worker {worker} waiting for a run on {url}")
         async with trio.open_nursery() as nursery:
 
             async def announce() -> None:
@@ -226,15 +225,17 @@ async def serve_worker(url: str, build, say: Callable[[str], None], *, once: boo
                         nc.publish(HELLO, core.hello())
                     await trio.sleep(1.0)
 
-            async def on_signal() -> None:
+            async def on_signal(task_status=trio.TASK_STATUS_IGNORED) -> None:
                 with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+                    task_status.started()
                     async for _sig in signals:
                         say(f"worker {worker} stopped")
                         nursery.cancel_scope.cancel()
                         return
 
+            await nursery.start(on_signal)  # Ctrl-C from here on is a clean stop, never a KeyboardInterrupt
+            say(f"worker {worker} waiting for a run on {url}")
             nursery.start_soon(announce)
-            nursery.start_soon(on_signal)
             while True:
                 data = None
                 with trio.move_on_after(1.0):

@@ -85,10 +85,11 @@ class WorkerSim(Sim):
     def __init__(self, topo, config: SimConfig, schedule: Schedule | None, link: Link, workers: int, *,
                  transport: str, timeout: float = 10.0, start_timeout: float = 60.0, run_id: str = "run",
                  reply: str = "", shards: int = 1, shard_at: Callable[[float, float], int] | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, say: Callable[[str], None] | None = None):
         super().__init__(topo, config, schedule, shards=shards, shard_at=shard_at)
         self.fleet = Forwarder(config.connections, shards, shard_at)
         self.link, self.transport, self.clock = link, transport, clock
+        self.say = say or (lambda _m: None)
         self.core = CoordinatorCore(run_id, workers, config_to_wire(config), run_digests(topo, schedule), timeout,
                                     reply)
         self.assignment = Assignment(workers)
@@ -198,6 +199,11 @@ class WorkerSim(Sim):
                             "tick": self.core.k, "sim_time_s": self.ticks * self.dt, "entities": len(moved),
                             "restarted": restarted, "lost": len(moved) - restarted,
                             "restarted_on": sorted({w for w in moved.values() if w is not None})})
+        d_rep = self.deaths[-1]
+        where = (f"restarted on worker(s) {', '.join(map(str, d_rep['restarted_on']))}" if restarted
+                 else "lost (no worker left)" if d_rep["lost"] else "none to hand on")
+        self.say(f"[{d_rep['sim_time_s']:6.0f}s] worker {d} ({s.worker or '?'} on {s.host or '?'}, pid {s.pid}) lost "
+                 f"at tick {d_rep['tick']}: {s.dead}; its {len(moved)} entities {where}")
         if not self.core.alive:
             self.ended_early = f"every worker is gone (the last, worker {d}, at tick {self.core.k})"
 

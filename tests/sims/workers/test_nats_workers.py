@@ -91,6 +91,7 @@ def test_two_workers_over_nats_one_killed_mid_run(nats, grid_path, tmp_path):
     assert death["entities"] > 0 and death["restarted"] == death["entities"] and death["restarted_on"] == [0]
     assert w["transport"] == f"nats {nats}" and w["entities_now"][1] == 0
     assert rep["sim_time_s"] == 10.0  # the run went on to its end without the dead worker
+    assert "worker 1 (" in coord_log.read_text() and f"pid {victim.pid}) lost at tick" in coord_log.read_text()
     assert w["per_worker"][0]["alive"] and w["per_worker"][0]["pid"] == survivor.pid
     left = [p.pid for p in procs if psutil.pid_exists(p.pid) and psutil.Process(p.pid).status() != "zombie"]
     ours = [c for c in psutil.Process().children(recursive=True) if c.name() != "nats-server"]  # the fixture's
