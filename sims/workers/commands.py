@@ -92,13 +92,16 @@ def make_sim(args: argparse.Namespace, topo, config, schedule, *, shards: int = 
                         start_timeout=max(args.join_timeout, 60.0), run_id=link.run, reply=link.reply,
                         shards=shards, shard_at=shard_at, say=say)
         sim.core.digests.update(feed=str(args.gtfs or ""), date=str(args.date or ""))
+        sim.join()  # here, not in the event loop: a refusal is one clear error (the caller closes the link)
         return sim
     from sims.workers.local import LocalWorkers
 
     link = LocalWorkers(n, topo, schedule)
     say(f"{n} worker process(es) on this machine (pids {', '.join(map(str, link.pids))})")
-    return WorkerSim(topo, config, schedule, link, n, transport="local", timeout=timeout, shards=shards,
-                     shard_at=shard_at, say=say)
+    sim = WorkerSim(topo, config, schedule, link, n, transport="local", timeout=timeout, shards=shards,
+                    shard_at=shard_at, say=say)
+    sim.join()
+    return sim
 
 
 def close_sim(sim) -> None:

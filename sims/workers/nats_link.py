@@ -244,7 +244,8 @@ async def serve_worker(url: str, build, say: Callable[[str], None], *, once: boo
                 was_idle = core.idle
                 if data is not None:
                     for frame in core.receive(data, now):
-                        nc.publish(core.reply, frame)
+                        if core.answer_to:
+                            nc.publish(core.answer_to, frame)
                     if was_idle and not core.idle:
                         say(f"worker {worker} joined run {core.run} as worker {core.index}")
                 core.expire(now)

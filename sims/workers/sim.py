@@ -102,8 +102,11 @@ class WorkerSim(Sim):
     # ---- the run ------------------------------------------------------------------------------------------
     def join(self) -> None:
         """Assign every worker its share and wait (bounded) until all have built it; RuntimeError naming the
-        workers that refused or did not answer."""
+        workers that refused or did not answer. Called by `start` if not before (the CLI calls it before its
+        event loop, so that a refusal is one usage error); a second call does nothing."""
         core = self.core
+        if core.all_ready():
+            return
         for i in range(core.n):
             self.link.send(i, core.assign_frame(i))
         deadline = self.clock() + self.start_timeout

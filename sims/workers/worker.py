@@ -38,6 +38,7 @@ class WorkerCore:
         self.share: WorkerShare | None = None
         self.timeout = 10.0
         self.reply = ""  # where the coordinator listens (NATS subject; "" over a pipe)
+        self.answer_to = ""  # where the answers to the last frame received go (an assign's own `reply`)
         self.heard = 0.0
         self.runs_done = 0
         self.ended: str | None = None  # why the last run ended (stop's why, "coordinator silent ...")
@@ -61,8 +62,10 @@ class WorkerCore:
             self.bad_frames += 1
             return []
         kind = f["kind"]
-        if kind == "assign":
+        if kind == "assign":  # answered where that coordinator listens, even a refusal while busy elsewhere
+            self.answer_to = f["reply"]
             return self._assign(f, now)
+        self.answer_to = self.reply
         if f.get("run") != self.run or self.share is None:
             self.ignored += 1
             return []

@@ -99,6 +99,26 @@ def test_two_workers_over_nats_one_killed_mid_run(nats, grid_path, tmp_path):
 
 
 @needs_nats
+def test_a_worker_with_another_map_refuses_and_the_coordinator_says_why(nats, grid_path, tmp_path, capsys):
+    from tests.entitynet.client_fixtures import make_topology
+    from topology.raw import PEDESTRIAN, VEHICLE
+
+    other = tmp_path / "other.enttopo"
+    save(make_topology({"a": (0.0, 0.0), "b": (300.0, 0.0)}, [("a", "b", PEDESTRIAN | VEHICLE)]), other)
+    log = tmp_path / "worker.log"
+    w = _entitynet("sim", "worker", "--nats", nats, "--topology", str(other), "--once", log=log)
+    try:
+        _wait_for(log, "waiting for a run", w)
+        code = main(["sim", "--nats", nats, "--workers", "1", "--topology", str(grid_path), "--gtfs", "none",
+                     "--entities", "4", "--viewers", "1", "--duration", "1"])
+        err = capsys.readouterr().err
+        assert code == 2 and "worker 0 (" in err and "another topology than the coordinator's" in err
+    finally:
+        w.kill()
+        w.wait(5)
+
+
+@needs_nats
 def test_workers_that_never_join_are_a_clear_error_after_the_join_timeout(nats, grid_path, capsys):
     t0 = time.monotonic()
     code = main(["sim", "--nats", nats, "--workers", "2", "--join-timeout", "0.5", "--topology", str(grid_path),
