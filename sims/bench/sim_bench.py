@@ -208,7 +208,7 @@ def run(args, progress) -> dict[str, Any]:
 
     from sims.bench.sim_workers import worker_rows  # the same run in one process, with 1 and with 2 workers
 
-    workers = worker_rows(topo, schedule, quick, progress)
+    workers = worker_rows(topo, schedule, quick, progress, artifact=artifact)
     all_pvs = pvs["truth_vs_viewer"]["all"]
     results = {
         "entities_realtime_max": best,

@@ -10,6 +10,9 @@ Figures (under `results["workers"]`):
   alternated `repeats` times; each with its wall seconds, the workers' step p50 and the coordinator's wait for them p50;
   `wall_s_median` per mode and the ratios `two_vs_one_worker` and `two_workers_vs_one_process` (wall time, < 1:
   faster);
+- `realtime` (not with `--quick`): 1,600 entities and 160 viewers at speed 1 over loopback sockets (the CLI's
+  shell, the server in the coordinator's process) in one process, with 1 and with 2 workers: tick lateness p99
+  and ticks behind;
 - `model`: the largest population one tick period holds with N machines, from the measured costs (see
   `model_entities`), for N = 1, 2, 4, 8.
 """
@@ -99,8 +102,39 @@ def model_entities(cost: dict[str, float], machines: int, tick_s: float = 0.5) -
             "entities": min(worker, coordinator), "limited_by": "workers" if worker < coordinator else "coordinator"}
 
 
+def realtime_trial(topo, artifact, schedule, workers: int | None, entities: int, viewers: int,
+                   seconds: float, warmup_ticks: int = 6) -> dict[str, Any]:
+    """One run at speed 1 over loopback sockets (the CLI's shell, the server in this process): tick lateness
+    p99 and ticks behind after `warmup_ticks`, in one process or with `workers` forked workers."""
+    import trio
+
+    from sims.shell import Shell, ShellConfig
+
+    cfg = SimConfig(entities=entities, viewers=viewers, seed=11, measure_share=0.25)
+    if workers is None:
+        sim = Sim(topo, cfg, schedule)
+    else:
+        from sims.workers.local import LocalWorkers
+        from sims.workers.sim import WorkerSim
+
+        sim = WorkerSim(topo, cfg, schedule, LocalWorkers(workers, topo, schedule), workers, transport="local",
+                        timeout=60.0)
+    shell = Shell(sim, ShellConfig(duration=seconds + warmup_ticks * sim.dt, speed=1.0, summary_every=1e9,
+                                   artifact=artifact, keys=False, warmup_ticks=warmup_ticks), lambda m: None)
+    try:
+        rep = trio.run(shell.run)
+    finally:
+        close = getattr(sim, "close", None)
+        if close is not None:
+            close()
+    rt = rep["realtime"]
+    return {"workers": workers or 0, "entities": entities, "viewers": viewers,
+            "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"], "ticks_behind": rt["ticks_behind"],
+            "ok": rt["tick_lateness_p99_ms"] < 1000.0 * sim.dt and rt["ticks_behind"] == 0}
+
+
 def worker_rows(topo, schedule, quick: bool, progress, *, entities: int | None = None,
-                viewers: int | None = None, transit: bool = True) -> dict[str, Any]:
+                viewers: int | None = None, transit: bool = True, artifact=None) -> dict[str, Any]:
     """The worker figures of `bench sim` (see the module docstring); `entities` / `viewers` / `transit`
     override the suite's sizes (tests run it on a small map)."""
     entities = entities if entities is not None else 300 if quick else 3000
@@ -118,6 +152,14 @@ def worker_rows(topo, schedule, quick: bool, progress, *, entities: int | None =
             run = _run(topo, schedule, cfg, seconds, workers, warmup)
             runs.append(run)
             progress(f"  {workers or 'no'} worker(s): {run['wall_s']:.1f} s wall for {seconds:g} simulated s")
+    realtime: list[dict] | str = "skipped with --quick"
+    if not quick and artifact is not None:
+        realtime = []
+        for workers in (None, 1, 2):
+            trial = realtime_trial(topo, artifact, schedule, workers, 1600, 160, 20.0)
+            realtime.append(trial)
+            progress(f"  real time, {workers or 'no'} worker(s), 1600 entities: lateness p99 "
+                     f"{trial['tick_lateness_p99_ms']:.0f} ms, {trial['ticks_behind']} ticks behind")
     med = {m: statistics.median(x["wall_s"] for x in runs if x["workers"] == (m or 0)) for m in modes}
     return {
         "entities": entities, "viewers": viewers, "sim_seconds": seconds, "warmup_ticks": warmup,
@@ -126,6 +168,7 @@ def worker_rows(topo, schedule, quick: bool, progress, *, entities: int | None =
         "wall_s_median": {"one_process": med[None], "one_worker": med[1], "two_workers": med[2]},
         "two_vs_one_worker": med[2] / med[1], "two_workers_vs_one_process": med[2] / med[None],
         "model": [model_entities(cost, n) for n in (1, 2, 4, 8)],
-        "note": "run_local (no sockets): compute only; forked workers on this machine share its cores with the "
-                "coordinator",
+        "realtime": realtime,
+        "note": "runs: LocalSwitch (no sockets), compute only; realtime: over loopback sockets with the server in "
+                "the coordinator's process; forked workers on this machine share its cores with the coordinator",
     }

@@ -31,7 +31,7 @@ from sims.workers.worker import WorkerCore
 
 HELLO = "entitynet.sim.hello"
 #: frames waiting for the coordinator's thread, at most (a tick's output is one frame per worker, or a few parts)
-QUEUE_FRAMES = 4096
+QUEUE_FRAMES = 1024
 #: how often the coordinator tells its workers it is alive (s)
 BEAT_S = 1.0
 
