@@ -25,3 +25,16 @@ def test_the_model_puts_the_limit_where_the_costs_are():
     eight = model_entities(cost, 8)
     assert eight["coordinator_bound"] == pytest.approx(0.5e6 / 40.0) and eight["limited_by"] == "coordinator"
     assert eight["entities"] == eight["coordinator_bound"]
+
+
+def test_quick_skips_the_realtime_trials_and_a_trial_runs_with_workers_over_sockets(tmp_path):
+    from sims.bench.sim_workers import realtime_trial
+    from topology.artifact import save
+
+    r = worker_rows(grid(), None, True, lambda m: None, entities=6, viewers=1, transit=False)
+    assert r["realtime"] == "skipped with --quick"
+    path = tmp_path / "grid.enttopo"
+    topo = grid()
+    save(topo, path)
+    trial = realtime_trial(topo, path, None, 2, 6, 1, 1.0, warmup_ticks=2)
+    assert trial["workers"] == 2 and trial["tick_lateness_p99_ms"] >= 0 and isinstance(trial["ok"], bool)
