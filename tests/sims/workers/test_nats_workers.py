@@ -6,6 +6,7 @@ URL, no NATS there, workers that never join, --workers 0 or negative: one clear 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -41,9 +42,10 @@ def nats():
         yield cluster.urls
 
 
-def _entitynet(*args: str, log: Path) -> subprocess.Popen:
+def _entitynet(*args: str, log: Path, session: bool = False) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "entitynet", *args], stdout=subprocess.DEVNULL,
-                            stderr=open(log, "w"), stdin=subprocess.DEVNULL)  # noqa: SIM115 (the child owns it)
+                            stderr=open(log, "w"), stdin=subprocess.DEVNULL,  # noqa: SIM115 (the child owns it)
+                            start_new_session=session)
 
 
 def _wait_for(path: Path, text: str, proc: subprocess.Popen, timeout: float = 30.0) -> None:
@@ -162,3 +164,67 @@ def test_an_idle_worker_stops_on_ctrl_c_without_a_traceback(nats, grid_path, tmp
             w.wait(5)
     text = log.read_text()
     assert "stopped" in text and "Traceback" not in text
+
+
+@needs_nats
+def test_a_worker_whose_coordinator_is_killed_gives_the_run_up_and_exits(nats, grid_path, tmp_path):
+    log = tmp_path / "worker.log"
+    w = _entitynet("sim", "worker", "--nats", nats, "--topology", str(grid_path), "--once", log=log)
+    coord_log = tmp_path / "coordinator.log"
+    coord = None
+    try:
+        _wait_for(log, "waiting for a run", w)
+        coord = _entitynet("sim", "--nats", nats, "--topology", str(grid_path), "--gtfs", "none", "--entities", "8",
+                           "--viewers", "1", "--worker-timeout", "1", log=coord_log)
+        _wait_for(log, "joined run", w)
+        coord.send_signal(signal.SIGKILL)
+        coord.wait(5)
+        assert w.wait(15) == 0  # gave the run up after its silence limit, and --once ends it
+    finally:
+        for p in (w, coord):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait(5)
+    assert "run ended (the coordinator was silent for over 5 s)" in log.read_text()
+
+
+def test_local_workers_die_with_a_killed_coordinator(grid_path, tmp_path):
+    coord_log = tmp_path / "coordinator.log"
+    coord = _entitynet("sim", "--workers", "2", "--topology", str(grid_path), "--gtfs", "none", "--entities", "8",
+                       "--viewers", "1", "--summary-every", "0.5", log=coord_log)
+    try:
+        _wait_for(coord_log, "worker process(es) on this machine", coord)
+        kids = psutil.Process(coord.pid).children(recursive=True)
+        assert len(kids) == 2
+        _wait_for(coord_log, "[     ", coord)  # the run is under way
+        coord.send_signal(signal.SIGKILL)
+        coord.wait(5)
+        _gone, alive = psutil.wait_procs(kids, timeout=5)
+        assert not alive, "a worker outlived its coordinator"
+    finally:
+        if coord.poll() is None:
+            coord.kill()
+            coord.wait(5)
+
+
+def test_ctrl_c_ends_a_run_with_local_workers_cleanly(grid_path, tmp_path):
+    coord_log = tmp_path / "coordinator.log"
+    report = tmp_path / "report.json"
+    coord = _entitynet("sim", "--workers", "2", "--topology", str(grid_path), "--gtfs", "none", "--entities", "8",
+                       "--viewers", "1", "--summary-every", "0.5", "--report", str(report), log=coord_log,
+                       session=True)
+    try:
+        _wait_for(coord_log, "worker process(es) on this machine", coord)
+        kids = psutil.Process(coord.pid).children(recursive=True)
+        _wait_for(coord_log, "[     ", coord)
+        os.killpg(coord.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
+        assert coord.wait(15) == 0, coord_log.read_text()
+        _gone, alive = psutil.wait_procs(kids, timeout=5)
+        assert not alive
+    finally:
+        if coord.poll() is None:
+            coord.kill()
+            coord.wait(5)
+    assert "Traceback" not in coord_log.read_text()
+    w = json.loads(report.read_text())["workers"]
+    assert w["n"] == 2 and w["deaths"] == []  # the workers ignore the terminal's SIGINT: stopped in order
