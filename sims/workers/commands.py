@@ -18,7 +18,8 @@ AUTO_MIN_ENTITIES = 2000
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
-    """`--workers`, `--nats`, `--worker-timeout`, `--join-timeout` on `entitynet sim`, and its `worker` part."""
+    """`--workers`, `--nats`, `--nats-token`, `--worker-timeout`, `--join-timeout` on `entitynet sim`, and its
+    `worker` part."""
     p.add_argument("--workers", type=bounded_int(1, 256), metavar="N",
                    help="run the entities' honest clients in N worker processes (each steps the whole world from "
                         "the seed and runs the clients of a share of the entities; docs/simulation.md). Default: "
@@ -26,6 +27,7 @@ def add_options(p: argparse.ArgumentParser) -> None:
                         "(at most 8); with --nats: every worker that joins")
     p.add_argument("--nats", metavar="URL", help="take the workers from other machines over NATS (nats://HOST:PORT; "
                                                  "start `entitynet sim worker --nats URL` on each)")
+    p.add_argument("--nats-token", default=None, metavar="TOKEN", help="with --nats: the NATS server's auth token")
     p.add_argument("--worker-timeout", type=bounded_float(0.1, 600), default=10.0, metavar="S",
                    help="a worker that does not answer a tick within S seconds is declared dead and its entities "
                         "handed to the others (default 10)")
@@ -38,7 +40,7 @@ def add_options(p: argparse.ArgumentParser) -> None:
                                                       "must be the coordinator's")
     w.add_argument("--gtfs", metavar="FEED", help="GTFS zip (default: the coordinator's path if it exists here, "
                                                   "else the bundled HSL extract); must match the coordinator's")
-    w.add_argument("--token", default=None, help="NATS auth token")
+    w.add_argument("--nats-token", default=None, metavar="TOKEN", help="the NATS server's auth token")
     w.add_argument("--once", action="store_true", help="exit after one run")
     w.set_defaults(func=run_worker)
 
@@ -55,13 +57,14 @@ def auto_workers(entities: int, cpus: int | None) -> int | None:
 def check(args: argparse.Namespace) -> list[str]:
     """Problems with the worker options (for the command's one usage error)."""
     problems = []
-    if getattr(args, "mobility", "ours") != "ours" and (args.workers or args.nats):
+    workers, nats = getattr(args, "workers", None), getattr(args, "nats", None)
+    if getattr(args, "mobility", "ours") != "ours" and (workers or nats):
         problems.append("--workers and --nats need --mobility ours (a SUMO scenario runs in one process)")
-    if args.nats:
+    if nats:
         from entitynet.cluster.nats_client import parse_servers
 
         try:
-            parse_servers(args.nats)
+            parse_servers(nats)
         except ValueError as exc:
             problems.append(f"--nats: {exc}")
     return problems
@@ -72,16 +75,17 @@ def make_sim(args: argparse.Namespace, topo, config, schedule, *, shards: int = 
     """The run's simulation: `Sim` in this process, or `WorkerSim` over forked or NATS workers."""
     from sims.engine.sim import Sim
 
-    n = args.workers if args.workers is not None or args.nats else auto_workers(config.entities, os.cpu_count())
-    if source is not None or (n is None and not args.nats):
+    workers, nats = getattr(args, "workers", None), getattr(args, "nats", None)  # a preset's own Namespace
+    n = workers if workers is not None or nats else auto_workers(config.entities, os.cpu_count())
+    if source is not None or (n is None and not nats):
         return Sim(topo, config, schedule, shards=shards, shard_at=shard_at, source=source)
     from sims.workers.sim import WorkerSim
 
-    timeout = args.worker_timeout
-    if args.nats:
+    timeout = getattr(args, "worker_timeout", 10.0)
+    if nats:
         from sims.workers.nats_link import NatsWorkers
 
-        link = NatsWorkers(args.nats)
+        link = NatsWorkers(args.nats, token=getattr(args, "nats_token", None))
         try:
             names = link.choose(args.workers, args.join_timeout)
         except RuntimeError:
@@ -165,7 +169,8 @@ def run_worker(args: argparse.Namespace) -> int:
 
     t0 = time.monotonic()
     try:
-        runs = trio.run(lambda: serve_worker(args.nats, build, say, once=args.once, token=args.token))
+        runs = trio.run(lambda: serve_worker(args.nats, build, say, once=args.once,
+                                            token=args.nats_token))
     except BaseException as exc:  # noqa: BLE001 (one line for a NATS that cannot be reached, else re-raised)
         if only(exc, (OSError, trio.TooSlowError)) is None:
             raise

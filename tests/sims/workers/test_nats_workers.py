@@ -228,3 +228,15 @@ def test_ctrl_c_ends_a_run_with_local_workers_cleanly(grid_path, tmp_path):
     assert "Traceback" not in coord_log.read_text()
     w = json.loads(report.read_text())["workers"]
     assert w["n"] == 2 and w["deaths"] == []  # the workers ignore the terminal's SIGINT: stopped in order
+
+
+@needs_nats
+def test_a_wrong_nats_token_is_a_clear_error_on_both_sides(grid_path, capsys):
+    with NatsCluster(1, token="s3cret") as cluster:
+        url = cluster.urls
+        assert main(["sim", "--nats", url, "--nats-token", "wrong", "--topology", str(grid_path), "--gtfs", "none",
+                     "--entities", "4", "--viewers", "1", "--duration", "1"]) == 2
+        err = capsys.readouterr().err
+        assert f"cannot reach NATS at {url}" in err and "Traceback" not in err
+        assert main(["sim", "worker", "--nats", url, "--nats-token", "wrong", "--topology", str(grid_path)]) == 2
+        assert f"cannot reach NATS at {url}" in capsys.readouterr().err
