@@ -191,6 +191,8 @@ class WorkerSim(Sim):
     def _declare(self, d: int, out: list[list[P.Message]]) -> None:
         """Worker `d` is dead: hand its entities on (the same rule as the workers apply at the next tick) and
         UNPUBLISH the ones it had published, so that viewers do not keep ghosts of stale clients."""
+        # a worker declared dead for its silence may still run (slow, cut off): it is told the run is over for it
+        self.link.send(d, self.core.stop(f"declared dead: {self.core.slots[d].dead}"))
         moved = self.assignment.kill(d, self.world.agents)
         for e in moved:
             if e in self.published_ids:

@@ -107,3 +107,23 @@ def test_when_every_worker_is_gone_the_run_ends_and_says_so(topo):
     finally:
         sim.close()
     assert no_children_left(link.pids)
+
+
+def test_a_worker_too_slow_for_the_timeout_is_declared_dead_and_told_so(topo):
+    link = LocalWorkers(2, topo, None)
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=0.5)
+    try:
+        sim.start()
+        os.kill(link.pids[1], signal.SIGSTOP)  # alive but silent: only the timeout can tell
+        sim.step()
+        (death,) = sim.deaths
+        assert death["worker"] == 1 and "no answer to tick 1 within 0.5 s" in death["why"]
+        os.kill(link.pids[1], signal.SIGCONT)
+        for _ in range(3):
+            sim.step()  # its late answer is stray; the run goes on with worker 0 alone
+        link.procs[1].join(5)
+        assert link.procs[1].exitcode == 0  # it got the stop and ended its run
+        assert sim.assignment.counts(sim.world.agents)[1] == 0
+    finally:
+        sim.close()
+    assert no_children_left(link.pids)
