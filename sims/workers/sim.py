@@ -181,9 +181,12 @@ class WorkerSim(Sim):
                     self.published_ids.discard(entity)
         self._sum_counters()
         removed = [aid for aid, _why in self.world.take_removed()]
-        self.assignment.forget(removed)
         for aid in removed:
+            if aid in self.published_ids:  # its worker died in this tick before sending the UNPUBLISH: send it
+                out[self.fleet.conn_of(aid)].append(P.Unpublish(aid))
+                self.published_ids.discard(aid)
             self.fleet.home.pop(aid, None)
+        self.assignment.forget(removed)
         for d in core.deaths[len(self.assignment.dead):]:
             self._declare(d, out)
         return out
