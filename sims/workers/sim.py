@@ -259,6 +259,8 @@ class WorkerSim(Sim):
             "coordinator_wait_p50_ms": float(np.percentile(wait, 50) * 1000),
             "coordinator_wait_p99_ms": float(np.percentile(wait, 99) * 1000),
             "bad_frames": self.core.bad_frames, "stray_frames": self.core.stray,
+            # frames the transport dropped with its queue full (NATS: `QUEUE_FRAMES`); a tick that lost one timed out
+            "frames_dropped": int(getattr(self.link, "dropped", 0)),
             "ended_early": self.ended_early,
         }
         return rep

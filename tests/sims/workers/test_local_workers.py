@@ -150,3 +150,17 @@ def test_an_entity_that_leaves_the_world_in_the_tick_its_worker_dies_is_unpublis
         os.kill(link.pids[1], signal.SIGCONT)
         sim.close()
     assert no_children_left(link.pids)
+
+
+def test_frames_the_transport_dropped_are_in_the_report(topo):
+    class Dropping(LocalWorkers):
+        dropped = 3  # as `NatsWorkers` counts the frames its full queue turned away
+
+    link = Dropping(1, topo, None)
+    sim = WorkerSim(topo, config(), None, link, 1, transport="local", timeout=5.0)
+    try:
+        rep = run_local(sim, 1.0)
+    finally:
+        sim.close()
+    assert rep["workers"]["frames_dropped"] == 3
+    assert no_children_left(link.pids)
