@@ -85,7 +85,7 @@ def make_sim(args: argparse.Namespace, topo, config, schedule, *, shards: int = 
     if nats:
         from sims.workers.nats_link import NatsWorkers
 
-        link = NatsWorkers(args.nats, token=getattr(args, "nats_token", None))
+        link = NatsWorkers(args.nats, token=getattr(args, "nats_token", None), say=say)
         try:
             names = link.choose(args.workers, args.join_timeout)
         except RuntimeError:

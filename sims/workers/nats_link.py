@@ -71,9 +71,11 @@ class NatsWorkers:
     """The coordinator's NATS transport: connect (a clear error naming the URL when it cannot), `choose` the
     workers that announced themselves, then the `Link` calls for `WorkerSim`."""
 
-    def __init__(self, url: str, token: str | None = None, connect_timeout: float = 1.0):
+    def __init__(self, url: str, token: str | None = None, connect_timeout: float = 1.0,
+                 say: Callable[[str], None] | None = None):
         self.servers = parse_servers(url)  # ValueError on a bad URL, before any thread starts
         self.url = url
+        self.say = say or (lambda _m: None)
         self.run = secrets.token_hex(6)
         self.reply = up_subject(self.run)
         self.inq: queue.Queue[bytes] = queue.Queue(QUEUE_FRAMES)
@@ -96,7 +98,8 @@ class NatsWorkers:
     async def _main(self, token: str | None, connect_timeout: float) -> None:
         try:
             async with NatsClient(self.url, name="entitynet-sim-coordinator", token=token,
-                                  connect_timeout=connect_timeout) as nc:
+                                  connect_timeout=connect_timeout, on_disconnect=self._lost,
+                                  on_reconnect=self._back) as nc:
                 self._nc, self._token, self._closing = nc, trio.lowlevel.current_trio_token(), trio.Event()
                 nc.subscribe(HELLO, self._on_hello)
                 nc.subscribe(self.reply, self._on_up)
@@ -114,6 +117,14 @@ class NatsWorkers:
         except BaseException as exc:  # noqa: BLE001 (reported to the caller's thread, which raises it)
             self._error = exc
             self._up.set()
+
+    def _lost(self, why: str) -> None:
+        """Said at once: otherwise the only sign is every worker declared dead for a tick it did not answer."""
+        self.say(f"lost NATS at {self.url} ({why}); reconnecting (workers that miss a tick meanwhile are "
+                 "declared dead)")
+
+    def _back(self) -> None:
+        self.say(f"NATS at {self.url} is back")
 
     async def _beat(self, nc: NatsClient) -> None:
         """Tell the chosen workers every second that the coordinator is alive (see `wire`: "alive")."""
@@ -214,7 +225,14 @@ async def serve_worker(url: str, build, say: Callable[[str], None], *, once: boo
         except trio.WouldBlock:
             dropped += 1
 
-    async with NatsClient(url, name="entitynet-sim-worker", token=token, connect_timeout=connect_timeout) as nc:
+    def lost(why: str) -> None:  # the client reconnects by itself; the worker's operator hears of it
+        say(f"worker {worker}: lost NATS at {url} ({why}); reconnecting")
+
+    def back() -> None:
+        say(f"worker {worker}: NATS at {url} is back")
+
+    async with NatsClient(url, name="entitynet-sim-worker", token=token, connect_timeout=connect_timeout,
+                          on_disconnect=lost, on_reconnect=back) as nc:
         nc.subscribe(worker_subject(worker), on_frame)
         await nc.flush()
         async with trio.open_nursery() as nursery:
