@@ -168,7 +168,7 @@ class NatsWorkers:
                                    f"{join_timeout:g} s: start `entitynet sim worker --nats {self.url}` on each "
                                    "machine (or wait longer with --join-timeout)")
             time.sleep(0.05)
-        self.workers = sorted(heard)[: want or len(heard)]
+        self.workers = sorted(heard)[: want or min(len(heard), wire.MAX_WORKERS)]
         return self.workers
 
     # ---- Link --------------------------------------------------------------------------------------------------
