@@ -47,10 +47,12 @@ def up_subject(run: str) -> str:
 
 
 def leaf_text(exc: BaseException) -> str:
-    """What went wrong, in words: the first leaf of an exception group (trio's nurseries wrap errors), by its
-    text or else its type's name ("TooSlowError" for a connect that timed out)."""
-    while isinstance(exc, BaseExceptionGroup) and exc.exceptions:
-        exc = exc.exceptions[0]
+    """What went wrong, in words: the first leaf of an exception group (trio's nurseries wrap errors; walked by
+    the CLI's one walker, `entitynet.cli.leaves`), by its text or else its type's name ("TooSlowError" for a
+    connect that timed out)."""
+    from entitynet.cli import leaves
+
+    exc = next(leaves(exc), exc)
     text = str(exc)
     return text if text else {"TooSlowError": "no answer within the connect timeout"}.get(type(exc).__name__,
                                                                                           type(exc).__name__)
@@ -58,13 +60,10 @@ def leaf_text(exc: BaseException) -> str:
 
 def only(group: BaseException, types: tuple[type[BaseException], ...]) -> BaseException | None:
     """The first leaf of `group` when every leaf is one of `types` (else None): an error to report in one line."""
-    if isinstance(group, types):
-        return group
-    if isinstance(group, BaseExceptionGroup):
-        match, rest = group.split(types)
-        if match is not None and rest is None:
-            return match
-    return None
+    from entitynet.cli import leaves
+
+    found = list(leaves(group))
+    return found[0] if found and all(isinstance(e, types) for e in found) else None
 
 
 class NatsWorkers:
