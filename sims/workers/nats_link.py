@@ -138,7 +138,9 @@ class NatsWorkers:
             f = wire.decode(payload)
         except wire.WireError:
             return
-        if f["kind"] == "hello" and f["worker"] not in self.hellos:
+        # bounded: at most MAX_WORKERS names (a run takes no more), and none once the workers are chosen
+        if (f["kind"] == "hello" and not self.workers and f["worker"] not in self.hellos
+                and len(self.hellos) < wire.MAX_WORKERS):
             self.hellos[f["worker"]] = (f["host"], f["pid"])
 
     def _on_up(self, _subject: str, _reply: str | None, payload: bytes) -> None:

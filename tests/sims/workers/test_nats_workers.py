@@ -287,3 +287,25 @@ def test_the_coordinator_says_when_nats_goes_away():
         finally:
             link.close()
     assert said and said[0].startswith(f"lost NATS at {cluster.urls}")
+
+
+@needs_nats
+def test_the_announcements_kept_are_bounded():
+    """Every idle worker on the NATS server announces itself each second for as long as the run lasts: the
+    coordinator keeps at most MAX_WORKERS names, and none once it has chosen its workers."""
+    from sims.workers import wire
+    from sims.workers.nats_link import NatsWorkers
+
+    with NatsCluster(1) as cluster:
+        link = NatsWorkers(cluster.urls)
+        try:
+            for i in range(wire.MAX_WORKERS + 50):
+                link._on_hello("", None, wire.encode("hello", worker=f"w{i}", host="h", pid=i))
+            assert len(link.hellos) == wire.MAX_WORKERS
+            link.hellos.clear()
+            link._on_hello("", None, wire.encode("hello", worker="a", host="h", pid=1))
+            assert link.choose(1, 1.0) == ["a"]
+            link._on_hello("", None, wire.encode("hello", worker="b", host="h", pid=2))
+            assert list(link.hellos) == ["a"]
+        finally:
+            link.close()
