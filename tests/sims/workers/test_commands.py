@@ -31,3 +31,17 @@ def test_a_worker_daemon_keeps_one_schedule_however_many_runs_come(tmp_path):
         with pytest.raises(RefusedRun, match="another topology"):
             build(config_to_wire(replace(config, seed=seed)), want, 0, 1)
     assert loads == [1, 2, 3, 1]  # the same run again: read once; another: the one kept is replaced
+
+
+def test_a_run_that_ended_early_exits_with_status_1_and_says_why():
+    from types import SimpleNamespace
+
+    from sims.sim_cmd import run_status
+
+    said = []
+    assert run_status(SimpleNamespace(ended_early=None), said.append) == 0
+    assert run_status(SimpleNamespace(), said.append) == 0  # a one-process sim has no workers to lose
+    assert not said
+    assert run_status(SimpleNamespace(ended_early="every worker is gone (the last, worker 1, at tick 9)"),
+                      said.append) == 1
+    assert said == ["the run ended early: every worker is gone (the last, worker 1, at tick 9)"]
