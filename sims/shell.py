@@ -201,6 +201,9 @@ class Shell:
         wall0 = last_summary = trio.current_time()
         due = wall0 + period
         while not stop.is_set():
+            if getattr(sim, "ended_early", None):  # sims.workers: every worker is gone, the report says so
+                self.say(f"[{sim.ticks * sim.dt:6.0f}s] stopping: {sim.ended_early}")
+                break
             with trio.move_on_at(due):
                 await stop.wait()
             if stop.is_set():
