@@ -13,7 +13,7 @@ from sims.shell import Shell, ShellConfig
 async def test_each_sample_sees_every_update_the_server_forwarded_for_its_tick(helsinki, helsinki_path):
     sim = Sim(helsinki, SimConfig(entities=40, viewers=4, connections=2, tick_hz=4.0, transit=False, seed=3,
                                   subscribe="radius", measure_after=0.5))
-    shell = Shell(sim, ShellConfig(duration=3.0, speed=2.0, summary_every=1e9, artifact=helsinki_path, keys=False),
+    shell = Shell(sim, ShellConfig(duration=3.0, speed=1.0, summary_every=1e9, artifact=helsinki_path, keys=False),
                   lambda m: None)
     seen: list[tuple[float, int, int, int]] = []
     sample = sim.maybe_sample
