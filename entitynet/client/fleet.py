@@ -60,7 +60,15 @@ _F = (*_VAR, *(f"{ring}{k}" for ring in ("rs", "rx", "ry", "iv") for k in range(
 _RINGS = _F.index("rs0")
 _G0 = _F.index("pub_t")  # the ghost's columns [_G0, _C0), the constants' [_C0, end)
 _C0 = _F.index("kq")
-_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn", "iv_n")  # pn, gn: by _put_path
+_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn", "iv_n",
+      "slow")  # pn, gn: by _put_path; slow: the SCALAR_WHY code of a slot not `fast`
+# why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
+# eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
+SCALAR_WHY = ("publish", "no_segments", "near_table", "near_off_window", "near_edge_recurs", "near_best_on",
+              "near_reacquire", "near_consistency", "reacquire", "edge_recurs", "reach_jump", "filter",
+              "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
+              "bad_fix", "not_vectorised")
+_WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
 _B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty", "consts")  # path_dirty: trimmed in the arrays;
 # consts: the constants' columns hold the Player's
 
@@ -81,7 +89,10 @@ def _deadline(p: Player) -> float:
 class FleetCore:
     """Players in slots (in the order they were added; a removed slot stays empty), stepped together."""
 
-    def __init__(self, capacity: int = 64) -> None:
+    def __init__(self, capacity: int = 64, *, vectorised: bool = True) -> None:
+        """`vectorised=False`: every fix and every tick through the entity's `Player`, one by one (the
+        per-entity baseline `bench sim` measures the arrays against, and what a fleet of one does)."""
+        self.vectorised = vectorised
         self.players: list[Player | None] = []
         self.geo: Geometry | None = None
         self._near = NearTables()
@@ -89,6 +100,8 @@ class FleetCore:
         self.last_now = -math.inf
         self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "vector_extends": 0,
                          "scalar_fixes": 0, "scalar_ticks": 0}
+        # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
+        self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
         self._cap = 0
         self._grow(max(int(capacity), 1))
 
@@ -170,14 +183,21 @@ class FleetCore:
         y = np.asarray(y, dtype=float)
         done = np.zeros(len(due), dtype=bool)
         acc = float(accuracy)
-        if len(due) and math.isfinite(acc) and acc > 0.0:
-            cand = self.fast[due] & self.alive[due] & np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
-            rows = np.flatnonzero(cand)
+        why = np.full(len(due), _WHY["not_vectorised"], dtype=np.int64)
+        if len(due) and math.isfinite(acc) and acc > 0.0 and self.vectorised:
+            fast = self.fast[due] & self.alive[due]
+            good = np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
+            why = np.where(fast, _WHY["bad_fix"], self.slow[due])
+            rows = np.flatnonzero(fast & good)
             if len(rows):
-                done[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+                why[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+                done[rows] = why[rows] == 0
         self.counters["vector_fixes"] += int(done.sum())
+        for code, count in enumerate(np.bincount(why[~done], minlength=len(SCALAR_WHY) + 1).tolist()):
+            if code and count:
+                self.scalar_why[SCALAR_WHY[code - 1]] += count
         work: dict[int, int] = {int(s): k for k, s in enumerate(due.tolist()) if not done[k]}
-        timers = self.alive[:n] & (self.deadline[:n] <= now)
+        timers = self.alive[:n] & (self.deadline[:n] <= now) if self.vectorised else self.alive[:n].copy()
         timers[due[due < n]] = False
         for s in idle:
             timers[s] = False
@@ -212,7 +232,8 @@ class FleetCore:
     # ---- the vectorised fix --------------------------------------------------------------------------------
     def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float) -> np.ndarray:
         """`Player.feed` + `tick` at `t` for slots `sl` where the fix ends in the usual update with no publish
-        (module docstring): commits those rows and returns which they were (the rest is left to the scalar)."""
+        (module docstring): commits those rows and returns per row 0 (done here) or the `SCALAR_WHY` code (1..)
+        of the first test that leaves it to the scalar path."""
         geo = self.geo
         pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
         rows = np.arange(len(sl))
@@ -226,6 +247,10 @@ class FleetCore:
         k = np.where(k < 0, 0, np.where(k >= pn, pn - 1, k))
         e = pe[rows, k]
         ok = geo.nseg[e] > 0
+        why = np.where(ok, 0, _WHY["no_segments"])
+
+        def fail(cond: np.ndarray, reason: str) -> None:  # rows still ok that fail `cond` leave for `reason`
+            why[ok & ~cond] = _WHY[reason]
         off = px = py = dist = np.zeros(len(sl))
         if ok.any():
             off, px, py, dist = (np.zeros(len(sl)) for _ in range(4))
@@ -235,20 +260,26 @@ class FleetCore:
         swm, reacq = self.swm[sl], self.reacq[sl]
         written_out = (dist <= swm) & (off > 0.0) & (off < elen) & geo.inner[e]  # `track`'s test for `_track_on`
         gen = ok & ~written_out  # the neighbourhood search (`Placer.near`)
-        ok &= written_out & (dist <= reacq)
+        fail(~gen, "near_table")  # (rows of the near search: their reason is set below)
+        ok &= written_out
+        fail(dist <= reacq, "reacquire")
+        ok &= dist <= reacq
         # `_s_of`'s first case: the edge does not recur within three edges either side
         j = k[:, None] + np.arange(-3, 4)[None, :]
         inside = (j >= 0) & (j < pn[:, None])
         same = (pe[rows[:, None], np.clip(j, 0, W - 1)] == e[:, None]) & inside
+        fail(same.sum(axis=1) == 1, "edge_recurs")
         ok &= same.sum(axis=1) == 1
         s_meas = pc[rows, k] + np.where(pd[rows, k] > 0, off, elen - off)
         if gen.any():
             g = np.flatnonzero(gen)
-            good, ge_, goff, gpx, gpy, gd, gs = self._near_fixes(sl[g], x[g], y[g], e[g], s_pred[g], pe[g], pd[g],
+            gwhy, ge_, goff, gpx, gpy, gd, gs = self._near_fixes(sl[g], x[g], y[g], e[g], s_pred[g], pe[g], pd[g],
                                                                  pc[g], pn[g], r)
-            ok[g] = good
+            ok[g] = gwhy == 0
+            why[g] = gwhy
             e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
             e[g], off[g], px[g], py[g], dist[g], s_meas[g] = ge_, goff, gpx, gpy, gd, gs
+        fail(~(np.abs(s_meas - s_pred) > reach), "reach_jump")
         ok &= ~(np.abs(s_meas - s_pred) > reach)
         near_rows = gen
         dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
@@ -256,11 +287,13 @@ class FleetCore:
         *new, sden = kf_update(s_meas, t, r, ks, kv, ka, self.p00[sl], self.p01[sl], self.p02[sl], self.p11[sl],
                         self.p12[sl], self.p22[sl], kt, self.kq[sl], self.kacc[sl])
         ns, nv, na, n00, n01, n02, n11, n12, n22 = new
+        fail(kup & (sden > 0.0) & np.isfinite(ns), "filter")
         ok &= kup & (sden > 0.0) & np.isfinite(ns)
         vpeak_set = (nv > self.vpeak[sl]) | (t - self.vpeak_t[sl] > 120.0)
         has_route = self.has_route[sl]
         backwards = (nv < -self.v_start[sl]) & (nv + np.sqrt(np.maximum(n11, 0.0)) < 0.0)
         rev = np.where(has_route | ~backwards, 0, self.rev[sl] + 1)
+        fail(rev < 3, "reversal")
         ok &= rev < 3
         # the recent fixes: path coordinates (tracker) and projected points (rules)
         rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
@@ -329,6 +362,7 @@ class FleetCore:
         pub_t = self.pub_t[sl]
         due = (t >= pub_t + self.validity[sl]) | (t - pub_t >= self.heartbeat[sl])
         publish = stop | (standing & moved) | (~standing & drifted) | due
+        fail(~publish, "publish")
         ok &= ~publish
         # commit the rows that stay in arrays
         self.counters["vector_near"] += int((ok & near_rows).sum())
@@ -363,13 +397,14 @@ class FleetCore:
                        np.minimum(t + self.lost_after[c], t + gap_lim[w]))
         self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
         self.dirty[c] = True
-        return ok
+        return np.where(ok, 0, why)
 
     def _near_fixes(self, sl, x, y, e, s_pred, pe, pd, pc, pn, r: float) -> tuple[np.ndarray, ...]:
         """`track`'s general branch for fixes beyond the switch margin (or near an edge's end), where it ends in
         the usual update: the fix on an edge of the path window [s_pred - body - 30, s_pred + 60], that edge once
         in the path, no `_best_on` retry, within `reacquire`, and no consistency query of the placement index.
-        Returns (which rows qualify, edge, offset, px, py, distance, path coordinate)."""
+        Returns (per row 0 where it qualifies, else the `SCALAR_WHY` code of the first test it fails, edge,
+        offset, px, py, distance, path coordinate)."""
         rows = np.arange(len(sl))
         start, count, usable = np.zeros(len(sl), np.int64), np.ones(len(sl), np.int64), np.zeros(len(sl), bool)
         near = self._near
@@ -382,21 +417,23 @@ class FleetCore:
         hi = (pc <= (s_pred + 60.0)[:, None]).sum(axis=1) - 1
         hi = np.where(hi < 0, 0, np.where(hi >= pn, pn - 1, hi))
         fe, off, px, py, d, pref = near.near(x, y, start, count, self.swm[sl], pe, lo, hi)
-        ok = usable & pref
+        why = np.where(usable, np.where(pref, 0, _WHY["near_off_window"]), _WHY["near_table"])
         # `_s_of(fix, s_pred, k_cur)` where the edge occurs once in the path: its one occurrence
         occ = (pe == fe[:, None]) & (np.arange(W)[None, :] < pn[:, None])
-        ok &= occ.sum(axis=1) == 1
+        why = np.where((why == 0) & (occ.sum(axis=1) != 1), _WHY["near_edge_recurs"], why)
         kf = np.argmax(occ, axis=1)
         elen = self.geo.edge_len[fe]
         s_fix = pc[rows, kf] + np.where(pd[rows, kf] > 0, off, elen - off)
         sig = math.sqrt(r)
         several = (pe[rows[:, None], np.arange(W)[None, :]] != pe[rows, lo][:, None])
         several &= (np.arange(W)[None, :] >= lo[:, None]) & (np.arange(W)[None, :] <= hi[:, None])
-        ok &= ~(several.any(axis=1) & (np.abs(s_fix - s_pred) > 2.0 * sig))  # else `_best_on`
-        ok &= ~(d > self.reacq[sl])
+        best_on = several.any(axis=1) & (np.abs(s_fix - s_pred) > 2.0 * sig)  # else `_best_on`
+        why = np.where((why == 0) & best_on, _WHY["near_best_on"], why)
+        why = np.where((why == 0) & (d > self.reacq[sl]), _WHY["near_reacquire"], why)
         ema = 0.7 * self.dist_ema[sl] + 0.3 * d
-        ok &= ~((ema > 1.5 * sig) & (d > self.swm[sl]))  # else the placement index is asked
-        return ok, fe, off, px, py, d, s_fix
+        asks = (ema > 1.5 * sig) & (d > self.swm[sl])  # else the placement index is asked
+        why = np.where((why == 0) & asks, _WHY["near_consistency"], why)
+        return why, fe, off, px, py, d, s_fix
 
     # ---- arrays <-> Player ---------------------------------------------------------------------------------
     def _store(self, s: int, p: Player) -> None:
@@ -443,14 +480,28 @@ class FleetCore:
         self.deadline[s] = _deadline(p)
         trk = p.tracker
         ghost = p.ghost
-        ok = (trk is not None and p.world is None and trk.place is EDGE and trk.written_out and p.published
-              and isinstance(ghost, NetworkModel) and p.estimate is OWN_ESTIMATE and not p.rules.periodic
-              and p.last_t is not None and trk.kf is not None and len(trk.path.edges) <= W
-              and len(ghost.path.edges) <= W and len(trk.recent_s) <= RECENT and 0 < len(p.rules.recent) <= RECENT)
-        if ok:
+        if not self.vectorised:
+            self.fast[s] = False
+            return
+        if trk is None or trk.place is None or p.last_t is None:
+            slow = "unplaced"
+        elif trk.place is not EDGE:
+            slow = "area"
+        elif not p.published or ghost is None:
+            slow = "unpublished"
+        elif (p.world is not None or not isinstance(ghost, NetworkModel) or p.estimate is not OWN_ESTIMATE
+              or p.rules.periodic or not trk.written_out or trk.kf is None):
+            slow = "baseline_model"
+        elif (len(trk.path.edges) > W or len(ghost.path.edges) > W or len(trk.recent_s) > RECENT
+              or not 0 < len(p.rules.recent) <= RECENT):
+            slow = "path_or_ring_wide"
+        else:
             if self.net is None:
                 self.net, self.geo = p.net, Geometry(p.net)
             ok = p.net is self.net and trk.path.net is self.net and ghost.path.net is self.net
+            slow = None if ok else "other_net"
+        ok = slow is None
+        self.slow[s] = 0 if ok else _WHY[slow]
         self.fast[s] = ok
         if not ok:
             return
