@@ -9,14 +9,19 @@ from __future__ import annotations
 
 import math
 
+from entitynet.client.state import Bound, column
 
-class Kinematic1D:
+
+class KinematicMath:
     """One-axis Kalman filter on (s, v, a) with hand-written scalar covariance terms: numpy would cost
-    more per fix than the arithmetic itself."""
-    __slots__ = ("s", "v", "a", "p00", "p01", "p02", "p11", "p12", "p22", "t", "q", "accel")
+    more per fix than the arithmetic itself. The arithmetic only: `Kinematic1D` keeps its state in slots,
+    `RowKinematic` in a client-state row (the along-path filter, which the fleet core updates over arrays)."""
+    __slots__ = ()
+    FIELDS = ("s", "v", "a", "p00", "p01", "p02", "p11", "p12", "p22", "t", "q", "accel")
 
-    def __init__(self, s: float, t: float, r: float, *, q: float = 0.5, accel: bool = True,
-                 v0_var: float = 100.0, a0_var: float = 4.0) -> None:
+    def reset(self, s: float, t: float, r: float, *, q: float = 0.5, accel: bool = True,
+              v0_var: float = 100.0, a0_var: float = 4.0) -> None:
+        """Start at position s at time t (r: its variance), standing, with a wide speed (and acceleration)."""
         self.s, self.v, self.a, self.t = s, 0.0, 0.0, t
         self.p00, self.p01, self.p02 = r, 0.0, 0.0
         self.p11, self.p12 = v0_var, 0.0
@@ -139,3 +144,22 @@ class Kinematic1D:
     def speed_sigma(self) -> float:
         """Standard deviation of the speed estimate: reversing needs the speed to be negative beyond it."""
         return math.sqrt(max(self.p11, 0.0))
+
+
+class Kinematic1D(KinematicMath):
+    """A filter with its own state (the world-frame baselines and the area filters)."""
+    __slots__ = KinematicMath.FIELDS
+
+    def __init__(self, s: float, t: float, r: float, *, q: float = 0.5, accel: bool = True,
+                 v0_var: float = 100.0, a0_var: float = 4.0) -> None:
+        self.reset(s, t, r, q=q, accel=accel, v0_var=v0_var, a0_var=a0_var)
+
+
+class RowKinematic(KinematicMath, Bound):
+    """The along-path filter of a client-state row (entitynet/client/state.py): the same arithmetic on the
+    row's ks, kv, ka, p.., kt, kq and kacc, the fields the fleet core's `kf_update` works on over arrays."""
+    __slots__ = ()
+    s, v, a, t, q = column("ks"), column("kv"), column("ka"), column("kt"), column("kq")
+    p00, p01, p02 = column("p00"), column("p01"), column("p02")
+    p11, p12, p22 = column("p11"), column("p12"), column("p22")
+    accel = column("kacc", "bool")

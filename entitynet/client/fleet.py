@@ -19,11 +19,14 @@ once and calls an entity's own `Player` only where something happens:
    fix nearest another way, a reversal, re-acquisition, any fix that publishes) goes to the entity's `Player`
    (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
 
-One source of truth: for an entity the arrays hold (`fast[i]`), its array state is the newer one after a
-vectorised fix (`dirty[i]`), and it is written back into the `Player` (`_store`) before any scalar call; after
-the call the arrays are read again from the `Player` (`_load`), which is then the truth (a path trimmed in the
-arrays is rebuilt as the `Path` that `Path.suffix` would have made). `player(slot)` returns
-an entity's `Player` with its state written back. Doppler velocities are not taken (the fleet feeds positions).
+One home: the entities' state is the fleet's client-state `Record` (entitynet/client/state.py). `add` moves a
+Player's row there (`Player.move_to`); the vectorised fix reads and writes the record's columns through numpy
+views, the Player's parts read and write the same row through their properties, so nothing is copied back and
+forth. What the fleet core keeps besides is derived, never written by a fix: per slot the earliest time a tick
+can speak (`deadline`), whether the next fix may take the arrays (`fast`, or `slow`: why not), and the columns of
+the published ghost and of the entity's options (immutable values, read again when the ghost or the Player
+changes: `_refresh`). `player(slot)` hands the Player out. Doppler velocities are not taken (the fleet feeds
+positions).
 """
 
 from __future__ import annotations
@@ -38,30 +41,19 @@ from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed,
 from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
-from entitynet.client.path import Path
-from entitynet.client.placement import Fix, _new_fix
 from entitynet.client.player import Player
-from entitynet.client.rules import FIX_INTERVALS_KEPT, GAP_INTERVALS, MIN_INTERVALS, OWN_ESTIMATE, usual_interval
+from entitynet.client.rules import FIX_INTERVALS_KEPT, GAP_INTERVALS, MIN_INTERVALS, OWN_ESTIMATE
+from entitynet.client.state import PATH_W, RECENT, Record
 from entitynet.client.tracker import MAX_PATH_EDGES
 from entitynet.protocol import Publish, Unpublish
 
-W = MAX_PATH_EDGES  # the widest path a row holds (the tracker never keeps more edges)
-RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent` (and fix intervals by `UpdateRules.intervals`)
-assert FIX_INTERVALS_KEPT == RECENT
-# the float fields in three groups, each a contiguous run of columns that `_load` writes in one assignment:
-# what any call may change (with the rings: oldest first, last RECENT), what changes only with a new ghost
-# (a publish), and the entity's constants (written once; `player(slot)` hands the Player out, so it may change)
-_VAR = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt",
-        "dist_ema", "vpeak", "vpeak_t", "lf_off", "lf_x", "lf_y", "lf_d", "gap_lim", "reach")
-_GHOST = ("pub_t", "validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
-_CONST = ("kq", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap",
-          "lost_after", "body", "vmax")
-_F = (*_VAR, *(f"{ring}{k}" for ring in ("rs", "rx", "ry", "iv") for k in range(RECENT)), *_GHOST, *_CONST)
-_RINGS = _F.index("rs0")
-_G0 = _F.index("pub_t")  # the ghost's columns [_G0, _C0), the constants' [_C0, end)
-_C0 = _F.index("kq")
-_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn", "iv_n",
-      "slow")  # pn, gn: by _put_path; slow: the SCALAR_WHY code of a slot not `fast`
+W = PATH_W  # the widest path a row holds in arrays
+assert MAX_PATH_EDGES == W and FIX_INTERVALS_KEPT == RECENT
+# derived columns of the fleet (not state): the published ghost's numbers (a new ghost comes only with a
+# publish) and the entity's options, read by `_refresh`
+_GHOST = ("validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
+_CONST = ("swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap", "lost_after",
+          "body", "vmax")
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
 # eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
 SCALAR_WHY = ("publish", "no_segments", "near_table", "near_off_window", "near_edge_recurs", "near_best_on",
@@ -69,8 +61,6 @@ SCALAR_WHY = ("publish", "no_segments", "near_table", "near_off_window", "near_e
               "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
               "bad_fix", "not_vectorised")
 _WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
-_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty", "consts")  # path_dirty: trimmed in the arrays;
-# consts: the constants' columns hold the Player's
 
 
 def _deadline(p: Player) -> float:
@@ -102,11 +92,15 @@ class FleetCore:
                          "scalar_fixes": 0, "scalar_ticks": 0}
         # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
         self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
+        self.rec = Record(max(int(capacity), 1))
         self._cap = 0
-        self._grow(max(int(capacity), 1))
+        self._grow()
 
-    def _grow(self, cap: int) -> None:
-        old = self._cap
+    def _grow(self) -> None:
+        """Views of the record's columns (again after it grew) and the derived columns, as wide."""
+        cap, old = self.rec.cap, self._cap
+        for name, arr in self.rec.view().items():
+            setattr(self, name, arr)
 
         def grown(a: np.ndarray | None, fill, dtype, shape=()) -> np.ndarray:
             b = np.full((cap, *shape), fill, dtype=dtype)
@@ -114,56 +108,52 @@ class FleetCore:
                 b[:old] = a
             return b
 
-        # the scalar fields are columns of one matrix per dtype: `_load` writes a slot's row in one assignment
-        self.fm = grown(getattr(self, "fm", None), 0.0, float, (len(_F),))
-        self.im = grown(getattr(self, "im", None), 0, np.int64, (len(_I),))
-        self.fm[old:, _F.index("deadline")] = math.inf
-        for j, f in enumerate(_F):
-            setattr(self, f, self.fm[:, j])
-        for j, f in enumerate(_I):
-            setattr(self, f, self.im[:, j])
-        for ring in ("rs", "rx", "ry", "iv"):
-            j = _F.index(f"{ring}0")
-            setattr(self, ring, self.fm[:, j : j + RECENT])
-        for f in _B:
+        self.deadline = grown(getattr(self, "deadline", None), math.inf, float)
+        for f in ("alive", "fast", "consts", "has_route"):
             setattr(self, f, grown(getattr(self, f, None), False, bool))
-        self.pe = grown(getattr(self, "pe", None), 0, np.int64, (W,))
-        self.pd = grown(getattr(self, "pd", None), 1, np.int64, (W,))
-        self.pc = grown(getattr(self, "pc", None), math.inf, float, (W + 1,))
+        self.slow = grown(getattr(self, "slow", None), 0, np.int64)
+        self.confirm = grown(getattr(self, "confirm", None), 1, np.int64)
+        self.gm = grown(getattr(self, "gm", None), 0.0, float, (len(_GHOST),))
+        self.cm = grown(getattr(self, "cm", None), 0.0, float, (len(_CONST),))
+        for j, f in enumerate(_GHOST):
+            setattr(self, f, self.gm[:, j])
+        for j, f in enumerate(_CONST):
+            setattr(self, f, self.cm[:, j])
         self.ge = grown(getattr(self, "ge", None), 0, np.int64, (W,))
         self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
         self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
-        self._paths: list = [None] * cap if old == 0 else self._paths + [None] * (cap - old)
+        self.gn = grown(getattr(self, "gn", None), 0, np.int64)
         self._ghosts: list = [None] * cap if old == 0 else self._ghosts + [None] * (cap - old)
         self._cap = cap
 
     # ---- slots ---------------------------------------------------------------------------------------------
     def add(self, player: Player) -> int:
         """Take a player (its state as it is); returns its slot."""
-        slot = len(self.players)
-        if slot >= self._cap:
-            self._grow(2 * self._cap)
+        slot = player.move_to(self.rec)
+        assert slot == len(self.players)
+        if self.rec.cap != self._cap:
+            self._grow()
         self.players.append(player)
         self.alive[slot] = True
-        self._load(slot)
+        self._refresh(slot)
         return slot
 
     def remove(self, slot: int) -> list[Unpublish]:
-        """Drop a slot's player: `Player.leave()`'s messages."""
+        """Drop a slot's player: `Player.leave()`'s messages. Its row moves out to a record of its own (the
+        Player stays whole for whoever holds it); the slot's row is not used again."""
         p = self.player(slot)
         self.players[slot] = None
-        self.alive[slot] = self.fast[slot] = self.dirty[slot] = False
+        self.alive[slot] = self.fast[slot] = False
         self.deadline[slot] = math.inf
+        p.move_to(Record(1))
         return p.leave()
 
     def player(self, slot: int) -> Player:
-        """The slot's `Player`, its state written back from the arrays (the one truth from here on)."""
+        """The slot's `Player` (its state is the record's row: nothing to write back)."""
         p = self.players[slot]
         if p is None:
             raise KeyError(f"slot {slot} holds no player")
-        if self.dirty[slot]:
-            self._store(slot, p)
-        self.consts[slot] = False  # the caller may change the Player: read it all at the next `_load`
+        self.consts[slot] = False  # the caller may change the Player: read its options at the next `_refresh`
         self._ghosts[slot] = None
         return p
 
@@ -210,8 +200,6 @@ class FleetCore:
             p = self.players[s]
             if p is None:
                 continue
-            if self.dirty[s]:
-                self._store(s, p)
             if k < 0:
                 self.counters["scalar_ticks"] += 1
                 msgs = p.tick(now)
@@ -224,7 +212,7 @@ class FleetCore:
                 except FixRejected:
                     rejected += 1
                     msgs = []
-            self._load(s)
+            self._refresh(s)
             if msgs:
                 out.append((s, msgs))
         return out, rejected
@@ -238,9 +226,9 @@ class FleetCore:
         pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
         rows = np.arange(len(sl))
         ks, kv, ka, kt = self.ks[sl], self.kv[sl], self.ka[sl], self.kt[sl]
-        iv, iv_n, gap_lim, reach = interval_rows(self.iv[sl], self.iv_n[sl], t - self.last_t[sl], self.max_gap[sl],
-                                                 self.lost_after[sl], self.reacq[sl], self.vmax[sl], GAP_INTERVALS,
-                                                 MIN_INTERVALS)
+        iv, iv_n, gap_lim, reach, interval = interval_rows(
+            self.iv[sl], self.iv_n[sl], t - self.last_t[sl], self.max_gap[sl], self.lost_after[sl], self.reacq[sl],
+            self.vmax[sl], GAP_INTERVALS, MIN_INTERVALS)
         dt = np.where(t > kt, t - kt, 0.0)
         s_pred = ks + kv * dt + 0.5 * ka * dt * dt
         k = (pc <= s_pred[:, None]).sum(axis=1) - 1
@@ -370,7 +358,11 @@ class FleetCore:
         c = sl[w]
         self.last_t[c] = t
         self.iv[c], self.iv_n[c], self.gap_lim[c], self.reach[c] = iv[w], iv_n[w], gap_lim[w], reach[w]
+        self.interval[c] = interval[w]
         self.mx[c], self.my[c] = x[w], y[w]
+        # what `feed` and the usual `track` reset: no fix gap, on the network, no hysteresis candidate
+        self.off_since[c], self.halted[c], self.pend_e[c], self.pend_n[c] = math.nan, 0, -1, 0
+        self.lf_kind[c] = 1
         self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
         self.dist_ema[c] = dist_ema[w]
         for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), [ns, *new[1:]], strict=True):
@@ -383,7 +375,9 @@ class FleetCore:
             self.counters["vector_trims"] += len(tw)
             ct = sl[tw]
             self.pe[ct], self.pd[ct], self.pc[ct], self.pn[ct] = pe[tw], pd[tw], pc[tw], pn[tw]
-            self.path_dirty[ct] = True
+            paths = self.rec.paths
+            for slot in ct.tolist():
+                paths[slot] = None  # the row's path changed: its `Path` is built again when asked
         self.kt[c] = t
         vs = w[vpeak_set[w]]
         self.vpeak[sl[vs]] = nv[vs]
@@ -396,7 +390,6 @@ class FleetCore:
         d = np.minimum(np.minimum(pub_t[w] + self.validity[c], pub_t[w] + self.heartbeat[c]),
                        np.minimum(t + self.lost_after[c], t + gap_lim[w]))
         self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
-        self.dirty[c] = True
         return np.where(ok, 0, why)
 
     def _near_fixes(self, sl, x, y, e, s_pred, pe, pd, pc, pn, r: float) -> tuple[np.ndarray, ...]:
@@ -435,48 +428,12 @@ class FleetCore:
         why = np.where((why == 0) & asks, _WHY["near_consistency"], why)
         return why, fe, off, px, py, d, s_fix
 
-    # ---- arrays <-> Player ---------------------------------------------------------------------------------
-    def _store(self, s: int, p: Player) -> None:
-        """Write slot s's array state (newer after vectorised fixes) back into its Player."""
-        trk, rules, kf = p.tracker, p.rules, p.tracker.kf
-        t = float(self.last_t[s])
-        p.last_t = t
-        p.measured = (float(self.mx[s]), float(self.my[s]), t)
-        p.off_since = None
-        rules.halted = False
-        trk.pending = (-1, 0)
-        trk.last_fix = _new_fix(Fix, ("edge", int(self.lf_e[s]), float(self.lf_off[s]), float(self.lf_x[s]),
-                                      float(self.lf_y[s]), float(self.lf_d[s])))
-        trk.dist_ema = float(self.dist_ema[s])
-        trk.dead_end = (int(self.dead_e[s]), int(self.dead_d[s])) if self.dead_e[s] >= 0 else None
-        n = int(self.rs_n[s])
-        trk.recent_s = self.rs[s, RECENT - n:].tolist()
-        if self.path_dirty[s]:  # trimmed in the arrays: the same edges and cumulative lengths as `Path.suffix`
-            n = int(self.pn[s])
-            trk.path = Path(p.net, list(zip(self.pe[s, :n].tolist(), self.pd[s, :n].tolist(), strict=True)),
-                            _cum=self.pc[s, : n + 1].tolist())
-            self._paths[s] = (trk.path, self._paths[s][1])
-            self.path_dirty[s] = False
-        kf.s, kf.v, kf.a = float(self.ks[s]), float(self.kv[s]), float(self.ka[s])
-        kf.p00, kf.p01, kf.p02 = float(self.p00[s]), float(self.p01[s]), float(self.p02[s])
-        kf.p11, kf.p12, kf.p22 = float(self.p11[s]), float(self.p12[s]), float(self.p22[s])
-        kf.t = float(self.kt[s])
-        trk.vpeak, trk.vpeak_t = float(self.vpeak[s]), float(self.vpeak_t[s])
-        trk.reverse_count = int(self.rev[s])
-        n = int(self.rr_n[s])
-        rules.recent = list(zip(self.rx[s, RECENT - n:].tolist(), self.ry[s, RECENT - n:].tolist(), strict=True))
-        rules.over = int(self.over[s])
-        n = int(self.iv_n[s])
-        rules.intervals = self.iv[s, RECENT - n:].tolist()
-        rules.interval = usual_interval(rules.intervals) if n >= MIN_INTERVALS else 0.0
-        rules.gap_limit, trk.reach = float(self.gap_lim[s]), float(self.reach[s])
-        self.dirty[s] = False
-
-    def _load(self, s: int) -> None:
-        """Read slot s's state from its Player (the truth after a scalar call): the deadline, and the arrays
-        when its next fix may take the vectorised path."""
+    # ---- what the arrays derive from a Player -------------------------------------------------------------
+    def _refresh(self, s: int) -> None:
+        """After a scalar call (or `add`): the slot's deadline, whether its next fix may take the arrays, and
+        the derived columns of a new ghost (and of the options, once per hand-out). Its state is not read:
+        the row is the state."""
         p = self.players[s]
-        self.dirty[s] = False
         self.deadline[s] = _deadline(p)
         trk = p.tracker
         ghost = p.ghost
@@ -492,56 +449,33 @@ class FleetCore:
         elif (p.world is not None or not isinstance(ghost, NetworkModel) or p.estimate is not OWN_ESTIMATE
               or p.rules.periodic or not trk.written_out or trk.kf is None):
             slow = "baseline_model"
-        elif (len(trk.path.edges) > W or len(ghost.path.edges) > W or len(trk.recent_s) > RECENT
-              or not 0 < len(p.rules.recent) <= RECENT):
+        elif self.pn[s] <= 0 or len(ghost.path.edges) > W or self.rr_n[s] == 0:
             slow = "path_or_ring_wide"
         else:
             if self.net is None:
                 self.net, self.geo = p.net, Geometry(p.net)
-            ok = p.net is self.net and trk.path.net is self.net and ghost.path.net is self.net
-            slow = None if ok else "other_net"
+            slow = None if p.net is self.net and ghost.path.net is self.net else "other_net"
         ok = slow is None
         self.slow[s] = 0 if ok else _WHY[slow]
         self.fast[s] = ok
         if not ok:
             return
-        rules, kf = p.rules, trk.kf
-        lf = trk.last_fix
-        paths = self._paths[s]
-        if paths is None or paths[0] is not trk.path:
-            self._put_path(s, trk.path, self.pe, self.pd, self.pc, self.pn)
-        if paths is None or paths[1] is not ghost.path:
-            self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
-        self._paths[s] = (trk.path, ghost.path)
-        n_s, n_r, n_i = len(trk.recent_s), len(rules.recent), len(rules.intervals)
-        pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
-        self.fm[s, :_G0] = [p.last_t, p.measured[0], p.measured[1], self.deadline[s], kf.s, kf.v, kf.a, kf.p00,
-                            kf.p01, kf.p02, kf.p11, kf.p12, kf.p22, kf.t, trk.dist_ema, trk.vpeak, trk.vpeak_t,
-                            lf[2], lf[3], lf[4], lf[5], rules.gap_limit, trk.reach,
-                            *pad_s, *trk.recent_s, *pad_r, *[pt[0] for pt in rules.recent],
-                            *pad_r, *[pt[1] for pt in rules.recent], *[0.0] * (RECENT - n_i), *rules.intervals]
-        if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish, and with it pub_t, validity
+        if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish (and with it its validity)
             self._ghosts[s] = ghost
             tb, sb, vb, b = ghost.plan
-            self.fm[s, _G0:_C0] = [p.pub_t, rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a,
-                                   ghost.vmax, tb, sb, vb, b, ghost.stop_s]
+            self.gm[s] = [p.rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a, ghost.vmax, tb, sb,
+                          vb, b, ghost.stop_s]
+            path = ghost.path
+            n = self.gn[s] = len(path.edges)
+            self.ge[s, :n] = [de[0] for de in path.edges]
+            self.gd[s, :n] = [de[1] for de in path.edges]
+            self.gc[s, : n + 1] = path.cum
+            self.gc[s, n + 1:] = math.inf
         if not self.consts[s]:
-            placer, et = trk.placer, trk.etype
-            self.fm[s, _C0:] = [kf.q, placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
-                                placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0,
-                                trk.lookahead, trk.margin, rules.threshold, rules.heartbeat, rules.max_gap,
-                                rules.lost_after, trk.body, et.vmax]
-            self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
+            rules, placer, et = p.rules, trk.placer, trk.etype
+            self.cm[s] = [placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
+                          placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0, trk.lookahead,
+                          trk.margin, rules.threshold, rules.heartbeat, rules.max_gap, rules.lost_after, trk.body,
+                          et.vmax]
+            self.has_route[s], self.confirm[s] = trk.has_route, rules.confirm
             self.consts[s] = True
-        dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
-        self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
-        self.iv_n[s] = n_i
-
-    @staticmethod
-    def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:
-        n = len(path.edges)
-        pn[s] = n
-        pe[s, :n] = [de[0] for de in path.edges]
-        pd[s, :n] = [de[1] for de in path.edges]
-        pc[s, : n + 1] = path.cum
-        pc[s, n + 1:] = math.inf

@@ -1,0 +1,87 @@
+"""The client-state record (entitynet/client/state.py): fields declared once, rows column-wise, rings and
+path rows, growth that keeps the rows, and the clear errors of a wrong use."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from entitynet.client.player import Player
+from entitynet.client.state import FLOATS, INTS, NF, NI, PATH_W, RECENT, Bound, Record, Ring, column
+from tests.entitynet.client_fixtures import cross
+
+
+class _Part(Bound):
+    __slots__ = ()
+    last_t = column("last_t", "opt")
+    ks = column("ks")
+    rev = column("rev", "int")
+    halted = column("halted", "bool")
+
+
+def test_fields_read_and_write_one_row_and_the_views_see_them():
+    rec = Record(1)
+    a, b = _Part(), _Part()
+    a.bind(rec, rec.new_row())
+    b.bind(rec, rec.new_row())  # (grows the record: a's row is kept)
+    assert a.last_t is None and a.ks == 0.0 and a.rev == 0 and a.halted is False
+    a.last_t, a.ks, a.rev, a.halted = 2.5, 7.0, 3, True
+    assert (a.last_t, a.ks, a.rev, a.halted) == (2.5, 7.0, 3, True) and b.ks == 0.0 and b.last_t is None
+    v = rec.view()
+    assert v["ks"][0] == 7.0 and v["rev"][0] == 3 and math.isnan(v["last_t"][1])
+    v["ks"][1] = -1.5  # the arrays write the same memory
+    assert b.ks == -1.5
+    a.last_t = None
+    assert a.last_t is None and math.isnan(rec.view()["last_t"][0])
+    assert type(a.ks) is float  # Python floats, not numpy scalars, for the scalar code
+
+
+def test_rings_keep_the_last_values_oldest_first():
+    rec = Record(1)
+    p = _Part()
+    p.bind(rec, rec.new_row())
+    ring = Ring("rs", "rs_n")
+    for k in range(8):
+        ring.push(p, float(k))
+    assert ring.get(p) == [3.0, 4.0, 5.0, 6.0, 7.0]
+    assert rec.view()["rs"][0].tolist() == [3.0, 4.0, 5.0, 6.0, 7.0] and rec.view()["rs_n"][0] == RECENT
+    ring.put(p, [1.0, 2.0])
+    assert ring.get(p) == [1.0, 2.0]
+    ring.clear(p)
+    assert ring.get(p) == []
+    with pytest.raises(ValueError, match="at most 5"):
+        ring.put(p, [0.0] * 6)
+
+
+def test_growth_keeps_rows_and_a_moved_row_is_the_same_state():
+    rec = Record(2)
+    for _ in range(5):
+        rec.new_row()
+    other = Record(1)
+    p = _Part()
+    p.bind(other, other.new_row())
+    p.ks, p.rev = 4.25, 9
+    row = rec.take(other, 0)
+    p.bind(rec, row)
+    assert (row, p.ks, p.rev, rec.rows) == (5, 4.25, 9, 6) and rec.cap == 8
+    # the declared fields and the bytes a row costs
+    assert NF == len(FLOATS) + 4 * RECENT and NI == len(INTS)
+    assert rec.nbytes_per_row() == 8 * (NF + NI + 3 * PATH_W + 1)
+
+
+def test_the_filter_and_the_path_belong_to_the_row():
+    p = Player(cross(arm=100.0), 1, "car", accuracy=4.0)
+    for k in range(3):
+        p.feed(10.0 + 5.0 * k, 1.0, float(k + 1))
+    trk = p.tracker
+    with pytest.raises(ValueError, match="the row's"):
+        trk.kf = object()  # the along-path filter is not replaced by another object
+    path = trk.path
+    v = p._st.view()
+    n = int(v["pn"][0])
+    assert [de[0] for de in path.edges] == v["pe"][0, :n].tolist() and path.cum == v["pc"][0, : n + 1].tolist()
+    assert np.isinf(v["pc"][0, n + 1 :]).all()  # (the arrays' search needs the padding)
+    trk.path = None
+    assert trk.path is None and v["pn"][0] == 0
