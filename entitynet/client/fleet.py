@@ -212,7 +212,8 @@ class FleetCore:
                 except FixRejected:
                     rejected += 1
                     msgs = []
-            self._refresh(s)
+            if self.vectorised:  # (one by one, every live slot ticks: nothing is derived)
+                self._refresh(s)
             if msgs:
                 out.append((s, msgs))
         return out, rejected
@@ -449,7 +450,7 @@ class FleetCore:
         elif (p.world is not None or not isinstance(ghost, NetworkModel) or p.estimate is not OWN_ESTIMATE
               or p.rules.periodic or not trk.written_out or trk.kf is None):
             slow = "baseline_model"
-        elif self.pn[s] <= 0 or len(ghost.path.edges) > W or self.rr_n[s] == 0:
+        elif not self.rec.path_to_arrays(s) or len(ghost.path.edges) > W or self.rr_n[s] == 0:
             slow = "path_or_ring_wide"
         else:
             if self.net is None:

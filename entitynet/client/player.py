@@ -166,13 +166,13 @@ class Player(PlayerState):
         velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per axis (m/s).
         Optional: without them the speed comes from differences of positions, about ten times noisier at 5 m, 1 Hz."""
         acc = self.accuracy if accuracy is None else float(accuracy)
-        check_fix(x, y, t, acc, self.last_t)
+        last_t = self.last_t
+        check_fix(x, y, t, acc, last_t)
         vel = velocity(speed, heading, speed_accuracy)
-        if self.last_t is not None and self.rules.note_interval(t - self.last_t) and self.tracker is not None:
+        if last_t is not None and self.rules.note_interval(t - last_t) and self.tracker is not None:
             self.tracker.follow_cadence(self.rules.interval)
-        self.last_t = t
         self.rules.halted = False
-        self.measured = (x, y, t)
+        self.measured = (x, y, t)  # (and last_t = t)
         r = acc * acc
         reason = None
         if self.world is not None:  # the baselines' state, and the only state without a topology
@@ -207,11 +207,12 @@ class Player(PlayerState):
         last fix (rules.py) publish the guess standing, `lost_after` after it unpublish (a fix publishes afresh)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
-        if self.last_t is not None and now < self.last_t:
-            raise ValueError(f"now {now!r} is before the last fix at {self.last_t!r}")
+        last_t = self.last_t
+        if last_t is not None and now < last_t:
+            raise ValueError(f"now {now!r} is before the last fix at {last_t!r}")
         if not self.published or self.ghost is None:
             return []
-        reason, stop_at = self.rules.on_tick(now, self.last_t, self.pub_t, self.occupation)
+        reason, stop_at = self.rules.on_tick(now, last_t, self.pub_t, self.occupation)
         if reason == "lost":
             self.stats["lost"] = self.stats.get("lost", 0) + 1
             self._forget()

@@ -9,9 +9,6 @@ lines each to map onto columns; the tracker's decisions read better without them
 
 from __future__ import annotations
 
-import math
-from array import array
-
 from entitynet.client.filters import RowKinematic
 from entitynet.client.network import DirEdge
 from entitynet.client.path import Path
@@ -112,21 +109,10 @@ class TrackerState(Bound):
     @path.setter
     def path(self, path: Path | None) -> None:
         """Write the row's `path` (the same fields the getter reads)."""
-        st, row = self._st, self._row
-        st.paths[row] = path
-        if path is None:
-            st.i[self._ib + _PN] = 0
-            return
-        n = len(path.edges)
-        if n > PATH_W:
-            st.i[self._ib + _PN] = -1  # (rare: wider than the arrays; the Path object is then the one home)
-            return
-        b = row * PATH_W
-        st.pe[b : b + n] = array("q", [de[0] for de in path.edges])
-        st.pd[b : b + n] = array("q", [de[1] for de in path.edges])
-        c = row * (PATH_W + 1)
-        st.pc[c : c + PATH_W + 1] = array("d", path.cum + [math.inf] * (PATH_W - n))
-        st.i[self._ib + _PN] = n
+        self._st.paths[self._row] = path
+        # the new Path is the one home of the path until the fleet core moves it into the arrays (`Record.
+        # path_to_arrays`): a Player alone never needs them, and a fix often changes the path twice
+        self._st.i[self._ib + _PN] = 0 if path is None else -1
 
     @property
     def recent_s(self) -> list[float]:

@@ -11,19 +11,23 @@ floats and ints); the fleet core reads and writes whole columns through numpy vi
 Layout: the float fields are the columns of one row-major block `f` (`FLOATS`, then the rings `RINGS`, each
 `RECENT` columns, oldest first, right-aligned, with a count in `INTS`); the integer fields of a block `i`;
 the path the tracker follows is three row arrays `pe` (edge), `pd` (direction), `pc` (cumulative length,
-`PATH_W + 1`), with `pn` edges used. The immutable `Path` object the scalar code works with is built from
-them when asked and kept in `paths[row]` until the row's path changes: a cache derived from the one truth,
-dropped whenever the arrays change (a path wider than `PATH_W`, rare, lives in `paths[row]` alone, `pn` -1).
+`PATH_W + 1`), with `pn` edges used, or the immutable `Path` object in `paths[row]`: one of the two is the truth,
+the other at most its cache. The scalar code sets a new `Path` (`pn` -1: the object is the truth); the fleet
+core moves it into the arrays before it works on the row (`path_to_arrays`; the object stays as their cache),
+and when it trims or extends a path in the arrays it drops the object, built again from them when asked. A
+path wider than `PATH_W` (rare) stays in its object.
 """
 
 from __future__ import annotations
 
 import math
 from array import array
+from struct import Struct
 
 import numpy as np
 
 RECENT = 5  # fixes kept by the tracker's `recent_s` and the rules' `recent` (and fix intervals kept)
+_RING, _TAIL = Struct(f"={RECENT}d"), Struct(f"={RECENT - 1}d")  # a ring's columns written / shifted at once
 PATH_W = 48  # the widest path a row holds in arrays (the tracker keeps at most MAX_PATH_EDGES)
 
 # (name, initial value, meaning): the float fields of a row
@@ -70,7 +74,8 @@ INTS = (
     ("pend_e", -1, "tracker: a candidate edge of the hysteresis (-1: none)"),
     ("pend_n", 0, "its count of fixes"),
     ("rs_n", 0, "count of rs"), ("rr_n", 0, "count of rx, ry"), ("iv_n", 0, "count of iv"),
-    ("pn", 0, "edges of the path in pe/pd/pc (0: no path; -1: wider than PATH_W, in `paths` only)"),
+    ("pn", 0, "edges of the path in pe/pd/pc (0: no path; -1: in the `Path` of `paths` only, set by the scalar "
+               "code, until `path_to_arrays`)"),
 )
 F_NAMES = tuple(n for n, _v, _m in FLOATS) + tuple(f"{r}{k}" for r, _c, _m in RINGS for k in range(RECENT))
 I_NAMES = tuple(n for n, _v, _m in INTS)
@@ -129,6 +134,24 @@ class Record:
         self.paths[r] = other.paths[row]
         return r
 
+    def path_to_arrays(self, row: int) -> bool:
+        """Move the row's path from its `Path` object (where the scalar code put it: `pn` -1) into the arrays
+        (the object stays as their cache). False where it does not fit (wider than PATH_W) or there is none."""
+        i, k = self.i, row * NI + I_COL["pn"]
+        if i[k] >= 0:
+            return i[k] > 0
+        path = self.paths[row]
+        n = len(path.edges)
+        if n > PATH_W:
+            return False
+        b = row * PATH_W
+        self.pe[b : b + n] = array("q", [de[0] for de in path.edges])
+        self.pd[b : b + n] = array("q", [de[1] for de in path.edges])
+        c = row * (PATH_W + 1)
+        self.pc[c : c + PATH_W + 1] = array("d", path.cum + [math.inf] * (PATH_W - n))
+        i[k] = n
+        return True
+
     def view(self) -> dict[str, np.ndarray]:
         """numpy views of the same memory (valid until the record grows): every column by its name (a float
         or int field, rows long), the rings by their prefix (rows x RECENT), and pe, pd, pc (rows x width)."""
@@ -167,10 +190,14 @@ def column(name: str, kind: str = "float") -> property:
     at = f"o._st.{blk}[o.{base} + {j}]"
     put = f"lambda o, v: o._st.{blk}.__setitem__(o.{base} + {j}, %s)"
     get, value = {"float": (at, "v"), "int": (at, "v"), "bool": (f"{at} != 0", "1 if v else 0"),
-                  "opt": (f"None if {at} != {at} else {at}", "math.nan if v is None else v")}[kind]
+                  "opt": (None, "math.nan if v is None else v")}[kind]
     env = {"math": math}
-    return property(eval(f"lambda o: {get}", env), eval(put % value, env),
-                    doc=f"the row's `{name}` (entitynet/client/state.py)")
+    if get is None:  # (a statement: the value read once)
+        exec(f"def get(o):\n    v = {at}\n    return None if v != v else v", env)
+        fget = env["get"]
+    else:
+        fget = eval(f"lambda o: {get}", env)
+    return property(fget, eval(put % value, env), doc=f"the row's `{name}` (entitynet/client/state.py)")
 
 
 class Ring:
@@ -191,9 +218,8 @@ class Ring:
     def push(self, o: Bound, v: float, counted: bool = True) -> None:
         """Append `v`, dropping the oldest beyond RECENT (`counted=False`: a ring sharing its count with
         another, pushed second)."""
-        f, b = o._st.f, o._fb + self.j
-        f[b : b + RECENT - 1] = f[b + 1 : b + RECENT]
-        f[b + RECENT - 1] = v
+        f, b = o._st.f, 8 * (o._fb + self.j)
+        _RING.pack_into(f, b, *_TAIL.unpack_from(f, b + 8), v)
         if counted:
             i, c = o._st.i, o._ib + self.c
             if i[c] < RECENT:

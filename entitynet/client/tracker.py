@@ -320,9 +320,8 @@ class NetworkTracker(TrackerState):
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
             return "jump"
         _RS.push(self, s_meas)
-        kf = self.kf
-        kf.update(s_meas, t, r)
-        v = kf.v
+        kf = self._kf
+        s, v = kf.update_sv(s_meas, t, r)
         if v > self.vpeak or t - self.vpeak_t > 120.0:
             self.vpeak, self.vpeak_t = v, t
         reason = None
@@ -334,11 +333,9 @@ class NetworkTracker(TrackerState):
             if self.reverse_count >= 3:
                 self._reverse()
                 reason = "path"
+                s, v, path = kf.s, kf.v, self.path
         # `_maintain_path` changes nothing unless the path is to be trimmed or is short of what is needed ahead
-        path = self.path
         cum = path.cum
-        s = kf.s
-        v = kf.v
         if ((len(cum) > 2 and s - (self.body + self.margin + 50.0) > cum[1])
                 or (cum[-1] < s + self.lookahead + self.margin + 80.0 + 15.0 * (v if v > 0.0 else 0.0)
                     and len(path.edges) < MAX_PATH_EDGES and path.edges[-1] != self.dead_end)):

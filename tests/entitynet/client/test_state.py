@@ -80,8 +80,10 @@ def test_the_filter_and_the_path_belong_to_the_row():
         trk.kf = object()  # the along-path filter is not replaced by another object
     path = trk.path
     v = p._st.view()
+    assert v["pn"][0] == -1  # set by the scalar code: the `Path` is the one home, until the fleet core moves it
+    assert p._st.path_to_arrays(0) and trk.path is path
     n = int(v["pn"][0])
     assert [de[0] for de in path.edges] == v["pe"][0, :n].tolist() and path.cum == v["pc"][0, : n + 1].tolist()
     assert np.isinf(v["pc"][0, n + 1 :]).all()  # (the arrays' search needs the padding)
     trk.path = None
-    assert trk.path is None and v["pn"][0] == 0
+    assert trk.path is None and v["pn"][0] == 0 and not p._st.path_to_arrays(0)
