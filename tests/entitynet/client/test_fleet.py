@@ -134,7 +134,7 @@ def _state(p: Player) -> tuple:
     """The state a fix changes: fix history, tracker, along-path filter, update rules."""
     trk, kf = p.tracker, p.tracker.kf
     return (p.last_t, p.measured, trk.recent_s, p.rules.recent, p.rules.over, trk.last_fix, trk.dist_ema, trk.vpeak,
-            None if kf is None else [getattr(kf, f) for f in kf.__slots__])
+            None if kf is None else [getattr(kf, f) for f in kf.FIELDS])
 
 
 def test_written_back_state_is_the_players_own():

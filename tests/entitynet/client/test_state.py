@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from entitynet.client.filters import Kinematic1D, RowKinematic
 from entitynet.client.player import Player
 from entitynet.client.state import FLOATS, INTS, NF, NI, PATH_W, RECENT, Bound, Record, Ring, column
 from tests.entitynet.client_fixtures import cross
@@ -87,3 +88,20 @@ def test_the_filter_and_the_path_belong_to_the_row():
     assert np.isinf(v["pc"][0, n + 1 :]).all()  # (the arrays' search needs the padding)
     trk.path = None
     assert trk.path is None and v["pn"][0] == 0 and not p._st.path_to_arrays(0)
+
+
+@pytest.mark.parametrize("accel", [True, False])
+def test_the_row_filter_is_the_slot_filter_bit_for_bit(accel):
+    rec = Record(1)
+    row = RowKinematic()
+    row.bind(rec, rec.new_row())
+    row.reset(3.0, 0.0, 25.0, q=0.3, accel=accel)
+    own = Kinematic1D(3.0, 0.0, 25.0, q=0.3, accel=accel)
+    rng = np.random.default_rng(3)
+    for k in range(1, 40):
+        z, t = 1.7 * k + rng.normal() * 5.0, float(k) + (0.5 if k % 7 == 0 else 0.0)
+        assert row.update(z, t, 25.0) == own.update(z, t, 25.0)
+        assert [getattr(row, f) for f in row.FIELDS] == [getattr(own, f) for f in own.FIELDS]
+    row.update(0.0, 50.0, -1e9)  # an innovation variance <= 0: the prediction only, in both
+    own.update(0.0, 50.0, -1e9)
+    assert [getattr(row, f) for f in row.FIELDS] == [getattr(own, f) for f in own.FIELDS]
