@@ -197,6 +197,9 @@ class Shell:
         while not stop.is_set():
             if cfg.duration is not None and sim.ticks * sim.dt >= cfg.duration - 1e-9:
                 break
+            if getattr(sim, "ended_early", None):  # sims.workers: every worker is gone, the report says so
+                self.say(f"[{sim.ticks * sim.dt:6.0f}s] stopping: {sim.ended_early}")
+                break
             with trio.move_on_at(due):
                 await stop.wait()
             if stop.is_set():

@@ -74,6 +74,9 @@ def register(sub) -> None:
     p.add_argument("--sumocfg", metavar="FILE", help="with --mobility sumo: the scenario's .sumocfg (default: the "
                    "bundled map's scenario, generated once by `entitynet sumo scenario` and cached)")
     p.set_defaults(func=run)
+    from sims.workers.commands import add_options
+
+    add_options(p)  # --workers, --nats, ... and `entitynet sim worker`
 
 
 def sim_args(**overrides) -> argparse.Namespace:
@@ -121,13 +124,14 @@ def run(args: argparse.Namespace) -> int:
                                                        external=args.server is not None or args.shards is not None)
     except ValueError as exc:
         problems.append(str(exc))
+    from sims.workers.commands import check as check_workers
+
+    problems += check_workers(args)
     if problems:
         raise CommandError("; ".join(problems))
-    import trio
 
     from entitynet.topology_cache import bundled_topology
-    from sims.engine.sim import Sim, SimConfig
-    from sims.shell import Shell, ShellConfig
+    from sims.engine.sim import SimConfig
 
     t0 = time.perf_counter()
 
@@ -168,7 +172,25 @@ def run(args: argparse.Namespace) -> int:
         except RegionError as exc:
             raise CommandError(str(exc)) from None
         shard_at = shard_locator(topo, regions)
-    sim = Sim(topo, config, schedule, shards=args.shards or 1, shard_at=shard_at, source=source)
+    from sims.workers.commands import close_sim, make_sim
+
+    try:
+        sim = make_sim(args, topo, config, schedule, shards=args.shards or 1, shard_at=shard_at, source=source,
+                       say=say)
+    except (RuntimeError, ValueError) as exc:
+        raise CommandError(str(exc)) from None
+    try:
+        return _run_sim(args, sim, config, path, topo, regions, child_server, child_why, say)
+    finally:
+        close_sim(sim)
+
+
+def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, child_why: str, say) -> int:
+    """The run itself, once the simulation is built (its workers, if any, are ended by the caller)."""
+    import trio
+
+    from sims.shell import Shell, ShellConfig
+
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
         f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")

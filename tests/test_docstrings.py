@@ -37,6 +37,7 @@ DOCUMENTED = (
     "sims/data/make_hsl_extract.py",
     "sims/mobility",
     "sims/sumo",
+    "sims/workers",
     "sims/demo.py",
     "proxies",
 )

@@ -14,6 +14,7 @@ from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
 from entitynet.client.hold import PlacementHold, cells_under
+from entitynet.client.kinematics import advance
 from entitynet.client.lateral import near_index
 from entitynet.client.modes import AREA
 from entitynet.client.motion import AreaModel, Model, NetworkModel
@@ -33,6 +34,10 @@ from entitynet.client.route import Route
 from entitynet.client.tracker import MAX_PATH_EDGES, NetworkTracker
 
 MAX_PUBLISH_CELLS = 64
+#: seconds of the published model's travel (beyond the margin) for which the other ways within `lateral` metres
+#: are covered ahead, and the least distance (m) (`Coverage._lateral_ahead`)
+LATERAL_AHEAD_TIME = 12.0
+LATERAL_AHEAD_MIN = 10.0
 
 
 def _wire(occ: Occupation) -> Occupation:
@@ -153,7 +158,7 @@ class Coverage:
             # with a route, only the route's own ways: where it turns back on itself (a tram's terminal
             # triangle, a bus loop) the way back lies within GPS noise of the way on, and the tracker may hold
             # the wrong one for a while (issue 20: the largest share of the vehicles' occupation error)
-            extra = self._lateral_cells(trk, path, s, occ.cover_end - s,
+            extra = self._lateral_cells(trk, path, s, self._lateral_ahead(v, a, occ.cover_end - s),
                                         None if back is None else back.cover_end - back.cover_start,
                                         only=self.route.edge_ids if self.has_route else None, lateral=lateral)
             cells = list(occ.cells)
@@ -162,6 +167,23 @@ class Coverage:
                     cells.append(c)
             occ = with_cells(occ, tuple(cells))
         return _wire(occ)
+
+    def _lateral_ahead(self, v: float, a: float, ahead: float) -> float:
+        """How far ahead of the position the other ways are covered (the occupation itself reaches `ahead`):
+        without a route, LATERAL_AHEAD_TIME seconds of the published model's travel (at least
+        LATERAL_AHEAD_MIN) beyond the margin. Why not as far as the occupation: an entity that is on the other
+        way is re-placed there by its next fixes within seconds (and a place that rests on one fix is held with
+        a wider cover meanwhile, hold.py), so the other way's cells further on were deliveries to viewers for an
+        entity that was not coming (issue 20). Measured (bench sim's PVS run and `bench dr`, seed 7): the
+        street deliveries for entities in no visible cell fell 5 %, with the walkers' occupation error 0.061 %
+        before and 0.026 % after: the path's own edges beyond this reach become lateral candidates near the
+        position (`_lateral_cells`), which covers a path that loops back along a way drawn twice. With a route
+        the route's own legs are covered as far as the occupation (a terminal triangle, issue 20)."""
+        if self.has_route:
+            return ahead
+        d, _v = advance(max(v, 0.0), a, self.etype.vmax, LATERAL_AHEAD_TIME)
+        reach = self.margin + (d if d > LATERAL_AHEAD_MIN else LATERAL_AHEAD_MIN)
+        return reach if reach < ahead else ahead
 
     def _behind(self, path: Path, s: float, lookahead: float, networks: int) -> Occupation:
         """The occupation of a standing entity turned around: the published path's edge at s reversed and

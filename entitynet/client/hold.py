@@ -22,7 +22,7 @@ from entitynet.client.occupation import Occupation, with_cells
 JUMP_HOLD = 5.0
 #: how much wider the lateral cover is meanwhile: by default 3 x accuracy instead of 2 x (99 % of a 2-D Gaussian
 #: fix lies within 3 sigma, 86 % within 2); no lateral cover stays none
-PLACED_WIDENING = 1.5
+PLACED_WIDENING = 1.25
 
 
 class PlacementHold:

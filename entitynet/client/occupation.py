@@ -34,19 +34,23 @@ from entitynet.client.kinematics import INF, advance, time_to_travel
 from entitynet.client.path import Path
 
 #: metres the occupation reaches past the body and its margin up to the next choice of way when no route is
-#: known (as deep as the branch tree at a junction, `occupy`'s `branch_depth`), and the least along a route
+#: known (the branch tree at a junction reaches no deeper past the body and margin), and the least along a route
 #: (`lookahead_for`); also the way the tracker keeps ahead beyond the extrapolation. Every cell listed ahead
 #: sends the entity's updates to viewers before it is there: with 150 m, 40 % of a street viewer's deliveries
-#: in the city simulation were for entities in no visible cell (issue 11, docs/simulation.md).
-LOOKAHEAD = 40.0
+#: in the city simulation were for entities in no visible cell (issue 11, docs/simulation.md). Measured with
+#: the lateral cover's reach (coverage.py), seed 7 (issue 20): 40 / 30 / 25 / 20 m gave street deliveries for
+#: entities in no visible cell (`sims.bench.sim_causes`) of 2.95 / 2.56 / 2.40 / 2.22 per viewer-s, publishes
+#: +0 / +1.3 / +2.6 / +4.8 % (more validity expiries), walkers' occupation error (`bench dr`) 0.026 / 0.032 /
+#: 0.032 / 0.051 %; 30 m is the knee.
+LOOKAHEAD = 30.0
 
 #: seconds of the published model's travel that the occupation of an entity on a known route lists ahead of
 #: its body and margin: a vehicle's drift rule re-publishes about every 6 s (`bench dr`), so a cover that lasts
 #: 12 s seldom expires first. With the fixed 40 m a tram at 12 m/s re-published every 4 s for the validity
-#: alone, and a ghost halting at a stop the vehicle passed left it outside its cells (issue 20). Without a
-#: route the occupation stops at the next choice of way, and LOOKAHEAD (the junction tree's depth) stays: a
-#: shorter one raised the walkers' occupation error (0.061 % to 0.11 % at 20 m), a longer one the deliveries
-#: for entities in no visible cell (issue 11).
+#: alone, and a ghost halting at a stop the vehicle passed left it outside its cells (issue 20). 10 s and 8 s
+#: cut the deliveries for entities in no visible cell by 0.6 % and 1 % but re-published the vehicles 0.5 % and
+#: 2 % more often (validity expiries). Without a route the occupation stops at the next choice of way, and
+#: LOOKAHEAD (the junction tree's depth) stays.
 LOOKAHEAD_TIME = 12.0
 #: the most (m): the viewers of every cell listed receive the entity's updates before it is there
 LOOKAHEAD_MAX = 150.0

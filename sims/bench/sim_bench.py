@@ -27,6 +27,8 @@ Figures (keys of `results`):
 - `collisions`: avoided, accepted, deleted in the PVS run; `tick_lateness_p99_ms` of the largest real-time run.
 - `error_vs_updates`: ghost error p95 against updates per entity-minute for a range of client drift thresholds
   (plotted to `sim-error-vs-updates.png` next to the report when matplotlib is there).
+- `workers` (issue 23, `sims.bench.sim_workers`): the same run in one process, with one worker process and with
+  two, the cost split per entity-tick behind the model for N machines; ratio `two_vs_one_worker` (wall time).
 - `sumo` (issue 26, `sims.sumo.compare`): SUMO's world step against ours per vehicle-second with the same cars on
   the same map (`step_cost`, ratio `world_step_ours_vs_sumo`), the end-to-end figures on SUMO's motion and ours
   (`end_to_end`) and the SUMO entities kept in real time (`realtime_trials`, `entities_realtime_max`); a
@@ -209,6 +211,9 @@ def run(args, progress) -> dict[str, Any]:
 
     sumo = bench_rows(topo, artifact, schedule, quick, progress)
 
+    from sims.bench.sim_workers import worker_rows  # the same run in one process, with 1 and with 2 workers
+
+    workers = worker_rows(topo, schedule, quick, progress, artifact=artifact)
     all_pvs = pvs["truth_vs_viewer"]["all"]
     results = {
         "entities_realtime_max": best,
@@ -234,6 +239,7 @@ def run(args, progress) -> dict[str, Any]:
         "realtime_trials": trials,
         "realtime_trials_server_process": child_trials,
         "sumo": sumo,
+        "workers": workers,
     }
     out = getattr(args, "out", None)
     if out:
@@ -250,6 +256,7 @@ def run(args, progress) -> dict[str, Any]:
         "ratio": {"radius_vs_pvs_deliveries": results["radius_vs_pvs_deliveries_ratio"],
                   "fleet_core_vs_player": fleet["ratio"],
                   "server_process_vs_in_process_realtime_max": child_best / best if best else None,
+                  "two_vs_one_worker": workers["two_vs_one_worker"],
                   "world_step_ours_vs_sumo": [c["ours_vs_sumo"] for c in sumo.get("step_cost", [])] or None},
     }
 

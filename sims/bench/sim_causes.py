@@ -141,6 +141,7 @@ def instrumented_run(topo, schedule, cfg: SimConfig, seconds: float) -> dict[str
     rows = rec.rows
     by = Counter()
     by_type = Counter()
+    not_in_view_by_type = Counter()  # (type, "then" / "never")
     cells_hist = Counter()
     for r in rows:
         by["all"] += 1
@@ -151,8 +152,10 @@ def instrumented_run(topo, schedule, cfg: SimConfig, seconds: float) -> dict[str
             by["in_view"] += 1
         elif r["ever_in_view"]:
             by["ahead_then_in_view"] += 1
+            not_in_view_by_type[r["type"], "then"] += 1
         else:
             by["ahead_never_in_view"] += 1
+            not_in_view_by_type[r["type"], "never"] += 1
         by_type[r["type"]] += 1
         cells_hist["1" if r["cells"] == 1 else "2-3" if r["cells"] <= 3 else "4-7" if r["cells"] <= 7
                    else "8-15" if r["cells"] <= 15 else "16+"] += 1
@@ -166,6 +169,8 @@ def instrumented_run(topo, schedule, cfg: SimConfig, seconds: float) -> dict[str
         "by_reason_per_viewer_s": {k: by[k] / vs for k in ("live", "snapshot", "snapshot_resent", "duplicate",
                                                           "in_view", "ahead_then_in_view", "ahead_never_in_view")},
         "by_type_per_viewer_s": {k: c / vs for k, c in sorted(by_type.items())},
+        # the deliveries for cells ahead of the body, by type: which types' look-ahead the viewers pay for
+        "not_in_view_by_type_per_viewer_s": {f"{k}_{w}": c / vs for (k, w), c in sorted(not_in_view_by_type.items())},
         "publishes_per_entity_min": {k: rec.publishes[k] / ent_min[k] for k in sorted(ent_min) if ent_min[k]},
         "mean_entities_by_type": {k: s / seconds for k, s in sorted(rec.entity_s.items())},
         "cells_per_update": {k: cells_hist[k] / max(by["all"], 1) for k in ("1", "2-3", "4-7", "8-15", "16+")},

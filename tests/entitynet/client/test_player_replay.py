@@ -3,7 +3,8 @@
 Splitting the client core into parts (tracker, coverage, update rules, world-frame baselines) must not change
 one decision. These walks (every model, three entity types, with and without an a-priori route and stops,
 Doppler velocities, turns back, pauses, fix gaps long enough to halt and to lose the entity) are replayed and
-digested; the digests were recorded on the single-class Player (main 5a35715) before the split.
+digested; the digests were recorded on the single-class Player (main 5a35715) before the split, and recorded again
+where a rule changed on purpose (issue 20: the look-ahead, the lateral reach, a stop where the model halts).
 Run `python -m tests.entitynet.client.test_player_replay` to print them; player_replay_digests.json holds them.
 """
 

@@ -1,0 +1,129 @@
+"""`WorkerSim` over forked local workers: with one worker the report is the run in one process, with two the
+truth is the same (the documented difference: GPS noise per worker), and a worker killed mid-run is named in
+the report with its entities restarted on the survivor; no child process is left behind."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import psutil
+import pytest
+
+from sims.engine.local import LocalSwitch, run_local
+from sims.engine.sim import Sim, SimConfig
+from sims.workers.local import LocalWorkers
+from sims.workers.sim import NOISE_NOTE, WorkerSim
+from tests.sims.engine.test_routes import grid
+
+
+def config() -> SimConfig:
+    return SimConfig(entities=16, viewers=4, connections=2, tick_hz=2.0, subscribe="radius", radius=400.0,
+                     transit=False, start=0.0, seed=5)
+
+
+@pytest.fixture(scope="module")
+def topo():
+    return grid()
+
+
+def worker_run(topo, n: int, seconds: float = 15.0) -> tuple[dict, list[int]]:
+    link = LocalWorkers(n, topo, None)
+    pids = link.pids
+    sim = WorkerSim(topo, config(), None, link, n, transport="local", timeout=5.0)
+    try:
+        rep = run_local(sim, seconds)
+    finally:
+        sim.close()
+    return rep, pids
+
+
+def no_children_left(pids: list[int]) -> bool:
+    return not [p for p in pids if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+
+
+def test_one_worker_gives_the_report_of_the_run_in_one_process(topo):
+    alone = run_local(Sim(topo, config()), 15.0)
+    rep, pids = worker_run(topo, 1)
+    w = rep.pop("workers")
+    assert rep == alone
+    assert w["n"] == 1 and w["deaths"] == [] and w["interactions_missed_across_workers"] == 0
+    assert w["per_worker"][0]["ticks"] == 31 and w["per_worker"][0]["pid"] == pids[0]
+    assert no_children_left(pids)
+
+
+def test_two_workers_keep_the_truth_and_say_what_differs(topo):
+    alone = run_local(Sim(topo, config()), 15.0)
+    rep, pids = worker_run(topo, 2)
+    w = rep.pop("workers")
+    for same in ("entities", "collisions", "spawned", "arrived", "stops_served", "sim_time_s", "mobility"):
+        assert rep[same] == alone[same], same
+    assert rep["clients"]["fixes"] == alone["clients"]["fixes"]  # every entity's fixes, once, whoever takes them
+    assert rep["clients"]["published"] > 0
+    assert w["differs"] == NOISE_NOTE and "GPS noise" in NOISE_NOTE
+    assert sum(w["entities_now"]) == sum(rep["entities"].values()) and min(w["entities_now"]) > 0
+    assert no_children_left(pids)
+
+
+def test_a_worker_killed_mid_run_is_named_and_its_entities_restarted(topo):
+    link = LocalWorkers(2, topo, None)
+    pids = link.pids
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=5.0)
+    sw = LocalSwitch(sim)
+    try:
+        sw.exchange(*sim.start())
+        for k in range(30):
+            if k == 10:
+                os.kill(pids[1], signal.SIGKILL)
+            sw.exchange(*sim.step())
+            sim.maybe_sample(sw.eid_to_agent())
+        rep = sim.report()
+    finally:
+        sim.close()
+    (death,) = rep["workers"]["deaths"]
+    assert death["worker"] == 1 and death["pid"] == pids[1] and "ended" in death["why"]
+    assert death["entities"] > 0 and death["restarted"] == death["entities"] and death["lost"] == 0
+    assert death["restarted_on"] == [0] and 5.0 <= death["sim_time_s"] <= 6.0
+    live = sum(rep["entities"].values())
+    assert rep["workers"]["entities_now"] == [live, 0]  # the survivor carries everyone
+    published = {e.local for e in sw.sb.entities.values()}
+    assert published == set(sim.world.agents)  # and every live entity is on the server again
+    assert no_children_left(pids)
+
+
+def test_when_every_worker_is_gone_the_run_ends_and_says_so(topo):
+    link = LocalWorkers(1, topo, None)
+    sim = WorkerSim(topo, config(), None, link, 1, transport="local", timeout=5.0)
+    try:
+        sim.start()
+        os.kill(link.pids[0], signal.SIGKILL)
+        sim.step()
+        assert "every worker is gone" in sim.ended_early
+        ticks = sim.ticks
+        pubs, _subs = sim.step()  # nothing moves any more: the drivers stop on ended_early
+        assert sim.ticks == ticks and not any(pubs)
+        rep = sim.report()["workers"]
+        assert rep["entities_lost"] == 16 and rep["deaths"][0]["lost"] == 16
+    finally:
+        sim.close()
+    assert no_children_left(link.pids)
+
+
+def test_a_worker_too_slow_for_the_timeout_is_declared_dead_and_told_so(topo):
+    link = LocalWorkers(2, topo, None)
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=0.5)
+    try:
+        sim.start()
+        os.kill(link.pids[1], signal.SIGSTOP)  # alive but silent: only the timeout can tell
+        sim.step()
+        (death,) = sim.deaths
+        assert death["worker"] == 1 and "no answer to tick 1 within 0.5 s" in death["why"]
+        os.kill(link.pids[1], signal.SIGCONT)
+        for _ in range(3):
+            sim.step()  # its late answer is stray; the run goes on with worker 0 alone
+        link.procs[1].join(5)
+        assert link.procs[1].exitcode == 0  # it got the stop and ended its run
+        assert sim.assignment.counts(sim.world.agents)[1] == 0
+    finally:
+        sim.close()
+    assert no_children_left(link.pids)

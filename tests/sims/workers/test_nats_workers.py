@@ -1,0 +1,242 @@
+"""Workers over NATS on loopback with real processes: a real nats-server, two `entitynet sim worker`
+subprocesses and the coordinator `entitynet sim --nats`; one worker SIGKILLed mid-run is named in the report,
+its entities restarted on the other, the run ends on time and no process is left behind. Bad input: a bad
+URL, no NATS there, workers that never join, --workers 0 or negative: one clear error each, no hang."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from entitynet.cli import main
+from entitynet.cluster.natsd import NatsCluster, free_port, nats_server_binary
+from tests.sims.engine.test_routes import grid
+from topology.artifact import save
+
+try:
+    nats_server_binary()
+    HAVE_NATS = True
+except RuntimeError:
+    HAVE_NATS = False
+needs_nats = pytest.mark.skipif(not HAVE_NATS, reason="nats-server is not installed")
+
+
+@pytest.fixture(scope="module")
+def grid_path(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("grid") / "grid.enttopo"
+    save(grid(), path)
+    return path
+
+
+@pytest.fixture
+def nats():
+    with NatsCluster(1) as cluster:
+        yield cluster.urls
+
+
+def _entitynet(*args: str, log: Path, session: bool = False) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "entitynet", *args], stdout=subprocess.DEVNULL,
+                            stderr=open(log, "w"), stdin=subprocess.DEVNULL,  # noqa: SIM115 (the child owns it)
+                            start_new_session=session)
+
+
+def _wait_for(path: Path, text: str, proc: subprocess.Popen, timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if text in path.read_text():
+            return
+        assert proc.poll() is None, path.read_text()
+        time.sleep(0.05)
+    raise AssertionError(f"{text!r} not in {path.name} within {timeout} s: {path.read_text()}")
+
+
+@needs_nats
+def test_two_workers_over_nats_one_killed_mid_run(nats, grid_path, tmp_path):
+    topo = ["--topology", str(grid_path)]
+    logs = [tmp_path / f"worker{i}.log" for i in range(2)]
+    workers = [_entitynet("sim", "worker", "--nats", nats, *topo, "--once", log=log) for log in logs]
+    procs = list(workers)
+    try:
+        for w, log in zip(workers, logs, strict=True):
+            _wait_for(log, "waiting for a run", w)
+        report = tmp_path / "report.json"
+        coord_log = tmp_path / "coordinator.log"
+        coord = _entitynet("sim", "--nats", nats, "--workers", "2", *topo, "--gtfs", "none", "--entities", "16",
+                           "--viewers", "3", "--connections", "2", "--duration", "10", "--speed", "2",
+                           "--worker-timeout", "1", "--summary-every", "1", "--report", str(report), log=coord_log)
+        procs.append(coord)
+        for w, log in zip(workers, logs, strict=True):
+            _wait_for(log, "joined run", w)
+        _wait_for(coord_log, "[     2s]", coord)  # the run is under way
+        victim = next(w for w, log in zip(workers, logs, strict=True) if "as worker 1" in log.read_text())
+        victim.send_signal(signal.SIGKILL)
+        assert coord.wait(30) == 0, coord_log.read_text()
+        survivor = next(w for w in workers if w is not victim)
+        assert survivor.wait(15) == 0, [log.read_text() for log in logs]
+        rep = json.loads(report.read_text())
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait(5)
+    w = rep["workers"]
+    (death,) = w["deaths"]
+    assert death["worker"] == 1 and death["pid"] == victim.pid and "no answer to tick" in death["why"]
+    assert death["entities"] > 0 and death["restarted"] == death["entities"] and death["restarted_on"] == [0]
+    assert w["transport"] == f"nats {nats}" and w["entities_now"][1] == 0
+    assert rep["sim_time_s"] == 10.0  # the run went on to its end without the dead worker
+    assert "worker 1 (" in coord_log.read_text() and f"pid {victim.pid}) lost at tick" in coord_log.read_text()
+    assert w["per_worker"][0]["alive"] and w["per_worker"][0]["pid"] == survivor.pid
+    left = [p.pid for p in procs if psutil.pid_exists(p.pid) and psutil.Process(p.pid).status() != "zombie"]
+    ours = [c for c in psutil.Process().children(recursive=True) if c.name() != "nats-server"]  # the fixture's
+    assert left == [] and ours == []
+
+
+@needs_nats
+def test_a_worker_with_another_map_refuses_and_the_coordinator_says_why(nats, grid_path, tmp_path, capsys):
+    from tests.entitynet.client_fixtures import make_topology
+    from topology.raw import PEDESTRIAN, VEHICLE
+
+    other = tmp_path / "other.enttopo"
+    save(make_topology({"a": (0.0, 0.0), "b": (300.0, 0.0)}, [("a", "b", PEDESTRIAN | VEHICLE)]), other)
+    log = tmp_path / "worker.log"
+    w = _entitynet("sim", "worker", "--nats", nats, "--topology", str(other), "--once", log=log)
+    try:
+        _wait_for(log, "waiting for a run", w)
+        code = main(["sim", "--nats", nats, "--workers", "1", "--topology", str(grid_path), "--gtfs", "none",
+                     "--entities", "4", "--viewers", "1", "--duration", "1"])
+        err = capsys.readouterr().err
+        assert code == 2 and "worker 0 (" in err and "another topology than the coordinator's" in err
+    finally:
+        w.kill()
+        w.wait(5)
+
+
+@needs_nats
+def test_workers_that_never_join_are_a_clear_error_after_the_join_timeout(nats, grid_path, capsys):
+    t0 = time.monotonic()
+    code = main(["sim", "--nats", nats, "--workers", "2", "--join-timeout", "0.5", "--topology", str(grid_path),
+                 "--gtfs", "none", "--entities", "4", "--viewers", "1", "--duration", "1"])
+    err = capsys.readouterr().err
+    assert code == 2 and "only 0 of 2 worker(s) joined" in err and "entitynet sim worker --nats" in err
+    assert time.monotonic() - t0 < 10
+
+
+def test_bad_urls_and_no_nats_there_are_clear_errors(grid_path, capsys):
+    assert main(["sim", "--nats", "http://x:1", "--topology", str(grid_path), "--gtfs", "none"]) == 2
+    assert "--nats: bad NATS server" in capsys.readouterr().err
+    assert main(["sim", "worker", "--nats", "http://x:1"]) == 2
+    assert "--nats: bad NATS server" in capsys.readouterr().err
+    port = free_port()
+    assert main(["sim", "--nats", f"nats://127.0.0.1:{port}", "--topology", str(grid_path), "--gtfs", "none",
+                 "--entities", "4", "--viewers", "1", "--duration", "1"]) == 2
+    assert f"cannot reach NATS at nats://127.0.0.1:{port}" in capsys.readouterr().err
+    assert main(["sim", "worker", "--nats", f"nats://127.0.0.1:{port}", "--topology", str(grid_path)]) == 2
+    assert "cannot reach NATS" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad", ["0", "-1", "nan", "1.5", "257"])
+def test_worker_counts_out_of_range_are_usage_errors(bad, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["sim", "--workers", bad])
+    assert exc.value.code == 2 and "--workers: expected an integer from 1 to 256" in capsys.readouterr().err
+
+
+@needs_nats
+def test_an_idle_worker_stops_on_ctrl_c_without_a_traceback(nats, grid_path, tmp_path):
+    log = tmp_path / "worker.log"
+    w = _entitynet("sim", "worker", "--nats", nats, "--topology", str(grid_path), log=log)
+    try:
+        _wait_for(log, "waiting for a run", w)
+        w.send_signal(signal.SIGINT)
+        assert w.wait(10) == 0
+    finally:
+        if w.poll() is None:
+            w.kill()
+            w.wait(5)
+    text = log.read_text()
+    assert "stopped" in text and "Traceback" not in text
+
+
+@needs_nats
+def test_a_worker_whose_coordinator_is_killed_gives_the_run_up_and_exits(nats, grid_path, tmp_path):
+    log = tmp_path / "worker.log"
+    w = _entitynet("sim", "worker", "--nats", nats, "--topology", str(grid_path), "--once", log=log)
+    coord_log = tmp_path / "coordinator.log"
+    coord = None
+    try:
+        _wait_for(log, "waiting for a run", w)
+        coord = _entitynet("sim", "--nats", nats, "--topology", str(grid_path), "--gtfs", "none", "--entities", "8",
+                           "--viewers", "1", "--worker-timeout", "1", log=coord_log)
+        _wait_for(log, "joined run", w)
+        coord.send_signal(signal.SIGKILL)
+        coord.wait(5)
+        assert w.wait(15) == 0  # gave the run up after its silence limit, and --once ends it
+    finally:
+        for p in (w, coord):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait(5)
+    assert "run ended (the coordinator was silent for over 5 s)" in log.read_text()
+
+
+def test_local_workers_die_with_a_killed_coordinator(grid_path, tmp_path):
+    coord_log = tmp_path / "coordinator.log"
+    coord = _entitynet("sim", "--workers", "2", "--topology", str(grid_path), "--gtfs", "none", "--entities", "8",
+                       "--viewers", "1", "--summary-every", "0.5", log=coord_log)
+    try:
+        _wait_for(coord_log, "worker process(es) on this machine", coord)
+        kids = psutil.Process(coord.pid).children(recursive=True)
+        assert len(kids) == 2
+        _wait_for(coord_log, "[     ", coord)  # the run is under way
+        coord.send_signal(signal.SIGKILL)
+        coord.wait(5)
+        _gone, alive = psutil.wait_procs(kids, timeout=5)
+        assert not alive, "a worker outlived its coordinator"
+    finally:
+        if coord.poll() is None:
+            coord.kill()
+            coord.wait(5)
+
+
+def test_ctrl_c_ends_a_run_with_local_workers_cleanly(grid_path, tmp_path):
+    coord_log = tmp_path / "coordinator.log"
+    report = tmp_path / "report.json"
+    coord = _entitynet("sim", "--workers", "2", "--topology", str(grid_path), "--gtfs", "none", "--entities", "8",
+                       "--viewers", "1", "--summary-every", "0.5", "--report", str(report), log=coord_log,
+                       session=True)
+    try:
+        _wait_for(coord_log, "worker process(es) on this machine", coord)
+        kids = psutil.Process(coord.pid).children(recursive=True)
+        _wait_for(coord_log, "[     ", coord)
+        os.killpg(coord.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
+        assert coord.wait(15) == 0, coord_log.read_text()
+        _gone, alive = psutil.wait_procs(kids, timeout=5)
+        assert not alive
+    finally:
+        if coord.poll() is None:
+            coord.kill()
+            coord.wait(5)
+    assert "Traceback" not in coord_log.read_text()
+    w = json.loads(report.read_text())["workers"]
+    assert w["n"] == 2 and w["deaths"] == []  # the workers ignore the terminal's SIGINT: stopped in order
+
+
+@needs_nats
+def test_a_wrong_nats_token_is_a_clear_error_on_both_sides(grid_path, capsys):
+    with NatsCluster(1, token="s3cret") as cluster:
+        url = cluster.urls
+        assert main(["sim", "--nats", url, "--nats-token", "wrong", "--topology", str(grid_path), "--gtfs", "none",
+                     "--entities", "4", "--viewers", "1", "--duration", "1"]) == 2
+        err = capsys.readouterr().err
+        assert f"cannot reach NATS at {url}" in err and "Traceback" not in err
+        assert main(["sim", "worker", "--nats", url, "--nats-token", "wrong", "--topology", str(grid_path)]) == 2
+        assert f"cannot reach NATS at {url}" in capsys.readouterr().err
