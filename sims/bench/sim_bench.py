@@ -249,7 +249,8 @@ def run(args, progress) -> dict[str, Any]:
                    "realtime_seconds": rt_seconds, "fleet_warmup_s": 3 if quick else 20, "tick_hz": 2.0,
                    "gps_sigma_m": 5.0, "fix_hz": 1.0,
                    "schedule": BUNDLED_FEED.name, "start": "08:00",
-                   "fleet_core": "FleetCore (entitynet/client/fleet.py); baseline: per-entity Player, same run"},
+                   "fleet_core": "FleetCore (entitynet/client/fleet.py); baseline: the same core, arrays off "
+                                 "(vectorised=False: Player by Player), same run"},
         "results": results,
         "peer": {"radius_500m": {"deliveries_per_viewer_s": street_rad["deliveries"],
                                  "missed_visibility": rad["truth_vs_viewer"]["all"]["missed_visibility"]}},
