@@ -77,7 +77,8 @@ def _deadline(p: Player) -> float:
 
 
 class FleetCore:
-    """Players in slots (in the order they were added; a removed slot stays empty), stepped together."""
+    """Players in slots (a removed player's slot goes to a later add; `order` keeps the order of the adds),
+    stepped together."""
 
     def __init__(self, capacity: int = 64, *, vectorised: bool = True) -> None:
         """`vectorised=False`: every fix and every tick through the entity's `Player`, one by one (the
@@ -93,6 +94,8 @@ class FleetCore:
         # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
         self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
         self.rec = Record(max(int(capacity), 1))
+        self._free: list[int] = []  # slots of removed players, for the next adds
+        self._added = 0
         self._cap = 0
         self._grow()
 
@@ -112,6 +115,7 @@ class FleetCore:
         for f in ("alive", "fast", "consts", "has_route"):
             setattr(self, f, grown(getattr(self, f, None), False, bool))
         self.slow = grown(getattr(self, "slow", None), 0, np.int64)
+        self.order = grown(getattr(self, "order", None), 0, np.int64)
         self.confirm = grown(getattr(self, "confirm", None), 1, np.int64)
         self.gm = grown(getattr(self, "gm", None), 0.0, float, (len(_GHOST),))
         self.cm = grown(getattr(self, "cm", None), 0.0, float, (len(_CONST),))
@@ -128,24 +132,34 @@ class FleetCore:
 
     # ---- slots ---------------------------------------------------------------------------------------------
     def add(self, player: Player) -> int:
-        """Take a player (its state as it is); returns its slot."""
-        slot = player.move_to(self.rec)
-        assert slot == len(self.players)
+        """Take a player (its state as it is); returns its slot: a removed one's if any (the rows stay as many
+        as the most entities held at once), else a new one. `order[slot]` counts the adds: a tick's messages
+        come in that order, whichever slots the entities hold."""
+        slot = player.move_to(self.rec, self._free.pop() if self._free else None)
         if self.rec.cap != self._cap:
             self._grow()
-        self.players.append(player)
+        if slot == len(self.players):
+            self.players.append(player)
+        else:
+            self.players[slot] = player
+        self.order[slot] = self._added
+        self._added += 1
         self.alive[slot] = True
+        self.consts[slot] = False
+        self._ghosts[slot] = None
         self._refresh(slot)
         return slot
 
     def remove(self, slot: int) -> list[Unpublish]:
         """Drop a slot's player: `Player.leave()`'s messages. Its row moves out to a record of its own (the
-        Player stays whole for whoever holds it); the slot's row is not used again."""
+        Player stays whole for whoever holds it); a later `add` may take the slot."""
         p = self.player(slot)
         self.players[slot] = None
         self.alive[slot] = self.fast[slot] = False
         self.deadline[slot] = math.inf
         p.move_to(Record(1))
+        self.rec.paths[slot] = None
+        self._free.append(slot)
         return p.leave()
 
     def player(self, slot: int) -> Player:
@@ -161,7 +175,8 @@ class FleetCore:
     def step(self, now: float, due: Sequence[int] | np.ndarray, x: np.ndarray, y: np.ndarray, accuracy: float,
              idle: Sequence[int] = ()) -> tuple[list[tuple[int, list[Publish | Unpublish]]], int]:
         """Time `now` for every live slot: the slots in `due` take the fix (x[i], y[i]) (`feed` then `tick`),
-        the others `tick` (except those in `idle`). Returns ([(slot, messages)] in slot order, rejected fixes)."""
+        the others `tick` (except those in `idle`). Returns ([(slot, messages)] in the order the slots' players
+        were added, `order`), rejected fixes)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
         if now < self.last_now:
@@ -195,7 +210,8 @@ class FleetCore:
             work.setdefault(s, -1)
         out: list[tuple[int, list[Publish | Unpublish]]] = []
         rejected = 0
-        for s in sorted(work):
+        order = self.order
+        for s in sorted(work, key=order.__getitem__):
             k = work[s]
             p = self.players[s]
             if p is None:

@@ -35,10 +35,10 @@ class PlayerState(Bound):
         self.bind(rec, rec.new_row())
         return rec
 
-    def move_to(self, rec: Record) -> int:
-        """Move this entity's row into `rec` (a fleet's record): the row there is its state from now on (the
-        old one is left behind, unused). Returns the new row."""
-        row = rec.take(self._st, self._row)
+    def move_to(self, rec: Record, at: int | None = None) -> int:
+        """Move this entity's row into `rec` (a fleet's record; into its row `at`, one no longer used, else a
+        new one): the row there is its state from now on (the old one is left behind, unused). Returns it."""
+        row = rec.take(self._st, self._row, at)
         for part in (self, self.rules, self.tracker):  # (the parts are set by the Player)
             if part is not None:
                 part.bind(rec, row)

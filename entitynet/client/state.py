@@ -124,9 +124,10 @@ class Record:
         self.paths[r] = None
         return r
 
-    def take(self, other: Record, row: int) -> int:
-        """Move `other`'s row here (a new row of this record holding it); the caller rebinds its parts."""
-        r = self.new_row()
+    def take(self, other: Record, row: int, at: int | None = None) -> int:
+        """Move `other`'s row here (into row `at`, a row no longer used, else a new row); the caller rebinds
+        its parts."""
+        r = self.new_row() if at is None else at
         self.f[r * NF : (r + 1) * NF] = other.f[row * NF : (row + 1) * NF]
         self.i[r * NI : (r + 1) * NI] = other.i[row * NI : (row + 1) * NI]
         for name, width in (("pe", PATH_W), ("pd", PATH_W), ("pc", PATH_W + 1)):

@@ -87,8 +87,11 @@ class Fleet:
             self.home[a.id] = self.shard_at(float(x), float(y)) * self.per_shard + a.id % self.per_shard
         phase = (a.id * 0.618033988749895) % 1.0
         self.next_fix[a.id] = self.world.now + phase * self.fix_interval
-        slot = self._slot[a.id] = self.fleet_core.add(self.players[a.id])
-        self._aid.append(a.id)
+        slot = self._slot[a.id] = self.fleet_core.add(self.players[a.id])  # (a removed entity's slot, or new)
+        if slot == len(self._aid):
+            self._aid.append(a.id)
+        else:
+            self._aid[slot] = a.id
         if slot >= len(self._due):
             self._due = np.concatenate([self._due, np.full(max(64, len(self._due)), np.inf)])
         self._due[slot] = self.next_fix[a.id]
@@ -110,6 +113,7 @@ class Fleet:
         n = len(self._aid)
         due = self._due[:n]
         slots = np.flatnonzero(due <= now)
+        slots = slots[np.argsort(core.order[slots], kind="stable")]  # in the order the entities came (the draws')
         agents = self.world.agents
         have, idle, xy = [], [], []
         for s in slots.tolist():
