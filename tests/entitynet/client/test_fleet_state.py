@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from entitynet.client.fleet import FleetCore
@@ -92,3 +93,19 @@ def test_paths_extended_in_arrays_give_the_players_messages_and_state(topo):
         if p.tracker is not None and p.tracker.path is not None and twin.tracker.path is not None:
             assert p.tracker.path == twin.tracker.path and p.tracker.path.cum == twin.tracker.path.cum
             assert p.tracker.dead_end == twin.tracker.dead_end
+
+
+def test_a_removed_slot_goes_to_the_next_player_and_messages_keep_the_order_of_the_adds():
+    topo = cross(arm=100.0)
+    core = FleetCore(capacity=2)
+    players = [Player(topo, k, "car", accuracy=4.0) for k in range(3)]
+    slots = [core.add(p) for p in players]
+    assert slots == [0, 1, 2] and core.rec.rows == 3
+    core.remove(0)
+    late = Player(topo, 9, "car", accuracy=4.0)
+    assert core.add(late) == 0 and core.rec.rows == 3  # the removed one's slot and row, not a new one
+    assert late._st is core.rec and players[0]._st is not core.rec
+    # everyone's first fix publishes: the messages come in the order of the adds (1, 2, then 9 in slot 0)
+    out, rejected = core.step(1.0, [0, 1, 2], np.array([10.0, 20.0, 30.0]), np.array([1.0, 1.0, 1.0]), 4.0)
+    assert rejected == 0 and [s for s, _m in out] == [1, 2, 0]
+    assert [m[0].entity for _s, m in out] == [1, 2, 9]
