@@ -13,9 +13,9 @@ from entitynet.client.filters import RowKinematic
 from entitynet.client.network import DirEdge
 from entitynet.client.path import Path
 from entitynet.client.placement import Fix, _new_fix
-from entitynet.client.state import F_COL, I_COL, PATH_W, Bound, Record, Ring, column
+from entitynet.client.state import _COMPILED, F_COL, I_COL, PATH_W, Bound, Record, column, ring
 
-_RS = Ring("rs", "rs_n")
+_RS = ring("rs", "rs_n")
 _LF_OFF = F_COL["lf_off"]
 _KF_ON, _PN, _PEND_N, _DEAD_D, _LF_E = I_COL["kf_on"], I_COL["pn"], I_COL["pend_n"], I_COL["dead_d"], I_COL["lf_e"]
 _KINDS = (None, "edge", "area")
@@ -91,20 +91,24 @@ class TrackerState(Bound):
         self._st.i[self._ib + _KF_ON] = 1
         self._kf.reset(s, t, r, q=self.filter_q, accel=self.filter_accel)
 
+    def _path_from_arrays(self) -> Path | None:
+        """The row's path as a `Path` built from its arrays (and cached there), or None without one."""
+        st, row = self._st, self._row
+        n = st.i[self._ib + _PN]
+        if n <= 0:
+            return None
+        b = row * PATH_W
+        p = st.paths[row] = Path(self.net, list(zip(st.pe[b : b + n].tolist(), st.pd[b : b + n].tolist(),
+                                                    strict=True)),
+                                 _cum=st.pc[row * (PATH_W + 1) : row * (PATH_W + 1) + n + 1].tolist())
+        return p
+
     @property
     def path(self) -> Path | None:
         """The path followed (on an edge): the row's pe/pd/pc, as an immutable `Path` built once per change
         (a cache of the arrays, dropped by whoever changes them: the setter here, the fleet core's trims)."""
-        st, row = self._st, self._row
-        p = st.paths[row]
-        if p is None:
-            n = st.i[self._ib + _PN]
-            if n > 0:
-                b = row * PATH_W
-                p = st.paths[row] = Path(self.net, list(zip(st.pe[b : b + n].tolist(), st.pd[b : b + n].tolist(),
-                                                            strict=True)),
-                                         _cum=st.pc[row * (PATH_W + 1) : row * (PATH_W + 1) + n + 1].tolist())
-        return p
+        p = self._st.paths[self._row]
+        return self._path_from_arrays() if p is None else p
 
     @path.setter
     def path(self, path: Path | None) -> None:
@@ -169,3 +173,8 @@ class TrackerState(Bound):
         f, c = self._st.f, self._fb + _LF_OFF
         f[c], f[c + 1], f[c + 2], f[c + 3] = fix[2], fix[3], fix[4], fix[5]
 
+
+
+if _COMPILED is not None:  # the same accessors compiled (`_columns.pyx`), where pip built them
+    TrackerState.kf = _COMPILED.FlagRef(_KF_ON, "_kf")
+    TrackerState.path = _COMPILED.PathRef(_PN)

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Protocol
 from entitynet.client.entities import EntityType
 from entitynet.client.motion import Model, NetworkModel
 from entitynet.client.occupation import Occupation
-from entitynet.client.state import RECENT, Bound, Record, Ring, column
+from entitynet.client.state import RECENT, Bound, Record, column, ring
 
 #: an entity that stops within this share of the drift threshold of where its published model halts (a stop on
 #: its route, known a priori, or its path's end) publishes no "stop": the ghost halts there by itself. Measured (`bench
@@ -87,7 +87,7 @@ def gap_limit(max_gap: float, lost_after: float, interval: float) -> float:
     return min(max(max_gap, GAP_INTERVALS * interval), max(max_gap, 0.5 * lost_after))
 
 
-_RX, _RY, _IV = Ring("rx", "rr_n"), Ring("ry", "rr_n"), Ring("iv", "iv_n")
+_RX, _RY, _IV = ring("rx", "rr_n"), ring("ry", "rr_n"), ring("iv", "iv_n")
 
 
 class UpdateRules(Bound):

@@ -26,6 +26,11 @@ from struct import Struct
 
 import numpy as np
 
+try:  # the compiled field accessors, where pip built them (setup.py; optional)
+    from entitynet.client import _columns as _COMPILED  # type: ignore[attr-defined]
+except ImportError:  # the pure reference
+    _COMPILED = None
+
 RECENT = 5  # fixes kept by the tracker's `recent_s` and the rules' `recent` (and fix intervals kept)
 _RING, _TAIL = Struct(f"={RECENT}d"), Struct(f"={RECENT - 1}d")  # a ring's columns written / shifted at once
 PATH_W = 48  # the widest path a row holds in arrays (the tracker keeps at most MAX_PATH_EDGES)
@@ -183,10 +188,15 @@ class Bound:
         self._st, self._row, self._fb, self._ib = st, row, row * NF, row * NI
 
 
-def column(name: str, kind: str = "float") -> property:
-    """A property for field `name` of the bound row: kind "float", "opt" (a float; NaN reads as None and
-    None writes as NaN), "int" or "bool". Its accessors are compiled from one template (the fastest plain
+def column(name: str, kind: str = "float", compiled: bool | None = None):
+    """A descriptor for field `name` of the bound row: kind "float", "opt" (a float; NaN reads as None and
+    None writes as NaN), "int" or "bool". The compiled one (`_columns.pyx`) where pip built it and `compiled` is
+    not False, else a property whose accessors are compiled from one template (the reference: the fastest plain
     Python access, about 0.1 us a read; `name` is one of the declared fields, nothing else is formatted in)."""
+    if _COMPILED is not None and compiled is not False:
+        if kind in ("float", "opt"):
+            return (_COMPILED.FloatCol if kind == "float" else _COMPILED.OptCol)(F_COL[name])
+        return _COMPILED.IntCol(I_COL[name], kind == "bool")
     blk, base, j = ("f", "_fb", F_COL[name]) if name in F_COL else ("i", "_ib", I_COL[name])
     at = f"o._st.{blk}[o.{base} + {j}]"
     put = f"lambda o, v: o._st.{blk}.__setitem__(o.{base} + {j}, %s)"
@@ -238,3 +248,11 @@ class Ring:
     def clear(self, o: Bound) -> None:
         """Keep nothing."""
         o._st.i[o._ib + self.c] = 0
+
+
+def ring(prefix: str, count: str, compiled: bool | None = None):
+    """Ring `prefix` (count in `count`): the compiled one (`_columns.RingCols`, the same operations) where pip
+    built it and `compiled` is not False, else `Ring` (the reference)."""
+    if _COMPILED is not None and compiled is not False:
+        return _COMPILED.RingCols(F_COL[f"{prefix}0"], I_COL[count], RECENT)
+    return Ring(prefix, count)

@@ -105,3 +105,37 @@ def test_the_row_filter_is_the_slot_filter_bit_for_bit(accel):
     row.update(0.0, 50.0, -1e9)  # an innovation variance <= 0: the prediction only, in both
     own.update(0.0, 50.0, -1e9)
     assert [getattr(row, f) for f in row.FIELDS] == [getattr(own, f) for f in own.FIELDS]
+
+
+def test_the_compiled_accessors_read_and_write_what_the_reference_does():
+    """`column` gives the compiled descriptors (`_columns.pyx`) where pip built them; each kind reads and
+    writes the same memory as the pure reference, the same values and types."""
+    from entitynet.client import state
+
+    if state._COMPILED is None:
+        pytest.skip("the compiled accessors are not built here (the reference is in use)")
+
+    def part(compiled: bool):
+        class P(Bound):
+            __slots__ = ()
+            t = column("last_t", "opt", compiled=compiled)
+            s = column("ks", compiled=compiled)
+            n = column("rev", "int", compiled=compiled)
+            b = column("halted", "bool", compiled=compiled)
+        return P
+
+    rec = Record(3)
+    rec.new_row()
+    rec.new_row()
+    fast, ref = part(True)(), part(False)()
+    assert not isinstance(type(fast).__dict__["s"], property)  # (the compiled kind is in use)
+    fast.bind(rec, 1)
+    ref.bind(rec, 1)
+    for t, s, n, b in ((None, 0.0, 0, False), (2.5, -1.25, 7, True), (np.float64(3.0), np.float64(1e300),
+                                                                      np.int64(-4), 1)):
+        fast.t, fast.s, fast.n, fast.b = t, s, n, b
+        got = (ref.t, ref.s, ref.n, ref.b)
+        ref.t, ref.s, ref.n, ref.b = t, s, n, b
+        want = (fast.t, fast.s, fast.n, fast.b)
+        assert got == want and [type(v) for v in got] == [type(v) for v in want]
+    assert rec.view()["ks"][0] == 0.0 and rec.view()["rev"][1] == -4  # the row bound, not another
