@@ -139,3 +139,26 @@ def test_the_compiled_accessors_read_and_write_what_the_reference_does():
         want = (fast.t, fast.s, fast.n, fast.b)
         assert got == want and [type(v) for v in got] == [type(v) for v in want]
     assert rec.view()["ks"][0] == 0.0 and rec.view()["rev"][1] == -4  # the row bound, not another
+
+
+def test_the_compiled_ring_keeps_what_the_reference_keeps():
+    from entitynet.client import state
+
+    if state._COMPILED is None:
+        pytest.skip("the compiled accessors are not built here (the reference is in use)")
+    rec = Record(2)
+    a, b = _Part(), _Part()
+    a.bind(rec, rec.new_row())
+    b.bind(rec, rec.new_row())
+    fast, ref = state.ring("iv", "iv_n"), Ring("iv", "iv_n")
+    assert type(fast) is not Ring
+    for k in range(7):
+        fast.push(a, 0.5 * k)
+        ref.push(b, 0.5 * k)
+        assert fast.get(a) == ref.get(b) == ref.get(a)  # (the same memory: the other reads it alike)
+    fast.put(a, [1.0, 2.0])
+    assert ref.get(a) == [1.0, 2.0]
+    with pytest.raises(ValueError, match="at most 5"):
+        fast.put(a, [0.0] * 6)
+    fast.clear(a)
+    assert ref.get(a) == [] and ref.get(b) == [1.0, 1.5, 2.0, 2.5, 3.0]
