@@ -207,6 +207,16 @@ def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, c
             say("interrupted before the simulation began; the cluster is stopped")
             return 130
     emit_report(report, args.report, say)
+    return run_status(sim, say)
+
+
+def run_status(sim, say) -> int:
+    """The exit status of a finished run: 1 when it ended early (every worker gone: the report is written, but a
+    script must not take it for a whole run), else 0."""
+    why = getattr(sim, "ended_early", None)
+    if why:
+        say(f"the run ended early: {why}")
+        return 1
     return 0
 
 

@@ -16,8 +16,9 @@ expire, at the price of deliveries to viewers who see those cells before the ent
 Where the path ahead is not known (no route), the reference's tight occupation may only reach past the next
 choice node as far as every branch stays in the junction cell (the front period is the minimum over the
 branches). With a lookahead the occupation becomes a tree: every way on from that node, through further
-junctions, is covered to its first cell boundary `branch_depth` metres (default 40) beyond the body and its
-margin, and the front
+junctions, is covered to its first cell boundary `lookahead` metres beyond the body and its margin (the
+players' default `LOOKAHEAD`, 30 m; at most `branch_depth`, default 40, past the node, or past the body and
+its margin where they reach beyond the node), and the front
 period ends when the shortest branch of the tree runs out.
 """
 

@@ -85,7 +85,7 @@ def make_sim(args: argparse.Namespace, topo, config, schedule, *, shards: int = 
     if nats:
         from sims.workers.nats_link import NatsWorkers
 
-        link = NatsWorkers(args.nats, token=getattr(args, "nats_token", None))
+        link = NatsWorkers(args.nats, token=getattr(args, "nats_token", None), say=say)
         try:
             names = link.choose(args.workers, args.join_timeout)
         except RuntimeError:
@@ -125,9 +125,7 @@ def run_worker(args: argparse.Namespace) -> int:
 
     from entitynet.cli import CommandError
     from entitynet.cluster.nats_client import parse_servers
-    from entitynet.topology_cache import bundled_topology, cache_dir
-    from sims.engine.schedule import BUNDLED_FEED, GtfsError, load_schedule
-    from sims.workers.run import RefusedRun, WorkerShare, config_from_wire, run_digests
+    from entitynet.topology_cache import bundled_topology
 
     try:
         parse_servers(args.nats)
@@ -143,27 +141,7 @@ def run_worker(args: argparse.Namespace) -> int:
         topo = load_artifact(args.topology)
     else:
         topo, _path = bundled_topology(say, with_pvs=True)
-    schedules: dict = {}
-
-    def build(config: dict, want: dict, index: int, n: int) -> WorkerShare:
-        cfg = config_from_wire(config)
-        schedule = None
-        if cfg.transit:
-            theirs = want.get("feed") or ""
-            feed = Path(args.gtfs) if args.gtfs else Path(theirs) if theirs and Path(theirs).is_file() else BUNDLED_FEED
-            key = (str(feed), want.get("date") or None, cfg.seed)
-            if key not in schedules:
-                try:
-                    schedules[key] = load_schedule(feed, topo, date=key[1], cache=cache_dir(), seed=cfg.seed)
-                except (GtfsError, ValueError, OSError) as exc:
-                    raise RefusedRun(f"cannot read the feed {feed}: {exc}") from None
-            schedule = schedules[key]
-        mine = run_digests(topo, schedule)
-        for key in ("topology", "schedule"):
-            if want.get(key) != mine[key]:
-                raise RefusedRun(f"another {key} than the coordinator's ({mine[key]} here, {want.get(key)} there): "
-                                 "give this worker the same --topology / --gtfs")
-        return WorkerShare(topo, schedule, cfg, index, n)
+    build = share_builder(topo, args.gtfs)
 
     from sims.workers.nats_link import leaf_text, only, serve_worker
 
@@ -177,3 +155,40 @@ def run_worker(args: argparse.Namespace) -> int:
         raise CommandError(f"cannot reach NATS at {args.nats}: {leaf_text(exc)}") from None
     say(f"worker served {runs} run(s) in {time.monotonic() - t0:.0f} s")
     return 0
+
+
+def share_builder(topo, gtfs: str | None, load=None):
+    """A NATS worker's `build` (see `WorkerCore`): its share of a run from the assign's settings, with the
+    schedule read from `gtfs` (else the coordinator's feed path where it exists here, else the bundled extract)
+    and checked against the coordinator's digests. Why one schedule kept and not one per run: a worker daemon
+    serves run after run, and each seed or service day is another schedule; the last one serves the usual
+    repeated run, and memory stays bounded however many runs come. `load`: `load_schedule` (tests replace it)."""
+    from entitynet.topology_cache import cache_dir
+    from sims.engine.schedule import BUNDLED_FEED, GtfsError, load_schedule
+    from sims.workers.run import RefusedRun, WorkerShare, config_from_wire, run_digests
+
+    load = load or load_schedule
+    kept: dict = {}  # at most one: (feed, date, seed) -> schedule
+
+    def build(config: dict, want: dict, index: int, n: int) -> WorkerShare:
+        cfg = config_from_wire(config)
+        schedule = None
+        if cfg.transit:
+            theirs = want.get("feed") or ""
+            feed = Path(gtfs) if gtfs else Path(theirs) if theirs and Path(theirs).is_file() else BUNDLED_FEED
+            key = (str(feed), want.get("date") or None, cfg.seed)
+            if key not in kept:
+                kept.clear()
+                try:
+                    kept[key] = load(feed, topo, date=key[1], cache=cache_dir(), seed=cfg.seed)
+                except (GtfsError, ValueError, OSError) as exc:
+                    raise RefusedRun(f"cannot read the feed {feed}: {exc}") from None
+            schedule = kept[key]
+        mine = run_digests(topo, schedule)
+        for key in ("topology", "schedule"):
+            if want.get(key) != mine[key]:
+                raise RefusedRun(f"another {key} than the coordinator's ({mine[key]} here, {want.get(key)} there): "
+                                 "give this worker the same --topology / --gtfs")
+        return WorkerShare(topo, schedule, cfg, index, n)
+
+    return build

@@ -116,6 +116,10 @@ class CoordinatorCore:
             self.stray += 1
             return
         s.parts.append(f["frame"])
+        if sum(map(len, s.parts)) > wire.MAX_FRAME:  # parts without end: bounded like one frame, then dropped
+            s.parts = []
+            self.bad_frames += 1
+            return
         if f["last"]:
             self.outs[s.index] = b"".join(s.parts)
             s.parts = []

@@ -47,10 +47,12 @@ def up_subject(run: str) -> str:
 
 
 def leaf_text(exc: BaseException) -> str:
-    """What went wrong, in words: the first leaf of an exception group (trio's nurseries wrap errors), by its
-    text or else its type's name ("TooSlowError" for a connect that timed out)."""
-    while isinstance(exc, BaseExceptionGroup) and exc.exceptions:
-        exc = exc.exceptions[0]
+    """What went wrong, in words: the first leaf of an exception group (trio's nurseries wrap errors; walked by
+    the CLI's one walker, `entitynet.cli.leaves`), by its text or else its type's name ("TooSlowError" for a
+    connect that timed out)."""
+    from entitynet.cli import leaves
+
+    exc = next(leaves(exc), exc)
     text = str(exc)
     return text if text else {"TooSlowError": "no answer within the connect timeout"}.get(type(exc).__name__,
                                                                                           type(exc).__name__)
@@ -58,22 +60,21 @@ def leaf_text(exc: BaseException) -> str:
 
 def only(group: BaseException, types: tuple[type[BaseException], ...]) -> BaseException | None:
     """The first leaf of `group` when every leaf is one of `types` (else None): an error to report in one line."""
-    if isinstance(group, types):
-        return group
-    if isinstance(group, BaseExceptionGroup):
-        match, rest = group.split(types)
-        if match is not None and rest is None:
-            return match
-    return None
+    from entitynet.cli import leaves
+
+    found = list(leaves(group))
+    return found[0] if found and all(isinstance(e, types) for e in found) else None
 
 
 class NatsWorkers:
     """The coordinator's NATS transport: connect (a clear error naming the URL when it cannot), `choose` the
     workers that announced themselves, then the `Link` calls for `WorkerSim`."""
 
-    def __init__(self, url: str, token: str | None = None, connect_timeout: float = 1.0):
+    def __init__(self, url: str, token: str | None = None, connect_timeout: float = 1.0,
+                 say: Callable[[str], None] | None = None):
         self.servers = parse_servers(url)  # ValueError on a bad URL, before any thread starts
         self.url = url
+        self.say = say or (lambda _m: None)
         self.run = secrets.token_hex(6)
         self.reply = up_subject(self.run)
         self.inq: queue.Queue[bytes] = queue.Queue(QUEUE_FRAMES)
@@ -96,7 +97,8 @@ class NatsWorkers:
     async def _main(self, token: str | None, connect_timeout: float) -> None:
         try:
             async with NatsClient(self.url, name="entitynet-sim-coordinator", token=token,
-                                  connect_timeout=connect_timeout) as nc:
+                                  connect_timeout=connect_timeout, on_disconnect=self._lost,
+                                  on_reconnect=self._back) as nc:
                 self._nc, self._token, self._closing = nc, trio.lowlevel.current_trio_token(), trio.Event()
                 nc.subscribe(HELLO, self._on_hello)
                 nc.subscribe(self.reply, self._on_up)
@@ -115,6 +117,14 @@ class NatsWorkers:
             self._error = exc
             self._up.set()
 
+    def _lost(self, why: str) -> None:
+        """Said at once: otherwise the only sign is every worker declared dead for a tick it did not answer."""
+        self.say(f"lost NATS at {self.url} ({why}); reconnecting (workers that miss a tick meanwhile are "
+                 "declared dead)")
+
+    def _back(self) -> None:
+        self.say(f"NATS at {self.url} is back")
+
     async def _beat(self, nc: NatsClient) -> None:
         """Tell the chosen workers every second that the coordinator is alive (see `wire`: "alive")."""
         frame = wire.encode("alive", run=self.run)
@@ -128,7 +138,9 @@ class NatsWorkers:
             f = wire.decode(payload)
         except wire.WireError:
             return
-        if f["kind"] == "hello" and f["worker"] not in self.hellos:
+        # bounded: at most MAX_WORKERS names (a run takes no more), and none once the workers are chosen
+        if (f["kind"] == "hello" and not self.workers and f["worker"] not in self.hellos
+                and len(self.hellos) < wire.MAX_WORKERS):
             self.hellos[f["worker"]] = (f["host"], f["pid"])
 
     def _on_up(self, _subject: str, _reply: str | None, payload: bytes) -> None:
@@ -157,7 +169,7 @@ class NatsWorkers:
                                    f"{join_timeout:g} s: start `entitynet sim worker --nats {self.url}` on each "
                                    "machine (or wait longer with --join-timeout)")
             time.sleep(0.05)
-        self.workers = sorted(heard)[: want or len(heard)]
+        self.workers = sorted(heard)[: want or min(len(heard), wire.MAX_WORKERS)]
         return self.workers
 
     # ---- Link --------------------------------------------------------------------------------------------------
@@ -214,7 +226,14 @@ async def serve_worker(url: str, build, say: Callable[[str], None], *, once: boo
         except trio.WouldBlock:
             dropped += 1
 
-    async with NatsClient(url, name="entitynet-sim-worker", token=token, connect_timeout=connect_timeout) as nc:
+    def lost(why: str) -> None:  # the client reconnects by itself; the worker's operator hears of it
+        say(f"worker {worker}: lost NATS at {url} ({why}); reconnecting")
+
+    def back() -> None:
+        say(f"worker {worker}: NATS at {url} is back")
+
+    async with NatsClient(url, name="entitynet-sim-worker", token=token, connect_timeout=connect_timeout,
+                          on_disconnect=lost, on_reconnect=back) as nc:
         nc.subscribe(worker_subject(worker), on_frame)
         await nc.flush()
         async with trio.open_nursery() as nursery:

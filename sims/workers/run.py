@@ -10,6 +10,7 @@ worker, and the coordinator, the same truth: no interaction is ever split, none 
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import asdict, fields
 
 from entitynet import protocol as P
@@ -45,12 +46,31 @@ def config_to_wire(config: SimConfig) -> dict:
     return asdict(config)
 
 
+def _wrong_type(value, default) -> bool:
+    """Whether `value` cannot stand where `SimConfig` has `default` (its fields are numbers, flags and names;
+    None where the default is None, or a number there)."""
+    if isinstance(default, bool):
+        return not isinstance(value, bool)
+    if isinstance(default, int):
+        return isinstance(value, bool) or not isinstance(value, int)
+    if isinstance(default, float) or default is None:
+        if value is None:
+            return default is not None
+        return isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value)
+    return not isinstance(value, type(default))
+
+
 def config_from_wire(data: dict) -> SimConfig:
-    """`SimConfig` from an assign frame; a setting this version does not know, or a bad value, is a refusal."""
-    known = {f.name for f in fields(SimConfig)}
-    unknown = sorted(set(data) - known)
+    """`SimConfig` from an assign frame; a setting this version does not know, or a bad value, is a refusal.
+    Why the types are checked here: the frame comes from the network (any publisher on the NATS subject), and
+    `SimConfig` checks ranges, not types: a string for a count failed deep inside the world's build."""
+    known = {f.name: f.default for f in fields(SimConfig)}
+    unknown = sorted(set(data) - set(known))
     if unknown:
         raise RefusedRun(f"settings this worker does not know: {', '.join(map(str, unknown))} (another version?)")
+    mistyped = sorted(k for k, v in data.items() if _wrong_type(v, known[k]))
+    if mistyped:
+        raise RefusedRun(f"bad run settings: {', '.join(f'{k}={data[k]!r:.40}' for k in mistyped)} (wrong type)")
     try:
         return SimConfig(**data)
     except (TypeError, ValueError) as exc:

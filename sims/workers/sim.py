@@ -181,9 +181,12 @@ class WorkerSim(Sim):
                     self.published_ids.discard(entity)
         self._sum_counters()
         removed = [aid for aid, _why in self.world.take_removed()]
-        self.assignment.forget(removed)
         for aid in removed:
+            if aid in self.published_ids:  # its worker died in this tick before sending the UNPUBLISH: send it
+                out[self.fleet.conn_of(aid)].append(P.Unpublish(aid))
+                self.published_ids.discard(aid)
             self.fleet.home.pop(aid, None)
+        self.assignment.forget(removed)
         for d in core.deaths[len(self.assignment.dead):]:
             self._declare(d, out)
         return out
@@ -256,6 +259,8 @@ class WorkerSim(Sim):
             "coordinator_wait_p50_ms": float(np.percentile(wait, 50) * 1000),
             "coordinator_wait_p99_ms": float(np.percentile(wait, 99) * 1000),
             "bad_frames": self.core.bad_frames, "stray_frames": self.core.stray,
+            # frames the transport dropped with its queue full (NATS: `QUEUE_FRAMES`); a tick that lost one timed out
+            "frames_dropped": int(getattr(self.link, "dropped", 0)),
             "ended_early": self.ended_early,
         }
         return rep

@@ -28,6 +28,8 @@ import msgpack
 
 #: the largest frame either side accepts (a tick's messages of a large share, before splitting for NATS)
 MAX_FRAME = 64 << 20
+#: the most workers a run may have (an assign's `n`): every side keeps per-worker tables of that size
+MAX_WORKERS = 1024
 
 _STR, _INT, _FLOAT, _BOOL, _BYTES, _DICT, _LIST = str, int, (int, float), bool, bytes, dict, list
 
@@ -88,8 +90,11 @@ def _check(frame: Any) -> None:
         raise WireError("out frame: step time not a finite number of seconds, or a negative entity count")
     if kind == "assign" and not math.isfinite(frame["timeout"]) or kind == "assign" and frame["timeout"] <= 0:
         raise WireError("assign frame: the timeout must be a positive number of seconds")
-    if kind == "assign" and not 0 <= frame["index"] < frame["n"]:
-        raise WireError(f"assign frame: worker {frame['index']} of {frame['n']}")
+    if kind == "assign" and not 0 <= frame["index"] < frame["n"] <= MAX_WORKERS:
+        raise WireError(f"assign frame: worker {frame['index']} of {frame['n']} (at most {MAX_WORKERS} workers)")
+    if kind in ("out", "bye") and not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool)
+                                          for k, v in frame["counters"].items()):
+        raise WireError(f"{kind} frame: counters must map names to integers")
 
 
 def _type_name(typ: Any) -> str:

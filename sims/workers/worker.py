@@ -94,6 +94,9 @@ class WorkerCore:
             share = self.build(f["config"], f["digests"], f["index"], f["n"])
         except RefusedRun as exc:
             return [wire.encode("refuse", run=f["run"], index=f["index"], why=str(exc))]
+        except Exception as exc:  # noqa: BLE001 (an assign from the network must not end the worker daemon)
+            why = f"cannot build the run: {type(exc).__name__}: {exc}"[:500]
+            return [wire.encode("refuse", run=f["run"], index=f["index"], why=why)]
         self.run, self.index, self.share = f["run"], f["index"], share
         self.timeout, self.reply, self.heard = float(f["timeout"]), f["reply"], now
         self.ended = None

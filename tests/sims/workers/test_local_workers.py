@@ -127,3 +127,40 @@ def test_a_worker_too_slow_for_the_timeout_is_declared_dead_and_told_so(topo):
     finally:
         sim.close()
     assert no_children_left(link.pids)
+
+
+def test_an_entity_that_leaves_the_world_in_the_tick_its_worker_dies_is_unpublished(topo):
+    """Entity 13 (worker 1's: id mod 2) arrives and leaves the world in the 11th tick of this seeded run. Its worker,
+    silent in that very tick, never sends its UNPUBLISH: the coordinator sends it in its stead, or the server
+    keeps a ghost of an entity that no longer exists until its validity runs out."""
+    link = LocalWorkers(2, topo, None)
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=0.5)
+    sw = LocalSwitch(sim)
+    try:
+        sw.exchange(*sim.start())
+        for _ in range(10):
+            sw.exchange(*sim.step())
+        assert 13 in sim.world.agents and 13 in {e.local for e in sw.sb.entities.values()}
+        os.kill(link.pids[1], signal.SIGSTOP)
+        sw.exchange(*sim.step())
+        assert [d["worker"] for d in sim.deaths] == [1] and 13 not in sim.world.agents  # left in this tick
+        assert 13 not in {e.local for e in sw.sb.entities.values()}
+        assert 13 not in sim.published_ids
+    finally:
+        os.kill(link.pids[1], signal.SIGCONT)
+        sim.close()
+    assert no_children_left(link.pids)
+
+
+def test_frames_the_transport_dropped_are_in_the_report(topo):
+    class Dropping(LocalWorkers):
+        dropped = 3  # as `NatsWorkers` counts the frames its full queue turned away
+
+    link = Dropping(1, topo, None)
+    sim = WorkerSim(topo, config(), None, link, 1, transport="local", timeout=5.0)
+    try:
+        rep = run_local(sim, 1.0)
+    finally:
+        sim.close()
+    assert rep["workers"]["frames_dropped"] == 3
+    assert no_children_left(link.pids)

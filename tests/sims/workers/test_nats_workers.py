@@ -240,3 +240,72 @@ def test_a_wrong_nats_token_is_a_clear_error_on_both_sides(grid_path, capsys):
         assert f"cannot reach NATS at {url}" in err and "Traceback" not in err
         assert main(["sim", "worker", "--nats", url, "--nats-token", "wrong", "--topology", str(grid_path)]) == 2
         assert f"cannot reach NATS at {url}" in capsys.readouterr().err
+
+
+@needs_nats
+def test_a_worker_says_when_nats_goes_away_and_comes_back(grid_path, tmp_path):
+    """A worker daemon whose NATS server dies keeps reconnecting: it says so (it was silent), and says when
+    NATS is back; Ctrl-C still ends it cleanly."""
+    from entitynet.cluster.natsd import NatsNode
+
+    with NatsCluster(1) as cluster:
+        node = cluster.nodes[0]
+        log = tmp_path / "worker.log"
+        w = _entitynet("sim", "worker", "--nats", node.url, "--topology", str(grid_path), log=log)
+        again = None
+        try:
+            _wait_for(log, "waiting for a run", w)
+            node.kill()
+            _wait_for(log, "lost NATS at", w, timeout=10.0)
+            again = NatsNode(node.port, None)
+            again.proc = subprocess.Popen([nats_server_binary(), "-a", "127.0.0.1", "-p", str(node.port)],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            _wait_for(log, "is back", w, timeout=15.0)
+            w.send_signal(signal.SIGINT)
+            assert w.wait(10) == 0
+            assert "Traceback" not in log.read_text()
+        finally:
+            if w.poll() is None:
+                w.kill()
+                w.wait(5)
+            if again is not None:
+                again.kill()
+
+
+@needs_nats
+def test_the_coordinator_says_when_nats_goes_away():
+    from sims.workers.nats_link import NatsWorkers
+
+    said: list[str] = []
+    with NatsCluster(1) as cluster:
+        link = NatsWorkers(cluster.urls, say=said.append)
+        try:
+            cluster.nodes[0].kill()
+            deadline = time.monotonic() + 10.0
+            while not said and time.monotonic() < deadline:
+                time.sleep(0.05)
+        finally:
+            link.close()
+    assert said and said[0].startswith(f"lost NATS at {cluster.urls}")
+
+
+@needs_nats
+def test_the_announcements_kept_are_bounded():
+    """Every idle worker on the NATS server announces itself each second for as long as the run lasts: the
+    coordinator keeps at most MAX_WORKERS names, and none once it has chosen its workers."""
+    from sims.workers import wire
+    from sims.workers.nats_link import NatsWorkers
+
+    with NatsCluster(1) as cluster:
+        link = NatsWorkers(cluster.urls)
+        try:
+            for i in range(wire.MAX_WORKERS + 50):
+                link._on_hello("", None, wire.encode("hello", worker=f"w{i}", host="h", pid=i))
+            assert len(link.hellos) == wire.MAX_WORKERS
+            link.hellos.clear()
+            link._on_hello("", None, wire.encode("hello", worker="a", host="h", pid=1))
+            assert link.choose(1, 1.0) == ["a"]
+            link._on_hello("", None, wire.encode("hello", worker="b", host="h", pid=2))
+            assert list(link.hellos) == ["a"]
+        finally:
+            link.close()

@@ -125,3 +125,39 @@ def test_time_and_counts_are_checked(topo):
     share = WorkerShare(topo, None, CONFIG, 0, 1)
     with pytest.raises(ValueError, match="in order"):
         share.tick(1, [])
+
+
+@pytest.mark.parametrize("bad", [{"entities": "many"}, {"seed": "x"}, {"start": None}])
+def test_an_assign_whose_settings_break_the_build_is_a_refusal_and_the_worker_stays(topo, bad):
+    """An assign arrives from the network (any NATS publisher): settings of a wrong type that the config does not
+    check must not kill the worker daemon with a traceback; it refuses, naming why, and takes the next run."""
+    w = worker(topo)
+    core = CoordinatorCore("r", 1, {**config_to_wire(CONFIG), **bad}, run_digests(topo, None), timeout=2.0)
+    (answer,) = w.receive(core.assign_frame(0), 0.0)
+    f = wire.decode(answer)
+    assert f["kind"] == "refuse" and "bad run settings" in f["why"] and next(iter(bad)) in f["why"] and w.idle
+    good = CoordinatorCore("r2", 1, config_to_wire(CONFIG), run_digests(topo, None), timeout=2.0)
+    assert wire.decode(w.receive(good.assign_frame(0), 0.0)[0])["kind"] == "ready"
+
+
+def test_a_build_that_fails_otherwise_is_a_refusal_naming_the_error(topo):
+    def build(config, want, index, n):
+        raise KeyError("schedule")  # whatever else a share's build may raise on what the frame carries
+
+    w = WorkerCore("w", "host", 1, build)
+    core = CoordinatorCore("r", 1, config_to_wire(CONFIG), run_digests(topo, None), timeout=2.0)
+    f = wire.decode(w.receive(core.assign_frame(0), 0.0)[0])
+    assert f["kind"] == "refuse" and f["why"] == "cannot build the run: KeyError: 'schedule'" and w.idle
+
+
+def test_a_tick_in_parts_is_bounded_like_one_frame(topo, monkeypatch):
+    """A worker (a bug, another version) that sends parts and never the last: the coordinator holds at most one
+    frame's worth (`wire.MAX_FRAME`), counts the output as bad and drops it; the worker then misses the tick."""
+    monkeypatch.setattr(wire, "MAX_FRAME", 1000)
+    core = CoordinatorCore("r", 1, config_to_wire(CONFIG), run_digests(topo, None), timeout=2.0)
+    core.tick(0, 0.0)
+    for i in range(3):
+        core.receive(wire.encode("out", run="r", index=0, k=0, part=i, last=False, frame=b"x" * 400, counters={},
+                                 step_s=0.1, owned=0), 0.0)
+    assert core.bad_frames == 1 and core.slots[0].parts == [] and core.waiting() == [0]
+    assert core.expire(2.0) == [0]

@@ -29,6 +29,13 @@ def test_round_trip():
                     "timeout": 1.0, "reply": ""}), "worker 2 of 2"),
     (msgpack.packb({"kind": "out", "run": "r", "index": 0, "k": 0, "part": 0, "last": True, "frame": b"",
                     "counters": {}, "step_s": float("nan"), "owned": 0}), "step time"),
+    # counters are summed by the coordinator: a string there crashed its report (int("x"))
+    (msgpack.packb({"kind": "out", "run": "r", "index": 0, "k": 0, "part": 0, "last": True, "frame": b"",
+                    "counters": {"fixes": "x"}, "step_s": 0.1, "owned": 0}), "counters"),
+    (msgpack.packb({"kind": "bye", "run": "r", "index": 0, "counters": {"fixes": [1]}}), "counters"),
+    # a worker keeps tables per worker of the run: a billion workers would not fit
+    (msgpack.packb({"kind": "assign", "run": "r", "index": 0, "n": 10**9, "config": {}, "digests": {},
+                    "timeout": 1.0, "reply": ""}), "at most 1024"),
 ])
 def test_bad_frames(data, why):
     with pytest.raises(wire.WireError, match=why):
