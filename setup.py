@@ -1,7 +1,8 @@
-"""Builds the optional compiled hot loops with Cython: the fan-out (entitynet/switchboard/_fanout.pyx) and the
-flush loop (entitynet/server/_flushloop.pyx); everything else is in pyproject.toml. Optional on purpose: without
+"""Builds the optional compiled hot loops with Cython: the fan-out (entitynet/switchboard/_fanout.pyx), the
+flush loop (entitynet/server/_flushloop.pyx) and the client state's field accessors (entitynet/client/
+_columns.pyx); everything else is in pyproject.toml. Optional on purpose: without
 a C compiler the build goes on and the pure-Python paths (the references, `entitynet.switchboard.outbox` and
-`entitynet.server.flushloop`) are used."""
+`entitynet.server.flushloop`, `entitynet.client.state.column`) are used."""
 
 from setuptools import Extension, setup
 
@@ -12,7 +13,8 @@ except ImportError:  # no Cython at build time: the pure path only
 else:
     ext_modules = cythonize(
         [Extension("entitynet.switchboard._fanout", ["entitynet/switchboard/_fanout.pyx"], optional=True),
-         Extension("entitynet.server._flushloop", ["entitynet/server/_flushloop.pyx"], optional=True)],
+         Extension("entitynet.server._flushloop", ["entitynet/server/_flushloop.pyx"], optional=True),
+         Extension("entitynet.client._columns", ["entitynet/client/_columns.pyx"], optional=True)],
         language_level=3,
         quiet=True,
     )

@@ -19,11 +19,14 @@ once and calls an entity's own `Player` only where something happens:
    fix nearest another way, a reversal, re-acquisition, any fix that publishes) goes to the entity's `Player`
    (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
 
-One source of truth: for an entity the arrays hold (`fast[i]`), its array state is the newer one after a
-vectorised fix (`dirty[i]`), and it is written back into the `Player` (`_store`) before any scalar call; after
-the call the arrays are read again from the `Player` (`_load`), which is then the truth (a path trimmed in the
-arrays is rebuilt as the `Path` that `Path.suffix` would have made). `player(slot)` returns
-an entity's `Player` with its state written back. Doppler velocities are not taken (the fleet feeds positions).
+One home: the entities' state is the fleet's client-state `Record` (entitynet/client/state.py). `add` moves a
+Player's row there (`Player.move_to`); the vectorised fix reads and writes the record's columns through numpy
+views, the Player's parts read and write the same row through their properties, so nothing is copied back and
+forth. What the fleet core keeps besides is derived, never written by a fix: per slot the earliest time a tick
+can speak (`deadline`), whether the next fix may take the arrays (`fast`, or `slow`: why not), and the columns of
+the published ghost and of the entity's options (immutable values, read again when the ghost or the Player
+changes: `_refresh`). `player(slot)` hands the Player out. Doppler velocities are not taken (the fleet feeds
+positions).
 """
 
 from __future__ import annotations
@@ -38,31 +41,26 @@ from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed,
 from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
-from entitynet.client.path import Path
-from entitynet.client.placement import Fix, _new_fix
 from entitynet.client.player import Player
-from entitynet.client.rules import FIX_INTERVALS_KEPT, GAP_INTERVALS, MIN_INTERVALS, OWN_ESTIMATE, usual_interval
+from entitynet.client.rules import FIX_INTERVALS_KEPT, GAP_INTERVALS, MIN_INTERVALS, OWN_ESTIMATE
+from entitynet.client.state import PATH_W, RECENT, Record
 from entitynet.client.tracker import MAX_PATH_EDGES
 from entitynet.protocol import Publish, Unpublish
 
-W = MAX_PATH_EDGES  # the widest path a row holds (the tracker never keeps more edges)
-RECENT = 5  # fixes kept by `recent_s` and `UpdateRules.recent` (and fix intervals by `UpdateRules.intervals`)
-assert FIX_INTERVALS_KEPT == RECENT
-# the float fields in three groups, each a contiguous run of columns that `_load` writes in one assignment:
-# what any call may change (with the rings: oldest first, last RECENT), what changes only with a new ghost
-# (a publish), and the entity's constants (written once; `player(slot)` hands the Player out, so it may change)
-_VAR = ("last_t", "mx", "my", "deadline", "ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22", "kt",
-        "dist_ema", "vpeak", "vpeak_t", "lf_off", "lf_x", "lf_y", "lf_d", "gap_lim", "reach")
-_GHOST = ("pub_t", "validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
-_CONST = ("kq", "swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap",
-          "lost_after", "body", "vmax")
-_F = (*_VAR, *(f"{ring}{k}" for ring in ("rs", "rx", "ry", "iv") for k in range(RECENT)), *_GHOST, *_CONST)
-_RINGS = _F.index("rs0")
-_G0 = _F.index("pub_t")  # the ghost's columns [_G0, _C0), the constants' [_C0, end)
-_C0 = _F.index("kq")
-_I = ("rev", "over", "confirm", "rs_n", "rr_n", "lf_e", "dead_e", "dead_d", "pn", "gn", "iv_n")  # pn, gn: by _put_path
-_B = ("alive", "fast", "dirty", "kacc", "has_route", "path_dirty", "consts")  # path_dirty: trimmed in the arrays;
-# consts: the constants' columns hold the Player's
+W = PATH_W  # the widest path a row holds in arrays
+assert MAX_PATH_EDGES == W and FIX_INTERVALS_KEPT == RECENT
+# derived columns of the fleet (not state): the published ghost's numbers (a new ghost comes only with a
+# publish) and the entity's options, read by `_refresh`
+_GHOST = ("validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
+_CONST = ("swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap", "lost_after",
+          "body", "vmax")
+# why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
+# eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
+SCALAR_WHY = ("publish", "no_segments", "near_table", "near_off_window", "near_edge_recurs", "near_best_on",
+              "near_reacquire", "near_consistency", "reacquire", "edge_recurs", "reach_jump", "filter",
+              "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
+              "bad_fix", "not_vectorised")
+_WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
 
 
 def _deadline(p: Player) -> float:
@@ -79,9 +77,13 @@ def _deadline(p: Player) -> float:
 
 
 class FleetCore:
-    """Players in slots (in the order they were added; a removed slot stays empty), stepped together."""
+    """Players in slots (a removed player's slot goes to a later add; `order` keeps the order of the adds),
+    stepped together."""
 
-    def __init__(self, capacity: int = 64) -> None:
+    def __init__(self, capacity: int = 64, *, vectorised: bool = True) -> None:
+        """`vectorised=False`: every fix and every tick through the entity's `Player`, one by one (the
+        per-entity baseline `bench sim` measures the arrays against, and what a fleet of one does)."""
+        self.vectorised = vectorised
         self.players: list[Player | None] = []
         self.geo: Geometry | None = None
         self._near = NearTables()
@@ -89,11 +91,19 @@ class FleetCore:
         self.last_now = -math.inf
         self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "vector_extends": 0,
                          "scalar_fixes": 0, "scalar_ticks": 0}
+        # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
+        self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
+        self.rec = Record(max(int(capacity), 1))
+        self._free: list[int] = []  # slots of removed players, for the next adds
+        self._added = 0
         self._cap = 0
-        self._grow(max(int(capacity), 1))
+        self._grow()
 
-    def _grow(self, cap: int) -> None:
-        old = self._cap
+    def _grow(self) -> None:
+        """Views of the record's columns (again after it grew) and the derived columns, as wide."""
+        cap, old = self.rec.cap, self._cap
+        for name, arr in self.rec.view().items():
+            setattr(self, name, arr)
 
         def grown(a: np.ndarray | None, fill, dtype, shape=()) -> np.ndarray:
             b = np.full((cap, *shape), fill, dtype=dtype)
@@ -101,56 +111,63 @@ class FleetCore:
                 b[:old] = a
             return b
 
-        # the scalar fields are columns of one matrix per dtype: `_load` writes a slot's row in one assignment
-        self.fm = grown(getattr(self, "fm", None), 0.0, float, (len(_F),))
-        self.im = grown(getattr(self, "im", None), 0, np.int64, (len(_I),))
-        self.fm[old:, _F.index("deadline")] = math.inf
-        for j, f in enumerate(_F):
-            setattr(self, f, self.fm[:, j])
-        for j, f in enumerate(_I):
-            setattr(self, f, self.im[:, j])
-        for ring in ("rs", "rx", "ry", "iv"):
-            j = _F.index(f"{ring}0")
-            setattr(self, ring, self.fm[:, j : j + RECENT])
-        for f in _B:
+        self.deadline = grown(getattr(self, "deadline", None), math.inf, float)
+        for f in ("alive", "fast", "consts", "has_route"):
             setattr(self, f, grown(getattr(self, f, None), False, bool))
-        self.pe = grown(getattr(self, "pe", None), 0, np.int64, (W,))
-        self.pd = grown(getattr(self, "pd", None), 1, np.int64, (W,))
-        self.pc = grown(getattr(self, "pc", None), math.inf, float, (W + 1,))
+        self.slow = grown(getattr(self, "slow", None), 0, np.int64)
+        self.order = grown(getattr(self, "order", None), 0, np.int64)
+        self.confirm = grown(getattr(self, "confirm", None), 1, np.int64)
+        self.gm = grown(getattr(self, "gm", None), 0.0, float, (len(_GHOST),))
+        self.cm = grown(getattr(self, "cm", None), 0.0, float, (len(_CONST),))
+        for j, f in enumerate(_GHOST):
+            setattr(self, f, self.gm[:, j])
+        for j, f in enumerate(_CONST):
+            setattr(self, f, self.cm[:, j])
         self.ge = grown(getattr(self, "ge", None), 0, np.int64, (W,))
         self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
         self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
-        self._paths: list = [None] * cap if old == 0 else self._paths + [None] * (cap - old)
+        self.gn = grown(getattr(self, "gn", None), 0, np.int64)
         self._ghosts: list = [None] * cap if old == 0 else self._ghosts + [None] * (cap - old)
         self._cap = cap
 
     # ---- slots ---------------------------------------------------------------------------------------------
     def add(self, player: Player) -> int:
-        """Take a player (its state as it is); returns its slot."""
-        slot = len(self.players)
-        if slot >= self._cap:
-            self._grow(2 * self._cap)
-        self.players.append(player)
+        """Take a player (its state as it is); returns its slot: a removed one's if any (the rows stay as many
+        as the most entities held at once), else a new one. `order[slot]` counts the adds: a tick's messages
+        come in that order, whichever slots the entities hold."""
+        slot = player.move_to(self.rec, self._free.pop() if self._free else None)
+        if self.rec.cap != self._cap:
+            self._grow()
+        if slot == len(self.players):
+            self.players.append(player)
+        else:
+            self.players[slot] = player
+        self.order[slot] = self._added
+        self._added += 1
         self.alive[slot] = True
-        self._load(slot)
+        self.consts[slot] = False
+        self._ghosts[slot] = None
+        self._refresh(slot)
         return slot
 
     def remove(self, slot: int) -> list[Unpublish]:
-        """Drop a slot's player: `Player.leave()`'s messages."""
+        """Drop a slot's player: `Player.leave()`'s messages. Its row moves out to a record of its own (the
+        Player stays whole for whoever holds it); a later `add` may take the slot."""
         p = self.player(slot)
         self.players[slot] = None
-        self.alive[slot] = self.fast[slot] = self.dirty[slot] = False
+        self.alive[slot] = self.fast[slot] = False
         self.deadline[slot] = math.inf
+        p.move_to(Record(1))
+        self.rec.paths[slot] = None
+        self._free.append(slot)
         return p.leave()
 
     def player(self, slot: int) -> Player:
-        """The slot's `Player`, its state written back from the arrays (the one truth from here on)."""
+        """The slot's `Player` (its state is the record's row: nothing to write back)."""
         p = self.players[slot]
         if p is None:
             raise KeyError(f"slot {slot} holds no player")
-        if self.dirty[slot]:
-            self._store(slot, p)
-        self.consts[slot] = False  # the caller may change the Player: read it all at the next `_load`
+        self.consts[slot] = False  # the caller may change the Player: read its options at the next `_refresh`
         self._ghosts[slot] = None
         return p
 
@@ -158,7 +175,8 @@ class FleetCore:
     def step(self, now: float, due: Sequence[int] | np.ndarray, x: np.ndarray, y: np.ndarray, accuracy: float,
              idle: Sequence[int] = ()) -> tuple[list[tuple[int, list[Publish | Unpublish]]], int]:
         """Time `now` for every live slot: the slots in `due` take the fix (x[i], y[i]) (`feed` then `tick`),
-        the others `tick` (except those in `idle`). Returns ([(slot, messages)] in slot order, rejected fixes)."""
+        the others `tick` (except those in `idle`). Returns ([(slot, messages)] in the order the slots' players
+        were added, `order`), rejected fixes)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
         if now < self.last_now:
@@ -170,14 +188,21 @@ class FleetCore:
         y = np.asarray(y, dtype=float)
         done = np.zeros(len(due), dtype=bool)
         acc = float(accuracy)
-        if len(due) and math.isfinite(acc) and acc > 0.0:
-            cand = self.fast[due] & self.alive[due] & np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
-            rows = np.flatnonzero(cand)
+        why = np.full(len(due), _WHY["not_vectorised"], dtype=np.int64)
+        if len(due) and math.isfinite(acc) and acc > 0.0 and self.vectorised:
+            fast = self.fast[due] & self.alive[due]
+            good = np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
+            why = np.where(fast, _WHY["bad_fix"], self.slow[due])
+            rows = np.flatnonzero(fast & good)
             if len(rows):
-                done[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+                why[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+                done[rows] = why[rows] == 0
         self.counters["vector_fixes"] += int(done.sum())
+        for code, count in enumerate(np.bincount(why[~done], minlength=len(SCALAR_WHY) + 1).tolist()):
+            if code and count:
+                self.scalar_why[SCALAR_WHY[code - 1]] += count
         work: dict[int, int] = {int(s): k for k, s in enumerate(due.tolist()) if not done[k]}
-        timers = self.alive[:n] & (self.deadline[:n] <= now)
+        timers = self.alive[:n] & (self.deadline[:n] <= now) if self.vectorised else self.alive[:n].copy()
         timers[due[due < n]] = False
         for s in idle:
             timers[s] = False
@@ -185,13 +210,12 @@ class FleetCore:
             work.setdefault(s, -1)
         out: list[tuple[int, list[Publish | Unpublish]]] = []
         rejected = 0
-        for s in sorted(work):
+        order = self.order
+        for s in sorted(work, key=order.__getitem__):
             k = work[s]
             p = self.players[s]
             if p is None:
                 continue
-            if self.dirty[s]:
-                self._store(s, p)
             if k < 0:
                 self.counters["scalar_ticks"] += 1
                 msgs = p.tick(now)
@@ -204,7 +228,8 @@ class FleetCore:
                 except FixRejected:
                     rejected += 1
                     msgs = []
-            self._load(s)
+            if self.vectorised:  # (one by one, every live slot ticks: nothing is derived)
+                self._refresh(s)
             if msgs:
                 out.append((s, msgs))
         return out, rejected
@@ -212,20 +237,25 @@ class FleetCore:
     # ---- the vectorised fix --------------------------------------------------------------------------------
     def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float) -> np.ndarray:
         """`Player.feed` + `tick` at `t` for slots `sl` where the fix ends in the usual update with no publish
-        (module docstring): commits those rows and returns which they were (the rest is left to the scalar)."""
+        (module docstring): commits those rows and returns per row 0 (done here) or the `SCALAR_WHY` code (1..)
+        of the first test that leaves it to the scalar path."""
         geo = self.geo
         pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
         rows = np.arange(len(sl))
         ks, kv, ka, kt = self.ks[sl], self.kv[sl], self.ka[sl], self.kt[sl]
-        iv, iv_n, gap_lim, reach = interval_rows(self.iv[sl], self.iv_n[sl], t - self.last_t[sl], self.max_gap[sl],
-                                                 self.lost_after[sl], self.reacq[sl], self.vmax[sl], GAP_INTERVALS,
-                                                 MIN_INTERVALS)
+        iv, iv_n, gap_lim, reach, interval = interval_rows(
+            self.iv[sl], self.iv_n[sl], t - self.last_t[sl], self.max_gap[sl], self.lost_after[sl], self.reacq[sl],
+            self.vmax[sl], GAP_INTERVALS, MIN_INTERVALS)
         dt = np.where(t > kt, t - kt, 0.0)
         s_pred = ks + kv * dt + 0.5 * ka * dt * dt
         k = (pc <= s_pred[:, None]).sum(axis=1) - 1
         k = np.where(k < 0, 0, np.where(k >= pn, pn - 1, k))
         e = pe[rows, k]
         ok = geo.nseg[e] > 0
+        why = np.where(ok, 0, _WHY["no_segments"])
+
+        def fail(cond: np.ndarray, reason: str) -> None:  # rows still ok that fail `cond` leave for `reason`
+            why[ok & ~cond] = _WHY[reason]
         off = px = py = dist = np.zeros(len(sl))
         if ok.any():
             off, px, py, dist = (np.zeros(len(sl)) for _ in range(4))
@@ -235,20 +265,26 @@ class FleetCore:
         swm, reacq = self.swm[sl], self.reacq[sl]
         written_out = (dist <= swm) & (off > 0.0) & (off < elen) & geo.inner[e]  # `track`'s test for `_track_on`
         gen = ok & ~written_out  # the neighbourhood search (`Placer.near`)
-        ok &= written_out & (dist <= reacq)
+        fail(~gen, "near_table")  # (rows of the near search: their reason is set below)
+        ok &= written_out
+        fail(dist <= reacq, "reacquire")
+        ok &= dist <= reacq
         # `_s_of`'s first case: the edge does not recur within three edges either side
         j = k[:, None] + np.arange(-3, 4)[None, :]
         inside = (j >= 0) & (j < pn[:, None])
         same = (pe[rows[:, None], np.clip(j, 0, W - 1)] == e[:, None]) & inside
+        fail(same.sum(axis=1) == 1, "edge_recurs")
         ok &= same.sum(axis=1) == 1
         s_meas = pc[rows, k] + np.where(pd[rows, k] > 0, off, elen - off)
         if gen.any():
             g = np.flatnonzero(gen)
-            good, ge_, goff, gpx, gpy, gd, gs = self._near_fixes(sl[g], x[g], y[g], e[g], s_pred[g], pe[g], pd[g],
+            gwhy, ge_, goff, gpx, gpy, gd, gs = self._near_fixes(sl[g], x[g], y[g], e[g], s_pred[g], pe[g], pd[g],
                                                                  pc[g], pn[g], r)
-            ok[g] = good
+            ok[g] = gwhy == 0
+            why[g] = gwhy
             e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
             e[g], off[g], px[g], py[g], dist[g], s_meas[g] = ge_, goff, gpx, gpy, gd, gs
+        fail(~(np.abs(s_meas - s_pred) > reach), "reach_jump")
         ok &= ~(np.abs(s_meas - s_pred) > reach)
         near_rows = gen
         dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
@@ -256,11 +292,13 @@ class FleetCore:
         *new, sden = kf_update(s_meas, t, r, ks, kv, ka, self.p00[sl], self.p01[sl], self.p02[sl], self.p11[sl],
                         self.p12[sl], self.p22[sl], kt, self.kq[sl], self.kacc[sl])
         ns, nv, na, n00, n01, n02, n11, n12, n22 = new
+        fail(kup & (sden > 0.0) & np.isfinite(ns), "filter")
         ok &= kup & (sden > 0.0) & np.isfinite(ns)
         vpeak_set = (nv > self.vpeak[sl]) | (t - self.vpeak_t[sl] > 120.0)
         has_route = self.has_route[sl]
         backwards = (nv < -self.v_start[sl]) & (nv + np.sqrt(np.maximum(n11, 0.0)) < 0.0)
         rev = np.where(has_route | ~backwards, 0, self.rev[sl] + 1)
+        fail(rev < 3, "reversal")
         ok &= rev < 3
         # the recent fixes: path coordinates (tracker) and projected points (rules)
         rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
@@ -329,6 +367,7 @@ class FleetCore:
         pub_t = self.pub_t[sl]
         due = (t >= pub_t + self.validity[sl]) | (t - pub_t >= self.heartbeat[sl])
         publish = stop | (standing & moved) | (~standing & drifted) | due
+        fail(~publish, "publish")
         ok &= ~publish
         # commit the rows that stay in arrays
         self.counters["vector_near"] += int((ok & near_rows).sum())
@@ -336,7 +375,11 @@ class FleetCore:
         c = sl[w]
         self.last_t[c] = t
         self.iv[c], self.iv_n[c], self.gap_lim[c], self.reach[c] = iv[w], iv_n[w], gap_lim[w], reach[w]
+        self.interval[c] = interval[w]
         self.mx[c], self.my[c] = x[w], y[w]
+        # what `feed` and the usual `track` reset: no fix gap, on the network, no hysteresis candidate
+        self.off_since[c], self.halted[c], self.pend_e[c], self.pend_n[c] = math.nan, 0, -1, 0
+        self.lf_kind[c] = 1
         self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
         self.dist_ema[c] = dist_ema[w]
         for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), [ns, *new[1:]], strict=True):
@@ -349,7 +392,9 @@ class FleetCore:
             self.counters["vector_trims"] += len(tw)
             ct = sl[tw]
             self.pe[ct], self.pd[ct], self.pc[ct], self.pn[ct] = pe[tw], pd[tw], pc[tw], pn[tw]
-            self.path_dirty[ct] = True
+            paths = self.rec.paths
+            for slot in ct.tolist():
+                paths[slot] = None  # the row's path changed: its `Path` is built again when asked
         self.kt[c] = t
         vs = w[vpeak_set[w]]
         self.vpeak[sl[vs]] = nv[vs]
@@ -362,14 +407,14 @@ class FleetCore:
         d = np.minimum(np.minimum(pub_t[w] + self.validity[c], pub_t[w] + self.heartbeat[c]),
                        np.minimum(t + self.lost_after[c], t + gap_lim[w]))
         self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
-        self.dirty[c] = True
-        return ok
+        return np.where(ok, 0, why)
 
     def _near_fixes(self, sl, x, y, e, s_pred, pe, pd, pc, pn, r: float) -> tuple[np.ndarray, ...]:
         """`track`'s general branch for fixes beyond the switch margin (or near an edge's end), where it ends in
         the usual update: the fix on an edge of the path window [s_pred - body - 30, s_pred + 60], that edge once
         in the path, no `_best_on` retry, within `reacquire`, and no consistency query of the placement index.
-        Returns (which rows qualify, edge, offset, px, py, distance, path coordinate)."""
+        Returns (per row 0 where it qualifies, else the `SCALAR_WHY` code of the first test it fails, edge,
+        offset, px, py, distance, path coordinate)."""
         rows = np.arange(len(sl))
         start, count, usable = np.zeros(len(sl), np.int64), np.ones(len(sl), np.int64), np.zeros(len(sl), bool)
         near = self._near
@@ -382,115 +427,72 @@ class FleetCore:
         hi = (pc <= (s_pred + 60.0)[:, None]).sum(axis=1) - 1
         hi = np.where(hi < 0, 0, np.where(hi >= pn, pn - 1, hi))
         fe, off, px, py, d, pref = near.near(x, y, start, count, self.swm[sl], pe, lo, hi)
-        ok = usable & pref
+        why = np.where(usable, np.where(pref, 0, _WHY["near_off_window"]), _WHY["near_table"])
         # `_s_of(fix, s_pred, k_cur)` where the edge occurs once in the path: its one occurrence
         occ = (pe == fe[:, None]) & (np.arange(W)[None, :] < pn[:, None])
-        ok &= occ.sum(axis=1) == 1
+        why = np.where((why == 0) & (occ.sum(axis=1) != 1), _WHY["near_edge_recurs"], why)
         kf = np.argmax(occ, axis=1)
         elen = self.geo.edge_len[fe]
         s_fix = pc[rows, kf] + np.where(pd[rows, kf] > 0, off, elen - off)
         sig = math.sqrt(r)
         several = (pe[rows[:, None], np.arange(W)[None, :]] != pe[rows, lo][:, None])
         several &= (np.arange(W)[None, :] >= lo[:, None]) & (np.arange(W)[None, :] <= hi[:, None])
-        ok &= ~(several.any(axis=1) & (np.abs(s_fix - s_pred) > 2.0 * sig))  # else `_best_on`
-        ok &= ~(d > self.reacq[sl])
+        best_on = several.any(axis=1) & (np.abs(s_fix - s_pred) > 2.0 * sig)  # else `_best_on`
+        why = np.where((why == 0) & best_on, _WHY["near_best_on"], why)
+        why = np.where((why == 0) & (d > self.reacq[sl]), _WHY["near_reacquire"], why)
         ema = 0.7 * self.dist_ema[sl] + 0.3 * d
-        ok &= ~((ema > 1.5 * sig) & (d > self.swm[sl]))  # else the placement index is asked
-        return ok, fe, off, px, py, d, s_fix
+        asks = (ema > 1.5 * sig) & (d > self.swm[sl])  # else the placement index is asked
+        why = np.where((why == 0) & asks, _WHY["near_consistency"], why)
+        return why, fe, off, px, py, d, s_fix
 
-    # ---- arrays <-> Player ---------------------------------------------------------------------------------
-    def _store(self, s: int, p: Player) -> None:
-        """Write slot s's array state (newer after vectorised fixes) back into its Player."""
-        trk, rules, kf = p.tracker, p.rules, p.tracker.kf
-        t = float(self.last_t[s])
-        p.last_t = t
-        p.measured = (float(self.mx[s]), float(self.my[s]), t)
-        p.off_since = None
-        rules.halted = False
-        trk.pending = (-1, 0)
-        trk.last_fix = _new_fix(Fix, ("edge", int(self.lf_e[s]), float(self.lf_off[s]), float(self.lf_x[s]),
-                                      float(self.lf_y[s]), float(self.lf_d[s])))
-        trk.dist_ema = float(self.dist_ema[s])
-        trk.dead_end = (int(self.dead_e[s]), int(self.dead_d[s])) if self.dead_e[s] >= 0 else None
-        n = int(self.rs_n[s])
-        trk.recent_s = self.rs[s, RECENT - n:].tolist()
-        if self.path_dirty[s]:  # trimmed in the arrays: the same edges and cumulative lengths as `Path.suffix`
-            n = int(self.pn[s])
-            trk.path = Path(p.net, list(zip(self.pe[s, :n].tolist(), self.pd[s, :n].tolist(), strict=True)),
-                            _cum=self.pc[s, : n + 1].tolist())
-            self._paths[s] = (trk.path, self._paths[s][1])
-            self.path_dirty[s] = False
-        kf.s, kf.v, kf.a = float(self.ks[s]), float(self.kv[s]), float(self.ka[s])
-        kf.p00, kf.p01, kf.p02 = float(self.p00[s]), float(self.p01[s]), float(self.p02[s])
-        kf.p11, kf.p12, kf.p22 = float(self.p11[s]), float(self.p12[s]), float(self.p22[s])
-        kf.t = float(self.kt[s])
-        trk.vpeak, trk.vpeak_t = float(self.vpeak[s]), float(self.vpeak_t[s])
-        trk.reverse_count = int(self.rev[s])
-        n = int(self.rr_n[s])
-        rules.recent = list(zip(self.rx[s, RECENT - n:].tolist(), self.ry[s, RECENT - n:].tolist(), strict=True))
-        rules.over = int(self.over[s])
-        n = int(self.iv_n[s])
-        rules.intervals = self.iv[s, RECENT - n:].tolist()
-        rules.interval = usual_interval(rules.intervals) if n >= MIN_INTERVALS else 0.0
-        rules.gap_limit, trk.reach = float(self.gap_lim[s]), float(self.reach[s])
-        self.dirty[s] = False
-
-    def _load(self, s: int) -> None:
-        """Read slot s's state from its Player (the truth after a scalar call): the deadline, and the arrays
-        when its next fix may take the vectorised path."""
+    # ---- what the arrays derive from a Player -------------------------------------------------------------
+    def _refresh(self, s: int) -> None:
+        """After a scalar call (or `add`): the slot's deadline, whether its next fix may take the arrays, and
+        the derived columns of a new ghost (and of the options, once per hand-out). Its state is not read:
+        the row is the state."""
         p = self.players[s]
-        self.dirty[s] = False
         self.deadline[s] = _deadline(p)
         trk = p.tracker
         ghost = p.ghost
-        ok = (trk is not None and p.world is None and trk.place is EDGE and trk.written_out and p.published
-              and isinstance(ghost, NetworkModel) and p.estimate is OWN_ESTIMATE and not p.rules.periodic
-              and p.last_t is not None and trk.kf is not None and len(trk.path.edges) <= W
-              and len(ghost.path.edges) <= W and len(trk.recent_s) <= RECENT and 0 < len(p.rules.recent) <= RECENT)
-        if ok:
+        if not self.vectorised:
+            self.fast[s] = False
+            return
+        if trk is None or trk.place is None or p.last_t is None:
+            slow = "unplaced"
+        elif trk.place is not EDGE:
+            slow = "area"
+        elif not p.published or ghost is None:
+            slow = "unpublished"
+        elif (p.world is not None or not isinstance(ghost, NetworkModel) or p.estimate is not OWN_ESTIMATE
+              or p.rules.periodic or not trk.written_out or trk.kf is None):
+            slow = "baseline_model"
+        elif not self.rec.path_to_arrays(s) or len(ghost.path.edges) > W or self.rr_n[s] == 0:
+            slow = "path_or_ring_wide"
+        else:
             if self.net is None:
                 self.net, self.geo = p.net, Geometry(p.net)
-            ok = p.net is self.net and trk.path.net is self.net and ghost.path.net is self.net
+            slow = None if p.net is self.net and ghost.path.net is self.net else "other_net"
+        ok = slow is None
+        self.slow[s] = 0 if ok else _WHY[slow]
         self.fast[s] = ok
         if not ok:
             return
-        rules, kf = p.rules, trk.kf
-        lf = trk.last_fix
-        paths = self._paths[s]
-        if paths is None or paths[0] is not trk.path:
-            self._put_path(s, trk.path, self.pe, self.pd, self.pc, self.pn)
-        if paths is None or paths[1] is not ghost.path:
-            self._put_path(s, ghost.path, self.ge, self.gd, self.gc, self.gn)
-        self._paths[s] = (trk.path, ghost.path)
-        n_s, n_r, n_i = len(trk.recent_s), len(rules.recent), len(rules.intervals)
-        pad_s, pad_r = [0.0] * (RECENT - n_s), [0.0] * (RECENT - n_r)
-        self.fm[s, :_G0] = [p.last_t, p.measured[0], p.measured[1], self.deadline[s], kf.s, kf.v, kf.a, kf.p00,
-                            kf.p01, kf.p02, kf.p11, kf.p12, kf.p22, kf.t, trk.dist_ema, trk.vpeak, trk.vpeak_t,
-                            lf[2], lf[3], lf[4], lf[5], rules.gap_limit, trk.reach,
-                            *pad_s, *trk.recent_s, *pad_r, *[pt[0] for pt in rules.recent],
-                            *pad_r, *[pt[1] for pt in rules.recent], *[0.0] * (RECENT - n_i), *rules.intervals]
-        if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish, and with it pub_t, validity
+        if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish (and with it its validity)
             self._ghosts[s] = ghost
             tb, sb, vb, b = ghost.plan
-            self.fm[s, _G0:_C0] = [p.pub_t, rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a,
-                                   ghost.vmax, tb, sb, vb, b, ghost.stop_s]
+            self.gm[s] = [p.rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a, ghost.vmax, tb, sb,
+                          vb, b, ghost.stop_s]
+            path = ghost.path
+            n = self.gn[s] = len(path.edges)
+            self.ge[s, :n] = [de[0] for de in path.edges]
+            self.gd[s, :n] = [de[1] for de in path.edges]
+            self.gc[s, : n + 1] = path.cum
+            self.gc[s, n + 1:] = math.inf
         if not self.consts[s]:
-            placer, et = trk.placer, trk.etype
-            self.fm[s, _C0:] = [kf.q, placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
-                                placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0,
-                                trk.lookahead, trk.margin, rules.threshold, rules.heartbeat, rules.max_gap,
-                                rules.lost_after, trk.body, et.vmax]
-            self.kacc[s], self.has_route[s] = kf.accel, trk.has_route
+            rules, placer, et = p.rules, trk.placer, trk.etype
+            self.cm[s] = [placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
+                          placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0, trk.lookahead,
+                          trk.margin, rules.threshold, rules.heartbeat, rules.max_gap, rules.lost_after, trk.body,
+                          et.vmax]
+            self.has_route[s], self.confirm[s] = trk.has_route, rules.confirm
             self.consts[s] = True
-        dead = trk.dead_end if trk.dead_end is not None else (-1, 0)
-        self.im[s, :8] = [trk.reverse_count, rules.over, rules.confirm, n_s, n_r, lf[1], dead[0], dead[1]]
-        self.iv_n[s] = n_i
-
-    @staticmethod
-    def _put_path(s: int, path, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray) -> None:
-        n = len(path.edges)
-        pn[s] = n
-        pe[s, :n] = [de[0] for de in path.edges]
-        pd[s, :n] = [de[1] for de in path.edges]
-        pc[s, : n + 1] = path.cum
-        pc[s, n + 1:] = math.inf

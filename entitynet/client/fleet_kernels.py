@@ -227,8 +227,8 @@ def interval_rows(ring: np.ndarray, n: np.ndarray, dt: np.ndarray, max_gap: np.n
                   min_intervals: int) -> tuple[np.ndarray, ...]:
     """`UpdateRules.note_interval` (with `usual_interval`, `gap_limit`) and the Player's `reach` for every row:
     the interval ring (oldest first, the last n columns used) with dt appended where 0 < dt < lost_after,
-    its count, the gap limit and the along-path reach (rows with fewer than `min_intervals`: max_gap and
-    reacquire)."""
+    its count, the gap limit, the along-path reach (rows with fewer than `min_intervals`: max_gap and
+    reacquire), and the usual interval itself (their median; 0.0 with fewer)."""
     k = ring.shape[1]
     rec = (dt > 0.0) & (dt < lost_after)
     ring = np.where(rec[:, None], np.concatenate([ring[:, 1:], dt[:, None]], axis=1), ring)
@@ -241,5 +241,5 @@ def interval_rows(ring: np.ndarray, n: np.ndarray, dt: np.ndarray, max_gap: np.n
     gap = np.where(some, np.minimum(np.maximum(max_gap, gap_intervals * med), np.maximum(max_gap, 0.5 * lost_after)),
                    max_gap)
     reach = np.where(some, np.maximum(reacquire, vmax * med), reacquire)
-    return ring, n, gap, reach
+    return ring, n, gap, reach, np.where(some, med, 0.0)
 

@@ -34,6 +34,7 @@ from entitynet.client.occupation import LOOKAHEAD, Occupation
 from entitynet.client.path import Path
 from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.route import Route
+from entitynet.client.row_fields import PlayerState
 from entitynet.client.rules import OWN_ESTIMATE, Estimate, UpdateRules
 from entitynet.client.tracker import NetworkTracker, placer_for
 from entitynet.protocol import Publish, Unpublish
@@ -44,10 +45,11 @@ __all__ = ["MODELS", "FixRejected", "Player", "placer_for"]
 _make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
 
 
-class Player:
+class Player(PlayerState):
     """One entity's honest client: fixes and time in, PUBLISH / UNPUBLISH out. The parameters tune the parts
     (docs/dead-reckoning.md); `estimate` is where the update rules and the publish ask what the entity is
-    believed to be doing (default: its own filtered estimate; the benchmark injects the truth)."""
+    believed to be doing (default: its own filtered estimate; the benchmark injects the truth). Its state lives
+    in a client-state row (state.py): a record of its own, or a `FleetCore`'s once added there (`move_to`)."""
 
     def __init__(
         self, topo, entity: int, etype: str | EntityType, *, model: str | ModelKind = ModelKind.NETWORK,
@@ -84,11 +86,12 @@ class Player:
         self.off_network_timeout = off_network_timeout
         self.estimate = estimate
         lateral = 2.0 * accuracy if lateral is None else float(lateral)
+        rec = self.own_record()
         self.net: NetView | None = netview(topo) if topo is not None else None
         self.route = Route(self.net, route, stops)
         self.rules = UpdateRules(et, periodic=kind == ModelKind.PERIODIC, threshold=self.threshold,
                                  confirm=max(int(confirm), 1), heartbeat=heartbeat, max_validity=max_validity,
-                                 period=period, max_gap=max_gap, lost_after=lost_after)
+                                 period=period, max_gap=max_gap, lost_after=lost_after, state=(rec, 0))
         self.world = WorldFilter(kind, et) if kind != ModelKind.NETWORK else None
         self.tracker: NetworkTracker | None = None
         self.coverage: Coverage | None = None
@@ -99,18 +102,14 @@ class Player:
                 off_network=off_network, lateral=lateral, route_margin=route_margin,
                 filter_q=et.jerk_q if filter_q is None else float(filter_q),
                 filter_accel=et.accel if filter_accel is None else bool(filter_accel),
-                area_filter=kind == ModelKind.NETWORK)
+                area_filter=kind == ModelKind.NETWORK, state=(rec, 0))
             self.coverage = Coverage(self.net, et, self.route, body=self.body, margin=self.margin,
                                      accuracy=accuracy, lateral=lateral, lookahead=lookahead,
                                      max_validity=max_validity, heartbeat=heartbeat)
         # what was published, and the fix history
-        self.seq = 0
-        self.last_t: float | None = None
-        self.measured: tuple[float, float, float] | None = None
+        self.seq = 0  # (last_t, measured, pub_t, off_since: the row's, none yet)
         self.ghost: Model | None = None
         self.occupation: Occupation | None = None
-        self.pub_t = -math.inf
-        self.off_since: float | None = None
         self.published = False
         self.stats: dict[str, int] = {}
 
@@ -167,13 +166,13 @@ class Player:
         velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per axis (m/s).
         Optional: without them the speed comes from differences of positions, about ten times noisier at 5 m, 1 Hz."""
         acc = self.accuracy if accuracy is None else float(accuracy)
-        check_fix(x, y, t, acc, self.last_t)
+        last_t = self.last_t
+        check_fix(x, y, t, acc, last_t)
         vel = velocity(speed, heading, speed_accuracy)
-        if self.last_t is not None and self.rules.note_interval(t - self.last_t) and self.tracker is not None:
+        if last_t is not None and self.rules.note_interval(t - last_t) and self.tracker is not None:
             self.tracker.follow_cadence(self.rules.interval)
-        self.last_t = t
         self.rules.halted = False
-        self.measured = (x, y, t)
+        self.measured = (x, y, t)  # (and last_t = t)
         r = acc * acc
         reason = None
         if self.world is not None:  # the baselines' state, and the only state without a topology
@@ -208,11 +207,12 @@ class Player:
         last fix (rules.py) publish the guess standing, `lost_after` after it unpublish (a fix publishes afresh)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
-        if self.last_t is not None and now < self.last_t:
-            raise ValueError(f"now {now!r} is before the last fix at {self.last_t!r}")
+        last_t = self.last_t
+        if last_t is not None and now < last_t:
+            raise ValueError(f"now {now!r} is before the last fix at {last_t!r}")
         if not self.published or self.ghost is None:
             return []
-        reason, stop_at = self.rules.on_tick(now, self.last_t, self.pub_t, self.occupation)
+        reason, stop_at = self.rules.on_tick(now, last_t, self.pub_t, self.occupation)
         if reason == "lost":
             self.stats["lost"] = self.stats.get("lost", 0) + 1
             self._forget()

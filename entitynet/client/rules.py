@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Protocol
 from entitynet.client.entities import EntityType
 from entitynet.client.motion import Model, NetworkModel
 from entitynet.client.occupation import Occupation
+from entitynet.client.state import RECENT, Bound, Record, column, ring
 
 #: an entity that stops within this share of the drift threshold of where its published model halts (a stop on
 #: its route, known a priori, or its path's end) publishes no "stop": the ghost halts there by itself. Measured (`bench
@@ -68,7 +69,7 @@ OWN_ESTIMATE = OwnEstimate()
 
 #: a gap is this many of the feed's usual fix intervals without a fix (one missed fix is not yet a gap)
 GAP_INTERVALS = 2.5
-FIX_INTERVALS_KEPT = 5  # the last intervals whose median is the usual one (robust to one long hole)
+FIX_INTERVALS_KEPT = RECENT  # the last intervals whose median is the usual one (robust to one long hole)
 MIN_INTERVALS = 3  # fewer say nothing yet (a gap right after the first fix is not the feed's cadence)
 
 
@@ -86,32 +87,56 @@ def gap_limit(max_gap: float, lost_after: float, interval: float) -> float:
     return min(max(max_gap, GAP_INTERVALS * interval), max(max_gap, 0.5 * lost_after))
 
 
-class UpdateRules:
+_RX, _RY, _IV = ring("rx", "rr_n"), ring("ry", "rr_n"), ring("iv", "iv_n")
+
+
+class UpdateRules(Bound):
     """The decisions between publishes, and their memory: fixes over the threshold in a row (`over`), the
     last few fix positions (`recent`, for the standing test), whether a fix gap halted the published guess
-    (`halted`), and whether the next publish repositions a standing entity (`reposition`)."""
+    (`halted`), and whether the next publish repositions a standing entity (`reposition`). The memory the
+    fleet core also works on lives in a client-state row (entitynet/client/state.py: `state`, or a record of
+    its own)."""
+
+    over = column("over", "int")
+    halted = column("halted", "bool")
+    gap_limit = column("gap_lim")
+    interval = column("interval")
 
     def __init__(self, etype: EntityType, *, periodic: bool, threshold: float, confirm: int, heartbeat: float,
-                 max_validity: float, period: float, max_gap: float, lost_after: float) -> None:
+                 max_validity: float, period: float, max_gap: float, lost_after: float,
+                 state: tuple[Record, int] | None = None) -> None:
+        st = state if state is not None else (Record(1), 0)
+        if state is None:
+            st[0].new_row()
+        self.bind(*st)
         self.etype = etype
         self.periodic = periodic
         self.threshold, self.confirm = threshold, confirm
         self.heartbeat, self.max_validity, self.period = heartbeat, max_validity, period
         self.max_gap, self.lost_after = max_gap, lost_after
-        self.intervals: list[float] = []  # the last fix intervals (s), oldest first
+        _IV.clear(self)  # `intervals`: the last fix intervals (s), oldest first
         self.interval = 0.0  # their median (0: none observed yet)
         self.gap_limit = max_gap  # `gap_limit(max_gap, lost_after, interval)`
         self.over = 0
         self.reposition = False
         self.halted = False  # a fix gap stopped the published guess (the `gap` update)
-        self.recent: list[tuple[float, float]] = []  # the last few fixes (on the network when placed)
+        _RX.clear(self)  # `recent`: the last few fixes (on the network when placed)
         self._still: tuple[Model, tuple[float, float, float]] | None = None  # a standing ghost's answer
+
+    @property
+    def recent(self) -> list[tuple[float, float]]:
+        """The last few fix positions, oldest first (a new list)."""
+        return list(zip(_RX.get(self), _RY.get(self), strict=True))
+
+    @property
+    def intervals(self) -> list[float]:
+        """The last fix intervals (s), oldest first (a new list)."""
+        return _IV.get(self)
 
     def note_fix(self, xy: tuple[float, float]) -> None:
         """Remember a fix's position (the last five) for the standing test."""
-        self.recent.append(xy)
-        if len(self.recent) > 5:
-            del self.recent[0]
+        _RX.push(self, xy[0])
+        _RY.push(self, xy[1], counted=False)
 
     def note_interval(self, dt: float) -> bool:
         """A fix came `dt` seconds after the previous one: the gap limit follows the feed's usual interval
@@ -119,17 +144,16 @@ class UpdateRules:
         the interval was kept (and `interval` may have changed)."""
         if not 0.0 < dt < self.lost_after:
             return False
-        self.intervals.append(dt)
-        if len(self.intervals) > FIX_INTERVALS_KEPT:
-            del self.intervals[0]
-        self.interval = usual_interval(self.intervals) if len(self.intervals) >= MIN_INTERVALS else 0.0
+        _IV.push(self, dt)
+        kept = _IV.get(self)
+        self.interval = usual_interval(kept) if len(kept) >= MIN_INTERVALS else 0.0
         self.gap_limit = gap_limit(self.max_gap, self.lost_after, self.interval)
         return True
 
     def forget(self) -> None:
         """A lost entity: its next fix starts afresh."""
         self._still = None
-        self.recent.clear()
+        _RX.clear(self)
         self.halted = False
 
     def published(self) -> None:
@@ -173,8 +197,9 @@ class UpdateRules:
             # the published model stands still: judge by the mean of the last fixes, not by the filter,
             # whose speed wanders with the noise of a standing GPS (a start is speed *and* displacement)
             moved = False
+            recent = self.recent
             for n, limit in ((5, self.threshold), (2, 1.6 * self.threshold)):
-                pts = self.recent[-n:]
+                pts = recent[-n:]
                 mx = my = 0.0
                 for px, py in pts:
                     mx += px

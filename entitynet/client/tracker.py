@@ -13,14 +13,16 @@ import math
 from bisect import bisect_right
 
 from entitynet.client.entities import EntityType
-from entitynet.client.filters import Kinematic1D
+from entitynet.client.filters import Kinematic1D, RowKinematic
 from entitynet.client.modes import AREA, EDGE, Place
-from entitynet.client.network import DirEdge, NetView
+from entitynet.client.network import NetView
 from entitynet.client.path import Path, follow
 from entitynet.client.placement import Fix, Placer
 from entitynet.client.route import Route
+from entitynet.client.row_fields import _RS, TrackerState
+from entitynet.client.state import PATH_W, Record
 
-MAX_PATH_EDGES = 48
+MAX_PATH_EDGES = PATH_W
 DOPPLER_MOVING = 1.0  # m/s: a Doppler velocity at least this fast has a direction worth checking
 # choosing among the path's edges: an along-path jump of ALONG_SCALE metres from the prediction costs as
 # much as one metre off the way (the prediction is good to a few metres; the fix only to its accuracy)
@@ -36,16 +38,26 @@ def placer_for(net: NetView, networks: int) -> Placer:
     return p
 
 
-class NetworkTracker:
+class NetworkTracker(TrackerState):
     """Placement with continuity and hysteresis, the along-path filter `kf` on an edge and the plane filters
     `kx`, `ky` in an area (only when `area_filter`: the world-frame baselines keep their own), the path
     trimmed behind and extended ahead (by the route where known, else the straightest way).
+
+    The tracking state the fleet core also works on (the filter, the path, the recent fixes, the hysteresis
+    counters, the last fix) lives in a client-state row (entitynet/client/state.py: `state`, or a record of
+    its own), read and written through the properties below; the options and the area state are attributes.
 
     `written_out`: take `_track_on` (the usual fix written out) instead of `_track`'s general code for it."""
 
     def __init__(self, net: NetView, etype: EntityType, route: Route, *, body: float, margin: float,
                  lookahead: float, off_network: float, lateral: float, route_margin: float,
-                 filter_q: float, filter_accel: bool, area_filter: bool, written_out: bool = True) -> None:
+                 filter_q: float, filter_accel: bool, area_filter: bool, written_out: bool = True,
+                 state: tuple[Record, int] | None = None) -> None:
+        self._kf = RowKinematic()
+        st = state if state is not None else (Record(1), 0)
+        if state is None:
+            st[0].new_row()
+        self.bind(*st)
         self.net = net
         self.etype = etype
         self.placer = placer_for(net, etype.networks)
@@ -64,19 +76,19 @@ class NetworkTracker:
         self.area_filter = area_filter
         self.written_out = written_out
         self.place: Place | None = None
-        self.path: Path | None = None
-        self.kf: Kinematic1D | None = None
+        self.path = None
+        self.kf = None
         self.area = -1
         self.kx: Kinematic1D | None = None
         self.ky: Kinematic1D | None = None
-        self.pending: tuple[int, int] = (-1, 0)
-        self.dead_end: DirEdge | None = None
+        self.pending = (-1, 0)
+        self.dead_end = None
         self.dist_ema = 0.0
         self.reverse_count = 0
-        self.recent_s: list[float] = []  # path coordinates of the last few fixes, for a standing position
+        self.recent_s = []  # path coordinates of the last few fixes, for a standing position
         self.vpeak = 0.0
         self.vpeak_t = -math.inf
-        self.last_fix: Fix | None = None
+        self.last_fix = None
 
     def follow_cadence(self, interval: float) -> None:
         """The feed's usual fix interval (s) changed: a fix may map as far along the path from the prediction
@@ -89,7 +101,7 @@ class NetworkTracker:
         self.place = None
         self.path = None
         self.kf = self.kx = self.ky = None
-        self.recent_s.clear()
+        _RS.clear(self)
 
     def fuse_velocity(self, vel: tuple[float, float, float]) -> None:
         """The network state takes the velocity's component along the path where the fix landed (areas: both
@@ -150,8 +162,8 @@ class NetworkTracker:
             behind.reverse()
         self.path = Path(self.net, behind + [de])
         s += self.path.cum[len(behind)]
-        self.recent_s.clear()
-        self.kf = Kinematic1D(s, t, r, q=self.filter_q, accel=self.filter_accel)
+        _RS.clear(self)
+        self._start_filter(s, t, r)
         self.pending = (-1, 0)
         self.dead_end = None
         self._maintain_path()  # a publish right after a (re)placement needs the way ahead too
@@ -270,10 +282,8 @@ class NetworkTracker:
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
             return "jump"
         if reason is not None:
-            self.recent_s.clear()
-        self.recent_s.append(s_meas)
-        if len(self.recent_s) > 5:
-            del self.recent_s[0]
+            _RS.clear(self)
+        _RS.push(self, s_meas)
         self.kf.update(s_meas, t, r)
         kf = self.kf
         if kf.v > self.vpeak or t - self.vpeak_t > 120.0:
@@ -309,13 +319,9 @@ class NetworkTracker:
         if abs(s_meas - s_pred) > self.reach:
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
             return "jump"
-        recent_s = self.recent_s
-        recent_s.append(s_meas)
-        if len(recent_s) > 5:
-            del recent_s[0]
-        kf = self.kf
-        kf.update(s_meas, t, r)
-        v = kf.v
+        _RS.push(self, s_meas)
+        kf = self._kf
+        s, v = kf.update_sv(s_meas, t, r)
         if v > self.vpeak or t - self.vpeak_t > 120.0:
             self.vpeak, self.vpeak_t = v, t
         reason = None
@@ -327,11 +333,9 @@ class NetworkTracker:
             if self.reverse_count >= 3:
                 self._reverse()
                 reason = "path"
+                s, v, path = kf.s, kf.v, self.path
         # `_maintain_path` changes nothing unless the path is to be trimmed or is short of what is needed ahead
-        path = self.path
         cum = path.cum
-        s = kf.s
-        v = kf.v
         if ((len(cum) > 2 and s - (self.body + self.margin + 50.0) > cum[1])
                 or (cum[-1] < s + self.lookahead + self.margin + 80.0 + 15.0 * (v if v > 0.0 else 0.0)
                     and len(path.edges) < MAX_PATH_EDGES and path.edges[-1] != self.dead_end)):

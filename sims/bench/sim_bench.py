@@ -15,7 +15,8 @@ Figures (keys of `results`):
   through the fleet core (`Fleet(core="fleet")`, entitynet/client/fleet.py); `fleet_fixes_per_s_player`: the same
   population, truth and seed through per-entity Players (`core="player"`), a second fleet stepped every tick
   beside the first in alternating order (their messages are asserted equal); `fleet_core_speedup` their ratio
-  and `fleet_vector_share` the fraction of fixes the fleet core's arrays decided. Timed after 20 simulated s
+  and `fleet_vector_share` the fraction of fixes the fleet core's arrays decided (`fleet_scalar_share_by_reason`:
+  the fraction that took the scalar path, by the first reason, `FleetCore.scalar_why`). Timed after 20 simulated s
   (3 with `--quick`) that are not: the start's burst of
   first placements and publishes is not the steady state.
 - `deliveries_per_viewer_s`: UPDATEs per street-level viewer-second, subscribing by PVS and by a 500 m radius,
@@ -118,7 +119,8 @@ def _fleet_rates(topo, n: int, seconds: float, warmup: float = 0.0) -> dict[str,
     through per-entity Players: two fleets with the same seed fed the same truth, both stepped every tick in
     alternating order (so the machine's drifting load falls on both alike), timed after `warmup` untimed
     simulated seconds (the start's burst of first placements and publishes). Their messages are the same
-    (asserted); `share`: the fraction of fixes the fleet core's arrays decided."""
+    (asserted); `share`: the fraction of fixes the fleet core's arrays decided; `scalar_why`: the fraction of
+    fixes that took the scalar path, by the first reason that sent them there (`FleetCore.scalar_why`)."""
     from sims.engine.clients import Fleet
 
     sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5, core="fleet"))
@@ -140,6 +142,7 @@ def _fleet_rates(topo, n: int, seconds: float, warmup: float = 0.0) -> dict[str,
         if k == int(warmup) + 1:
             core = fleets["fleet"].fleet_core
             core.counters.update(dict.fromkeys(core.counters, 0))
+            core.scalar_why.update(dict.fromkeys(core.scalar_why, 0))
         before = fleets["fleet"].counters["fixes"]
         out = {}
         for name in (("fleet", "player") if k % 2 else ("player", "fleet")):
@@ -155,7 +158,9 @@ def _fleet_rates(topo, n: int, seconds: float, warmup: float = 0.0) -> dict[str,
     rate = {name: fixes / spent[name] if spent[name] > 0 else 0.0 for name in fleets}
     return {"fleet": rate["fleet"], "player": rate["player"],
             "ratio": rate["fleet"] / rate["player"] if rate["player"] > 0 else None,
-            "share": c["vector_fixes"] / max(c["vector_fixes"] + c["scalar_fixes"], 1)}
+            "share": c["vector_fixes"] / max(c["vector_fixes"] + c["scalar_fixes"], 1),
+            "scalar_why": {why: round(k / max(fixes, 1), 4)
+                           for why, k in fleets["fleet"].fleet_core.scalar_why.items() if k}}
 
 
 def run(args, progress) -> dict[str, Any]:
@@ -218,6 +223,7 @@ def run(args, progress) -> dict[str, Any]:
         "fleet_fixes_per_s_player": fleet["player"],
         "fleet_core_speedup": fleet["ratio"],
         "fleet_vector_share": fleet["share"],
+        "fleet_scalar_share_by_reason": fleet["scalar_why"],
         "deliveries_per_viewer_s": {"pvs": street_pvs["deliveries"], "radius": street_rad["deliveries"]},
         "radius_vs_pvs_deliveries_ratio": street_rad["deliveries"] / street_pvs["deliveries"]
         if street_pvs["deliveries"] else None,
@@ -243,7 +249,8 @@ def run(args, progress) -> dict[str, Any]:
                    "realtime_seconds": rt_seconds, "fleet_warmup_s": 3 if quick else 20, "tick_hz": 2.0,
                    "gps_sigma_m": 5.0, "fix_hz": 1.0,
                    "schedule": BUNDLED_FEED.name, "start": "08:00",
-                   "fleet_core": "FleetCore (entitynet/client/fleet.py); baseline: per-entity Player, same run"},
+                   "fleet_core": "FleetCore (entitynet/client/fleet.py); baseline: the same core, arrays off "
+                                 "(vectorised=False: Player by Player), same run"},
         "results": results,
         "peer": {"radius_500m": {"deliveries_per_viewer_s": street_rad["deliveries"],
                                  "missed_visibility": rad["truth_vs_viewer"]["all"]["missed_visibility"]}},

@@ -7,22 +7,22 @@ modulo the connection count); the wire id of an entity is its simulation id (loc
 Fixes are staggered over the fix interval by entity id so that a tick does not carry every fix at once; the
 client cores' timers (validity expiry, heartbeat) run every tick.
 
-`core="fleet"` (the default) steps every entity's client core through `entitynet.client.fleet.FleetCore`: the
-usual fix and the timers over arrays, the entity's own `Player` only where something happens; the messages are
-the same as `core="player"`'s (one `Player.feed` / `tick` per entity and tick), message for message
-(tests/sims/engine/test_fleet_core.py). The GPS noise of a tick's due fixes is drawn in one call, which gives the
-same numbers in the same order as one draw per fix.
+Every entity's client core is stepped through the one fleet core, `entitynet.client.fleet.FleetCore`.
+`core="fleet"` (the default) lets it take the usual fix and the timers over arrays, the entity's own `Player`
+only where something happens; `core="player"` turns the arrays off (`vectorised=False`: one `Player.feed` /
+`tick` per entity and tick, the per-entity baseline `bench sim` compares with). The messages are the same,
+message for message (tests/sims/engine/test_fleet_core.py). The GPS noise of a tick's due fixes is drawn in
+one call, which gives the same numbers in the same order as one draw per fix.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
 
 from entitynet import protocol as P
-from entitynet.client import FixRejected, Player
+from entitynet.client import Player
 from entitynet.client.fleet import FleetCore
 from sims.engine.source import Body, Truth
 from sims.mobility.gps import GPS_SIGMA, gps
@@ -59,10 +59,10 @@ class Fleet:
         self.next_fix: dict[int, float] = {}
         self.counters = {"fixes": 0, "rejected_fixes": 0, "published": 0, "unpublished": 0}
         self.core = core
-        self.fleet_core = FleetCore() if core == "fleet" else None
-        self._slot: dict[int, int] = {}  # fleet core: entity -> slot
-        self._aid: list[int] = []  # fleet core: slot -> entity
-        self._due = np.zeros(0)  # fleet core: next fix time per slot (inf: removed)
+        self.fleet_core = FleetCore(vectorised=core == "fleet")
+        self._slot: dict[int, int] = {}  # entity -> its slot in the fleet core
+        self._aid: list[int] = []  # slot -> entity
+        self._due = np.zeros(0)  # next fix time per slot (inf: removed)
 
     def conn_of(self, entity: int) -> int:
         """The publisher connection carrying `entity`: id modulo the connection count (as a proxy splits a
@@ -87,58 +87,18 @@ class Fleet:
             self.home[a.id] = self.shard_at(float(x), float(y)) * self.per_shard + a.id % self.per_shard
         phase = (a.id * 0.618033988749895) % 1.0
         self.next_fix[a.id] = self.world.now + phase * self.fix_interval
-        if self.fleet_core is not None:
-            slot = self._slot[a.id] = self.fleet_core.add(self.players[a.id])
+        slot = self._slot[a.id] = self.fleet_core.add(self.players[a.id])  # (a removed entity's slot, or new)
+        if slot == len(self._aid):
             self._aid.append(a.id)
-            if slot >= len(self._due):
-                self._due = np.concatenate([self._due, np.full(max(64, len(self._due)), np.inf)])
-            self._due[slot] = self.next_fix[a.id]
+        else:
+            self._aid[slot] = a.id
+        if slot >= len(self._due):
+            self._due = np.concatenate([self._due, np.full(max(64, len(self._due)), np.inf)])
+        self._due[slot] = self.next_fix[a.id]
 
     def step(self, now: float) -> list[list[P.Publish | P.Unpublish]]:
-        """One tick: UNPUBLISH the removed entities, take the due GPS fixes through each client core and run the
+        """One tick: UNPUBLISH the removed entities, take the due GPS fixes through the client core and run the
         others' timers (so validity renewals are not held back to the next fix); messages per connection."""
-        if self.fleet_core is not None:
-            return self._step_fleet(now)
-        out: list[list[P.Publish | P.Unpublish]] = [[] for _ in range(self.connections)]
-        for aid, _why in self.world.take_removed():
-            p = self.players.pop(aid, None)
-            self.next_fix.pop(aid, None)
-            if p is not None:
-                msgs = p.leave()
-                self.counters["unpublished"] += len(msgs)
-                out[self.conn_of(aid)].extend(msgs)
-            self.home.pop(aid, None)
-        agents = self.world.agents
-        for aid, due in self.next_fix.items():
-            if due > now:
-                # between fixes the client core's timers run every tick: a validity period that runs out is
-                # renewed at once, not at the next fix (or viewers drop the ghost for up to a fix interval)
-                msgs = self.players[aid].tick(now)
-                if msgs:
-                    out[self.conn_of(aid)].extend(msgs)
-                    self.counters["published"] += sum(isinstance(m, P.Publish) for m in msgs)
-                    self.counters["unpublished"] += sum(not isinstance(m, P.Publish) for m in msgs)
-                continue
-            a = agents.get(aid)
-            if a is None:
-                continue
-            p = self.players[aid]
-            self.next_fix[aid] = due + self.fix_interval * max(1, math.floor((now - due) / self.fix_interval) + 1)
-            fx, fy = gps(np.array(a.xy()), self.rng, self.gps_sigma)
-            self.counters["fixes"] += 1
-            try:
-                msgs = p.feed(float(fx), float(fy), now, self.gps_sigma) + p.tick(now)
-            except FixRejected:
-                self.counters["rejected_fixes"] += 1
-                continue
-            box = out[self.conn_of(aid)]
-            for m in msgs:
-                box.append(m)
-                self.counters["published" if isinstance(m, P.Publish) else "unpublished"] += 1
-        return out
-
-    def _step_fleet(self, now: float) -> list[list[P.Publish | P.Unpublish]]:
-        """`step` through the fleet core: the same fixes (same draws, same order), the same messages."""
         out: list[list[P.Publish | P.Unpublish]] = [[] for _ in range(self.connections)]
         core = self.fleet_core
         for aid, _why in self.world.take_removed():
@@ -153,6 +113,7 @@ class Fleet:
         n = len(self._aid)
         due = self._due[:n]
         slots = np.flatnonzero(due <= now)
+        slots = slots[np.argsort(core.order[slots], kind="stable")]  # in the order the entities came (the draws')
         agents = self.world.agents
         have, idle, xy = [], [], []
         for s in slots.tolist():

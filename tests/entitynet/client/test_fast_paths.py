@@ -510,7 +510,7 @@ def test_ring_distance_loop_equals_the_numpy_pass(ai, x, y):
 def _state(p):
     kf, tr = p.kf, p.tracker
     return (p.mode, p.path.edges if p.path else None, p.path.cum if p.path else None,
-            [getattr(kf, f) for f in type(kf).__slots__] if kf is not None else None, tr.last_fix, tr.pending,
+            [getattr(kf, f) for f in kf.FIELDS] if kf is not None else None, tr.last_fix, tr.pending,
             tr.dist_ema, list(tr.recent_s), tr.vpeak, tr.vpeak_t, tr.reverse_count, tr.dead_end, p.ghost,
             p.occupation)
 

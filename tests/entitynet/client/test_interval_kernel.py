@@ -26,7 +26,7 @@ def test_the_kernel_keeps_what_the_rules_keep(dts, kind):
     one = np.ones(1)
     for dt in dts:
         rules.note_interval(dt)
-        ring, n, gap, reach = interval_rows(ring, n, np.array([dt]), et.max_gap * one, et.lost_after * one,
+        ring, n, gap, reach, usual = interval_rows(ring, n, np.array([dt]), et.max_gap * one, et.lost_after * one,
                                             40.0 * one, et.vmax * one, GAP_INTERVALS, MIN_INTERVALS)
         kept = ring[0, FIX_INTERVALS_KEPT - int(n[0]):].tolist() if n[0] else []
         assert kept == rules.intervals
