@@ -35,7 +35,7 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server import compiled, fdlimit, logs
-from entitynet.server.config import ConfigError, ServerConfig, check_ports
+from entitynet.server.config import ConfigError, ServerConfig, check_flush_policy, check_ports
 from entitynet.server.http import HttpLimits, HttpServer, Router
 from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
@@ -100,6 +100,7 @@ class Server(WritingMixin):
 
     def __init__(self, config: ServerConfig):
         check_ports(config)
+        check_flush_policy(config)
         self.config = config
         self.clock = config.clock
         self.tokens = None if config.open_mode else TokenWatch(config)  # revocations close connections
@@ -122,6 +123,9 @@ class Server(WritingMixin):
         self.frames = 0  # frames written
         self._lat_n = 0
         self._news = trio.Event()  # set when the core has queued something since the last flush (`_note_news`)
+        self._news_at = 0.0  # trio time `_news` was set: the latency budget counts from here
+        self._filled: trio.Event | None = None  # while the flusher waits out the budget: set once the queue is full
+        self._queued_mark = 0  # the core's deliveries + LEAVEs counted at the last flush (`_queue_full`)
         # frames of up to this many states take the short path in _try_write (beyond the outbox bound the
         # long path drops the client)
         self._fast_batch = min(config.max_batch, self.sb.config.max_pending)
