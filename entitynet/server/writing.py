@@ -125,6 +125,7 @@ class WritingMixin:
             rest, conn.rest = conn.rest, None
             if rest:
                 conn.writing = True
+                self._watch_stalls()
                 conn.stalled = 0.0
                 try:
                     if conn.kind == "ws":
