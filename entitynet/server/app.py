@@ -39,6 +39,7 @@ from entitynet.server.config import ConfigError, ServerConfig, check_flush_polic
 from entitynet.server.http import HttpLimits, HttpServer, Router
 from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
+from entitynet.server.pacing import Pacer
 from entitynet.server.peers import peer_address, throttle_key
 from entitynet.server.stall import StallClock
 from entitynet.server.tokens import TokenWatch
@@ -148,6 +149,7 @@ class Server(WritingMixin):
         self._tick_idle = True  # ... while it is the long idle tick
         self.cluster = None  # the ClusterLink when config.cluster is set
         self.gc = None  # gcpolicy.FullCollections when config.gc_full_every is set
+        self.pacer: Pacer | None = None  # wake-up pacing when config.pace is set (entitynet/server/pacing.py)
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -171,6 +173,9 @@ class Server(WritingMixin):
                 self.admission.measure()  # the (raised) limit and what is open besides clients: listeners, ...
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
+                if cfg.pace > 0.0:
+                    self.pacer = Pacer(cfg.pace)
+                    nursery.start_soon(self.pacer.run)
                 nursery.start_soon(self._housekeeping)
                 if self.tokens is not None:
                     nursery.start_soon(self._watch_tokens)

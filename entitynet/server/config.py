@@ -53,6 +53,9 @@ def check_flush_policy(config: ServerConfig) -> None:
     b = config.latency_budget
     if isinstance(b, bool) or not isinstance(b, int | float) or not 0.0 <= b <= 60.0:
         raise ConfigError(f"latency budget (--latency-budget-ms) must be from 0 to 60 s, not {b!r}")
+    p = config.pace
+    if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
+        raise ConfigError(f"wake-up pace (--pace-ms) must be from 0 to 1 s, not {p!r}")
     f = config.flush_fill
     if isinstance(f, bool) or not isinstance(f, int) or not 1 <= f <= 1_000_000:
         raise ConfigError(f"--flush-fill must be a whole number from 1 to 1000000, not {f!r}")
@@ -87,6 +90,7 @@ class ServerConfig:
     # connection are queued first; 0 flushes as soon as the loop is idle (docs/switch.md, "CPU that falls ...")
     latency_budget: float = 0.02
     flush_fill: int = 8  # queued messages per dirty connection that make a flush worth doing before the budget
+    pace: float = 0.0  # at light load the loop wakes at most once per this (s): entitynet/server/pacing.py; 0 = off
     gc_full_every: float | None = None  # full garbage collections only this often (s); None = Python's (gcpolicy)
     stall_timeout: float = 5.0  # a write blocked this long without progress (client not reading) drops it
     max_batch: int = 20_000  # messages per written frame (and at most the codec's max_frame bytes)

@@ -193,6 +193,8 @@ class WritingMixin:
         latency budget, once the queue is full enough to flush now). Called wherever the core is fed outside
         `_wake_dirty` (each slice of a client frame, NATS messages, the cluster's and the server's timers); a
         path that forgot to call it costs at most the flusher's `IDLE_BACKSTOP_S`."""
+        if self.pacer is not None:
+            self.pacer.woke()
         if not self._news.is_set():
             if self.sb.has_news():
                 self._news_at = trio.current_time()
