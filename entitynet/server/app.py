@@ -315,7 +315,8 @@ class Server(WritingMixin):
                     sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
             else:
                 sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
-            self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
+            if sb.stats["updates_in"] != before:  # a PING or SUBSCRIBE frame costs no Prometheus call
+                self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
             self._rearm()
             self._note_news()
             ob = sb.outbox(conn.cid)

@@ -22,7 +22,7 @@ import trio_websocket
 from trio.testing import wait_all_tasks_blocked
 
 from entitynet import protocol as P
-from entitynet.server.flushloop import flush_short
+from entitynet.server.flushloop import LATENCY_EVERY, flush_short
 
 if TYPE_CHECKING:
     from entitynet.server.app import _Conn
@@ -113,7 +113,7 @@ class WritingMixin:
     def _written(self, conn: _Conn) -> None:
         if conn.dirty_since is not None:
             self._lat_n += 1
-            if self._lat_n % 16 == 0:  # a sample: Histogram.observe costs more than the write itself
+            if self._lat_n % LATENCY_EVERY == 0:  # a sample: Histogram.observe costs more than the write itself
                 self.metrics.latency.observe(max(0.0, time.monotonic() - conn.dirty_since))
             conn.dirty_since = None
 
