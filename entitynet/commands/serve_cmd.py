@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from entitynet.cli import CommandError, leaves
-from entitynet.commands.options import bounded_float, port
+from entitynet.commands.options import bounded_float, bounded_int, port
 
 
 def register(sub) -> None:
@@ -34,6 +34,15 @@ def register(sub) -> None:
     p.add_argument("--flush-min-ms", type=bounded_float(0, 1000), default=0.0,
                    help="shortest time between two flushes, at most --flush-ms (default 0: flush whenever the "
                         "server is idle)")
+    p.add_argument("--latency-budget-ms", type=bounded_float(0, 1000), default=20.0, metavar="MS",
+                   help="at light load news waits up to MS for more news to share its flush (fewer wake-ups and "
+                        "writes per delivery; default 20; 0 = flush as soon as the server is idle; docs/switch.md)")
+    p.add_argument("--flush-fill", type=bounded_int(1, 1_000_000), default=8, metavar="N",
+                   help="flush before the latency budget once N messages per waiting connection are queued "
+                        "(default 8)")
+    p.add_argument("--pace-ms", type=bounded_float(0, 1000), default=0.0, metavar="MS",
+                   help="at light load wake at most once per MS, reading everything that arrived meanwhile in one "
+                        "go (adds up to MS of latency; default 0 = off; docs/switch.md)")
     p.add_argument("--gc-full-every", type=bounded_float(1, 86400, special={0: "Python's own policy"}),
                    default=300.0, metavar="S",
                    help="run Python's full garbage collection only every S seconds instead of whenever the heap "
@@ -66,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
         http_port=args.http_port,
         tls_cert=args.tls_cert, tls_key=args.tls_key, topology=args.topology, open_mode=args.open,
         users_db=args.users_db, flush_interval=args.flush_ms / 1000.0,
-        flush_min_interval=args.flush_min_ms / 1000.0, gc_full_every=args.gc_full_every or None,
+        flush_min_interval=args.flush_min_ms / 1000.0, latency_budget=args.latency_budget_ms / 1000.0,
+        flush_fill=args.flush_fill, pace=args.pace_ms / 1000.0, gc_full_every=args.gc_full_every or None,
         switch={"grace_s": args.grace}, log_json=args.log_json,
     )
     if args.cluster:

@@ -16,7 +16,7 @@ import time
 cdef extern from "<errno.h>":
     int EWOULDBLOCK
 
-cdef int LATENCY_EVERY = 16
+cdef int LATENCY_EVERY = 64  # as flushloop.LATENCY_EVERY
 
 
 cdef inline Py_ssize_t _prefix(unsigned char *buf, Py_ssize_t n, Py_ssize_t size):

@@ -35,10 +35,11 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server import compiled, fdlimit, logs
-from entitynet.server.config import ConfigError, ServerConfig, check_ports
+from entitynet.server.config import ConfigError, ServerConfig, check_flush_policy, check_ports
 from entitynet.server.http import HttpLimits, HttpServer, Router
 from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
+from entitynet.server.pacing import Pacer
 from entitynet.server.peers import peer_address, throttle_key
 from entitynet.server.stall import StallClock
 from entitynet.server.tokens import TokenWatch
@@ -95,11 +96,17 @@ def _ssl_context(config: ServerConfig) -> ssl.SSLContext | None:
     return ctx
 
 
+STALL_TICK_S = 0.1  # housekeeping's tick while a write is blocked (stall accounting)
+IDLE_TICK_S = 1.0  # ... and while none is (the counters on /metrics then lag by up to this)
+GAUGES_EVERY_S = 1.0  # the table-size gauges on /metrics are refreshed at most this often
+
+
 class Server(WritingMixin):
     """One shard server. Start it with `await nursery.start(serve, config)` or `entitynet serve`."""
 
     def __init__(self, config: ServerConfig):
         check_ports(config)
+        check_flush_policy(config)
         self.config = config
         self.clock = config.clock
         self.tokens = None if config.open_mode else TokenWatch(config)  # revocations close connections
@@ -122,6 +129,9 @@ class Server(WritingMixin):
         self.frames = 0  # frames written
         self._lat_n = 0
         self._news = trio.Event()  # set when the core has queued something since the last flush (`_note_news`)
+        self._news_at = 0.0  # trio time `_news` was set: the latency budget counts from here
+        self._filled: trio.Event | None = None  # while the flusher waits out the budget: set once the queue is full
+        self._queued_mark = 0  # the core's deliveries + LEAVEs counted at the last flush (`_queue_full`)
         # frames of up to this many states take the short path in _try_write (beyond the outbox bound the
         # long path drops the client)
         self._fast_batch = min(config.max_batch, self.sb.config.max_pending)
@@ -135,8 +145,11 @@ class Server(WritingMixin):
         self._stall_clock = StallClock(max_credit=0.25)
         self._timer_scope: trio.CancelScope | None = None  # the sleep of `_timers`, until `_timer_at` ...
         self._timer_at = math.inf  # ... the core's next deadline (in the core's clock)
+        self._tick_scope: trio.CancelScope | None = None  # housekeeping's sleep (`_watch_stalls` shortens it)
+        self._tick_idle = True  # ... while it is the long idle tick
         self.cluster = None  # the ClusterLink when config.cluster is set
         self.gc = None  # gcpolicy.FullCollections when config.gc_full_every is set
+        self.pacer: Pacer | None = None  # wake-up pacing when config.pace is set (entitynet/server/pacing.py)
 
     # ------------------------------------------------------------------------------------------ lifecycle
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -160,6 +173,9 @@ class Server(WritingMixin):
                 self.admission.measure()  # the (raised) limit and what is open besides clients: listeners, ...
                 nursery.start_soon(self.admission.watch)
                 nursery.start_soon(self._flusher)
+                if cfg.pace > 0.0:
+                    self.pacer = Pacer(cfg.pace)
+                    nursery.start_soon(self.pacer.run)
                 nursery.start_soon(self._housekeeping)
                 if self.tokens is not None:
                     nursery.start_soon(self._watch_tokens)
@@ -299,7 +315,8 @@ class Server(WritingMixin):
                     sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
             else:
                 sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
-            self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
+            if sb.stats["updates_in"] != before:  # a PING or SUBSCRIBE frame costs no Prometheus call
+                self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
             self._rearm()
             self._note_news()
             ob = sb.outbox(conn.cid)
@@ -361,19 +378,33 @@ class Server(WritingMixin):
             if ob is None or ob.close_after:
                 return
 
-    def _check_stalls(self) -> None:
+    def _check_stalls(self) -> bool:
+        """Credit every blocked write with the time since the last tick and drop those stalled beyond
+        `stall_timeout`; returns whether any write is still blocked (the next tick then comes in 0.1 s)."""
         t = time.monotonic()
         limit = self.config.stall_timeout
         credit = self._stall_clock.tick(t)  # a late tick (a frozen loop) credits at most 0.25 s
+        blocked = False
         for conn in list(self.conns.values()):
             if not conn.writing:
                 continue
+            blocked = True
             conn.stalled += credit
             if conn.stalled > limit and conn.scope is not None:
                 self.sb.slow_consumer(conn.cid, f"write blocked for {limit:g} s")  # counted with the others
                 logs.event("slow consumer dropped", logging.WARNING, cid=conn.cid, peer=conn.peer)
                 conn.writing = False
                 conn.scope.cancel()
+        return blocked
+
+    def _watch_stalls(self) -> None:
+        """A write just blocked: if housekeeping sleeps its long idle tick, bring the next tick to 0.1 s from now
+        and start the stall credit here (nothing was blocked since the last tick, so nothing is owed)."""
+        scope = self._tick_scope
+        if scope is not None and self._tick_idle:
+            self._tick_idle = False
+            self._stall_clock.tick(time.monotonic())
+            scope.deadline = min(scope.deadline, trio.current_time() + STALL_TICK_S)
 
     def _rearm(self) -> None:
         """Wake `_timers` earlier when the core's next deadline moved before the one it sleeps until (a new
@@ -400,18 +431,30 @@ class Server(WritingMixin):
             self._wake_dirty()  # LEAVEs and handshake ERRORs go out now
 
     async def _housekeeping(self) -> None:
-        """Every 0.1 s: stall accounting of blocked writes and the metrics."""
+        """Stall accounting of blocked writes and the metrics: every `STALL_TICK_S` (0.1 s) while a write is
+        blocked, else every `IDLE_TICK_S` (1 s; a write that blocks meanwhile brings the tick forward,
+        `_watch_stalls`). Why not always 0.1 s: ten wake-ups a second were most of an idle server's CPU (4 ms/s),
+        and an idle shard of a cluster pays them too. The table-size gauges are refreshed every `GAUGES_EVERY`
+        ticks at most (`Switchboard.counts` walks every client)."""
         m, sb = self.metrics, self.sb
         seen_errors: dict[int, int] = {}
         pushed_msgs = pushed_frames = pushed_drops = 0
+        blocked, gauges_at = False, -math.inf
         while True:
-            await trio.sleep(0.1)
-            self._check_stalls()
+            self._tick_idle = not blocked
+            with trio.move_on_after(STALL_TICK_S if blocked else IDLE_TICK_S) as scope:
+                self._tick_scope = scope
+                await trio.sleep_forever()
+            self._tick_scope = None
+            blocked = self._check_stalls()
             self._note_news()  # a slow consumer dropped: its LEAVEs
-            counts = sb.counts()
-            m.entities.set(counts["entities"])
-            m.subscriptions.set(counts["subscriptions"])
-            m.follows.set(counts["follows"])
+            now = trio.current_time()
+            if now - gauges_at >= GAUGES_EVERY_S:
+                gauges_at = now
+                counts = sb.counts()
+                m.entities.set(counts["entities"])
+                m.subscriptions.set(counts["subscriptions"])
+                m.follows.set(counts["follows"])
             m.deliveries.inc(self.written - pushed_msgs)
             m.frames_out.inc(self.frames - pushed_frames)
             pushed_msgs, pushed_frames = self.written, self.frames

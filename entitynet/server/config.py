@@ -47,6 +47,20 @@ def check_ports(config: ServerConfig) -> None:
             raise ConfigError(f"{option} must be a port from 1 to 65535 (or 0: any free port), not {value!r}")
 
 
+def check_flush_policy(config: ServerConfig) -> None:
+    """Refuse a latency budget that is not a finite number of seconds from 0 to 60 (the command allows up to 1 s),
+    or a fill below 1: a NaN budget would never flush at light load, an infinite one never at all."""
+    b = config.latency_budget
+    if isinstance(b, bool) or not isinstance(b, int | float) or not 0.0 <= b <= 60.0:
+        raise ConfigError(f"latency budget (--latency-budget-ms) must be from 0 to 60 s, not {b!r}")
+    p = config.pace
+    if isinstance(p, bool) or not isinstance(p, int | float) or not 0.0 <= p <= 1.0:
+        raise ConfigError(f"wake-up pace (--pace-ms) must be from 0 to 1 s, not {p!r}")
+    f = config.flush_fill
+    if isinstance(f, bool) or not isinstance(f, int) or not 1 <= f <= 1_000_000:
+        raise ConfigError(f"--flush-fill must be a whole number from 1 to 1000000, not {f!r}")
+
+
 @dataclass
 class ServerConfig:
     """Everything `serve()` needs. Ports of 0 pick a free port (see the started `Server`'s ports).
@@ -71,6 +85,12 @@ class ServerConfig:
     auth_timeout: float = 2.0  # a token store read (off the loop) answers within this (s) or the login is refused
     flush_interval: float = 0.01  # news waits at most this long (s) for a flush: one write per connection per flush
     flush_min_interval: float = 0.0  # ... and flushes (as soon as the loop is idle) are at least this far apart
+    # the latency budget (s): at light load news waits up to this long for more news to share its flush (one
+    # wake-up and one writev per connection carry many deliveries), unless `flush_fill` messages per waiting
+    # connection are queued first; 0 flushes as soon as the loop is idle (docs/switch.md, "CPU that falls ...")
+    latency_budget: float = 0.02
+    flush_fill: int = 8  # queued messages per dirty connection that make a flush worth doing before the budget
+    pace: float = 0.0  # at light load the loop wakes at most once per this (s): entitynet/server/pacing.py; 0 = off
     gc_full_every: float | None = None  # full garbage collections only this often (s); None = Python's (gcpolicy)
     stall_timeout: float = 5.0  # a write blocked this long without progress (client not reading) drops it
     max_batch: int = 20_000  # messages per written frame (and at most the codec's max_frame bytes)

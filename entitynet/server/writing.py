@@ -22,7 +22,7 @@ import trio_websocket
 from trio.testing import wait_all_tasks_blocked
 
 from entitynet import protocol as P
-from entitynet.server.flushloop import flush_short
+from entitynet.server.flushloop import LATENCY_EVERY, flush_short
 
 if TYPE_CHECKING:
     from entitynet.server.app import _Conn
@@ -113,7 +113,7 @@ class WritingMixin:
     def _written(self, conn: _Conn) -> None:
         if conn.dirty_since is not None:
             self._lat_n += 1
-            if self._lat_n % 16 == 0:  # a sample: Histogram.observe costs more than the write itself
+            if self._lat_n % LATENCY_EVERY == 0:  # a sample: Histogram.observe costs more than the write itself
                 self.metrics.latency.observe(max(0.0, time.monotonic() - conn.dirty_since))
             conn.dirty_since = None
 
@@ -125,6 +125,7 @@ class WritingMixin:
             rest, conn.rest = conn.rest, None
             if rest:
                 conn.writing = True
+                self._watch_stalls()
                 conn.stalled = 0.0
                 try:
                     if conn.kind == "ws":
@@ -170,6 +171,8 @@ class WritingMixin:
     def _wake_dirty(self) -> None:
         """Flush: every connection with news gets one frame now (`flushloop.flush_short`, compiled where built);
         those it cannot serve (replies, a close, more than one frame, WebSocket or TLS) take `_try_write`."""
+        stats = self.sb.stats
+        self._queued_mark = stats["deliveries"] + stats["leaves"]
         n_msgs, n_frames, self._lat_n, samples, slow, blocked, failed = flush_short(
             self.sb.take_dirty(check=False), self.conns, time.monotonic(), self._fast_batch, self._sure_fit,
             self._max_body, self._lat_n)
@@ -186,24 +189,48 @@ class WritingMixin:
             self._try_write(conn)
 
     def _note_news(self) -> None:
-        """The core may have queued something for a client: wake the flusher if so. Called wherever the core is
-        fed outside `_wake_dirty` (each slice of a client frame, NATS messages, the cluster's and the server's
-        timers); a path that forgot to call it costs at most the flusher's `IDLE_BACKSTOP_S`."""
-        if not self._news.is_set() and self.sb.has_news():
-            self._news.set()
+        """The core may have queued something for a client: wake the flusher if so (and, while it waits out the
+        latency budget, once the queue is full enough to flush now). Called wherever the core is fed outside
+        `_wake_dirty` (each slice of a client frame, NATS messages, the cluster's and the server's timers); a
+        path that forgot to call it costs at most the flusher's `IDLE_BACKSTOP_S`."""
+        if self.pacer is not None:
+            self.pacer.woke()
+        if not self._news.is_set():
+            if self.sb.has_news():
+                self._news_at = trio.current_time()
+                self._news.set()
+        elif self._filled is not None and self._queue_full():
+            self._filled.set()
+
+    def _queue_full(self) -> bool:
+        """Whether what is queued is worth a flush before the latency budget runs out: on average at least
+        `flush_fill` messages for each connection with news (a frame costs a wake-up of its reader and a
+        `writev` whatever it carries, so under load frames fill at once and nothing waits)."""
+        stats = self.sb.stats
+        queued = stats["deliveries"] + stats["leaves"] - self._queued_mark
+        return queued >= self.config.flush_fill * self.sb.dirty_count()
 
     async def _flusher(self) -> None:
-        """Flush adaptively: as soon as the loop has nothing else to do (every reader has drained its pending
-        input: as Redis writes after each pass of its event loop), so that news goes out while the process is
-        awake instead of at a timer tick (on a busy machine every timed sleep costs a scheduler wakeup); but after
-        a flush that took W seconds of CPU, not before W has passed since it ended (nor `flush_min_interval`),
-        and while the loop stays busy, at the latest `flush_interval` after the previous flush began (or W after
-        it ended, if later). So the flusher takes at most about half of the time: under load reading keeps the
-        other half and the batches grow (writes cost per frame, for the server and its readers alike, not per
-        message) instead of the flusher eating the CPU; at light load W is tiny and news leaves at once. With
-        nothing queued it sleeps until `_note_news` (an idle server, or an idle shard of a cluster, then costs no
-        wake-ups; `IDLE_BACKSTOP_S` only bounds the harm of a feeding path that forgot to call it)."""
+        """Flush adaptively, sized by what is queued and bounded by the latency budget (`latency_budget`, B).
+
+        With news queued: while less than `flush_fill` messages per connection with news wait (light load),
+        wait up to B from the first news for more to share the flush, so that one wake-up of the flusher and one
+        `writev` per connection carry many deliveries instead of one each (a server at 1/K of the load then pays
+        about what a full one pays per delivery, not K times it). Once that much is queued, or B has passed,
+        flush as soon as the loop has nothing else to do (every reader has drained its pending input: as Redis
+        writes after each pass of its event loop), so that news goes out while the process is awake instead of
+        at a timer tick; but after a flush that took W seconds of CPU, not before W has passed since it ended
+        (nor `flush_min_interval`), and while the loop stays busy, at the latest `flush_interval` after the
+        previous flush began (or W after it ended, if later). So the flusher takes at most about half of the
+        time: under load reading keeps the other half and the batches grow (writes cost per frame, for the
+        server and its readers alike, not per message) instead of the flusher eating the CPU. With nothing
+        queued it sleeps until `_note_news` (an idle server, or an idle shard of a cluster, then costs no
+        wake-ups; `IDLE_BACKSTOP_S` only bounds the harm of a feeding path that forgot to call it).
+
+        The bound on added latency: news waits at most max(B, `flush_interval`, W) for its flush to begin, plus
+        the wait for the loop to be idle; B = 0 flushes as soon as the loop is idle."""
         bound = self.config.flush_interval
+        budget = self.config.latency_budget
         gap = min(self.config.flush_min_interval, bound)
         last_start = last_end = -math.inf
         cost = 0.0
@@ -213,6 +240,13 @@ class WritingMixin:
                     await self._news.wait()
                 if not self.sb.has_news():
                     continue
+            if budget > 0.0 and not self._queue_full():
+                self._filled = trio.Event()
+                try:
+                    with trio.move_on_at(self._news_at + budget):
+                        await self._filled.wait()
+                finally:
+                    self._filled = None
             earliest = last_end + max(gap, cost)
             if trio.current_time() < earliest:
                 await trio.sleep_until(earliest)

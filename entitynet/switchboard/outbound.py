@@ -30,6 +30,11 @@ class OutboundMixin:
         """Something was queued for some client since the last `take_dirty` (the shell's flusher waits for it)."""
         return bool(self._dirty)
 
+    def dirty_count(self) -> int:
+        """How many clients have news since the last `take_dirty`: the shell's flusher sizes its wait by it
+        (messages queued per waiting client)."""
+        return len(self._dirty)
+
     def take_dirty(self, check: bool = True) -> set[int]:
         """Clients with something new to write since the last call. With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""

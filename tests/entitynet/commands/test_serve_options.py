@@ -21,6 +21,8 @@ def no_server(monkeypatch):
 @pytest.mark.parametrize("extra", [
     ["--grace", "inf"], ["--flush-ms", "inf"], ["--gc-full-every", "1e-9"], ["--dead-after", "1e-9"],
     ["--dead-after", "nan"], ["--dead-after", "inf"], ["--flush-min-ms", "nan"], ["--grace=-1"],
+    ["--latency-budget-ms", "nan"], ["--latency-budget-ms=-1"], ["--latency-budget-ms", "1001"],
+    ["--flush-fill", "0"], ["--flush-fill", "2.5"], ["--pace-ms", "nan"], ["--pace-ms=-1"], ["--pace-ms", "1001"],
 ])
 def test_out_of_range_values_are_usage_errors(town_path, extra, no_server, capsys):
     with pytest.raises(SystemExit) as info:
@@ -48,7 +50,8 @@ def test_valid_options_reach_the_server(town_path, no_server):
     """The checks refuse only what is wrong: a valid combination gets as far as starting the server."""
     with pytest.raises(AssertionError, match="server started"):
         main(["serve", "--topology", str(town_path), "--open", "--port", "0", "--flush-ms", "5",
-              "--flush-min-ms", "5", "--gc-full-every", "0", "--grace", "0"])
+              "--flush-min-ms", "5", "--gc-full-every", "0", "--grace", "0", "--latency-budget-ms", "0",
+              "--flush-fill", "1", "--pace-ms", "5"])
 
 
 @pytest.mark.parametrize("grace", [float("inf"), float("nan"), -1.0])

@@ -1,5 +1,7 @@
 """When the server flushes (entitynet/server/writing.py `_flusher`): as soon as it has nothing else to do, not
-on a fixed timer; the timer (`flush_interval`) only bounds how long news waits while the loop stays busy.
+on a fixed timer; the timer (`flush_interval`) only bounds how long news waits while the loop stays busy. These
+tests turn the latency budget off (`latency_budget=0`, tested in test_latency_budget.py): they are about what
+happens once it is spent.
 
 Why: with a fixed 10 ms timer every delivery waited for the next tick (5 ms on average, 10 ms at worst) even on
 an idle server, which put our latency about 10 ms above Redis's at the same load (Redis writes after each pass
@@ -19,7 +21,7 @@ LONG = 60.0  # flush_interval: far longer than any wait below
 
 
 async def test_an_idle_server_flushes_news_at_once_not_at_the_timer(flush_path):
-    async with running(flush_interval=LONG) as server:
+    async with running(flush_interval=LONG, latency_budget=0.0) as server:
         view = await Raw.connect(server)
         await view.send(P.Subscribe((3,), ()))
         pub = await Raw.connect(server)
@@ -34,7 +36,7 @@ async def test_an_idle_server_flushes_news_at_once_not_at_the_timer(flush_path):
 
 async def test_coalescing_and_order_still_hold_in_one_flush(flush_path):
     """A frame fed in one go is flushed once: every entity once, at its latest state, in first-queued order."""
-    async with running(flush_interval=LONG) as server:
+    async with running(flush_interval=LONG, latency_budget=0.0) as server:
         view = await Raw.connect(server)
         await view.send(P.Subscribe((3, 4), ()))
         pub = await Raw.connect(server)
@@ -56,7 +58,7 @@ async def test_coalescing_and_order_still_hold_in_one_flush(flush_path):
 async def test_flush_min_interval_spaces_flushes_even_when_idle(flush_path):
     """The knob for fewer, larger frames: with a minimum interval far beyond the test, news that comes after a
     flush waits (coalescing meanwhile) even on an idle server; replies are not held back."""
-    async with running(flush_interval=LONG, flush_min_interval=LONG) as server:
+    async with running(flush_interval=LONG, flush_min_interval=LONG, latency_budget=0.0) as server:
         view = await Raw.connect(server)
         await view.send(P.Subscribe((3,), ()))
         pub = await Raw.connect(server)  # its WELCOME made news: the first flush has happened once all is idle

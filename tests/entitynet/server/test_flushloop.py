@@ -79,9 +79,9 @@ def _case(seed: int):
     return dirty, conns, socks
 
 
-def _run(impl, seed: int, max_messages: int = 100, sure_fit: int = 50, max_body: int = 20_000):
+def _run(impl, seed: int, max_messages: int = 100, sure_fit: int = 50, max_body: int = 20_000, lat_n0: int = 0):
     dirty, conns, socks = _case(seed)
-    res = impl.flush_short(dirty, conns, 7.0, max_messages, sure_fit, max_body, 0)
+    res = impl.flush_short(dirty, conns, 7.0, max_messages, sure_fit, max_body, lat_n0)
     n_msgs, n_frames, lat_n, samples, slow, blocked, failed = res
     received = {}
     for cid, srv, cli in socks:
@@ -106,6 +106,20 @@ def test_the_compiled_loop_writes_the_same_bytes_with_the_same_effects(seed):
     comp = _run(flushloop.COMPILED, seed)
     assert comp == pure
     assert pure["counts"][1] > 0  # frames were written on the short path
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_both_loops_sample_the_queue_latency_once_per_latency_every_frames(seed):
+    """One latency sample per `LATENCY_EVERY` whole frames, counted across flushes (`lat_n` carries over), on
+    both paths alike: a count one short of it makes the first whole frame a sample."""
+    if flushloop.COMPILED is None:
+        pytest.skip("the compiled flush loop was not built (no Cython or C compiler at install time)")
+    start = flushloop.LATENCY_EVERY - 1
+    pure = _run(flushloop.PURE, seed, lat_n0=start)
+    comp = _run(flushloop.COMPILED, seed, lat_n0=start)
+    assert comp["counts"] == pure["counts"]
+    whole = pure["counts"][2] - start
+    assert whole > 0 and pure["counts"][3] == 1 + (whole - 1) // flushloop.LATENCY_EVERY
 
 
 def test_each_branch_of_the_loop(flush_path):

@@ -68,3 +68,44 @@ async def test_a_viewer_that_stops_reading_is_still_dropped(flush_path):
             while len(server.conns) != 1:
                 await trio.sleep(0.02)
         assert len(server.conns) == 1 and server.sb.stats["slow_consumers"] == 1
+
+
+async def test_an_idle_server_ticks_once_a_second_not_ten_times(flush_path, monkeypatch):
+    """Housekeeping ticks every 0.1 s only while a write is blocked (stall accounting needs it); an idle server
+    (or an idle shard) wakes for it about once a second, since ten wake-ups a second were most of its CPU."""
+    from entitynet.server.app import Server
+
+    ticks = []
+    real = Server._check_stalls
+
+    def counted(self):
+        ticks.append(trio.current_time())
+        return real(self)
+
+    monkeypatch.setattr(Server, "_check_stalls", counted)
+    async with running() as server:
+        c = await Raw.connect(server)
+        await trio.sleep(2.5)
+        assert 1 <= len(ticks) <= 4, ticks  # 2-3 at 1 s; the old 0.1 s tick made about 25
+        await c.aclose()
+
+
+async def test_a_write_that_blocks_after_an_idle_spell_is_still_timed_from_its_start(flush_path):
+    """After a long idle tick, a write that blocks brings the next tick to 0.1 s and starts its stall credit
+    there: the viewer is dropped after about `stall_timeout`, not after the idle second too, nor before."""
+    async with running(stall_timeout=0.5) as server:
+        pub = await Raw.connect(server)
+        await trio.sleep(1.2)  # housekeeping is in its idle tick
+        sock = trio.socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        await sock.connect(("127.0.0.1", server.port))
+        lazy = Raw(trio.SocketStream(sock))
+        await lazy.send(P.Hello(P.PROTOCOL_VERSION, "", DIGEST), P.Subscribe((1,), ()))
+        big = b"z" * 2000
+        t0 = trio.current_time()
+        await pub.send(*[P.Publish(i, 1, (1,), 60_000, big) for i in range(400)])
+        with trio.fail_after(10):
+            while server.sb.stats["slow_consumers"] == 0:
+                await trio.sleep(0.02)
+        assert trio.current_time() - t0 >= 0.5  # never before its own stall_timeout
+        await pub.aclose()
