@@ -12,7 +12,8 @@ until it listens, and stopped on every way out (terminate, kill after 5 s). A ch
 run with `ServerChildDied`, whose message names its exit code and the last lines of its log.
 
 The child's clock is the wall clock, not the simulation's: at `--speed` below 1 it would expire entities
-before their simulated validity ran out, so `auto` keeps such runs in-process and `yes` refuses them.
+before their simulated validity ran out, so `auto` keeps such runs in-process and `yes` refuses them. For the
+same reason a pause (SIGUSR1, `p`) does not stop the child's expiry; the shell's pause line says so.
 """
 
 from __future__ import annotations

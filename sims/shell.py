@@ -314,7 +314,14 @@ class Shell:
         self._frozen = at
         if self._tick_wall is not None:
             self._tick_wall = time.monotonic() - (at - self.sim.now) / self.config.speed
-        self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}")
+        line = f"[{self.sim.ticks * self.sim.dt:6.0f}s] {'paused' if self.paused else 'resumed'}"
+        if self.paused and (self.config.server is not None or self.config.cluster is not None):
+            # a server in another process (the child of a large run, --server, a cluster) keeps the wall clock
+            # and expires validity periods while the simulation stands still; after a long pause an entity is
+            # missing from the viewers until its client publishes again (the measure counts it as missed)
+            line += (": the server in its own process keeps the wall clock, so entities expire there while "
+                     "paused and reappear as they publish again (--server-process no pauses the server too)")
+        self.say(line)
 
     # ---- output ----------------------------------------------------------------------------------------------
     def part_counts(self) -> list[dict]:

@@ -22,7 +22,8 @@ def register(sub) -> None:
                                    "clients and PVS viewers, with a live summary and a JSON report",
                        epilog="How large a run keeps real time: on a 2-core machine about 1,600 entities with 160 "
                               "viewers (entitynet bench sim, entities_realtime_max; from 1,000 entities or 100 "
-                              "viewers the server runs in a child process, --server-process). At 3,000 entities "
+                              "viewers at --speed 1 or more the server runs in a child process, "
+                              "--server-process). At 3,000 entities "
                               "and 300 viewers a tick costs about 1.4x real time, most of it the viewers "
                               "(docs/simulation.md). A larger run still steps every tick, late: the live summary "
                               "shows the tick lateness, and a warning says when the run falls behind (then every "

@@ -72,17 +72,19 @@ class Measure:
         truth = truth_arrays(world.agents, self._edge_arrays(world))
         n = len(truth.ids)
         pair_row = np.repeat(np.arange(n), np.diff(truth.cell_off))
-        pair_cell = truth.cells
-        n_cells = int(getattr(world.topo, "n_cells", 0) or 0)
+        # the mask's slots: every cell id from `low` (below 0 only where another source's body says so) to past
+        # the map; a subscribed id outside them holds no entity (dropped, not clipped onto an end slot)
+        low = min(int(truth.cells.min()), 0) if len(truth.cells) else 0
+        pair_cell = truth.cells - low
+        n_cells = int(getattr(world.topo, "n_cells", 0) or 0) - low
         n_cells = max(n_cells, int(pair_cell.max()) + 1 if len(pair_cell) else 0)
         memo: dict[tuple[int, float], tuple[float, float]] = {}  # (model, t) -> xy: viewers share models
         for v in viewers:
             t = self.tallies["roof" if v.high else "street"]
             t.viewer_samples += 1
-            mask = np.zeros(n_cells + 1, dtype=bool)
-            sub = np.fromiter(v.subs.cells, dtype=np.int64, count=len(v.subs.cells))
-            mask[np.clip(sub, 0, n_cells)] = True
-            mask[n_cells] = False  # a subscribed cell beyond the map holds no entity
+            mask = np.zeros(n_cells, dtype=bool)
+            sub = np.fromiter(v.subs.cells, dtype=np.int64, count=len(v.subs.cells)) - low
+            mask[sub[(sub >= 0) & (sub < n_cells)]] = True
             inside_rows = np.unique(pair_row[mask[pair_cell]])
             shown: dict[int, tuple[float, float]] = {}
             claimed: dict[int, tuple[int, ...]] = {}

@@ -12,9 +12,9 @@ ghost stores' payload cache (`decode_cache.DecodeCache`) hashes it once.
 
 Equivalence: `decode(payload)` returns what `protocol.decode_payload(payload, limits)` returns (equal messages,
 in order) and raises what it raises: a frame the fast walk does not accept whole (over `max_frame`, not one
-array, more than `max_messages`, trailing bytes, anything msgpack refuses) is handed to the codec, which gives
-the answer or the error (tests/sims/engine/test_message_cache.py). Bounded: cleared when it holds
-`max_entries` messages, and by its owner each tick (`clear`).
+array, more than `max_messages`, trailing bytes, anything msgpack refuses) or that holds a bad message is
+handed whole to the codec, which gives the answer or the error (tests/sims/engine/test_message_cache.py).
+Bounded: cleared when it holds `max_entries` messages, and by its owner each tick (`clear`).
 """
 
 from __future__ import annotations
@@ -82,7 +82,12 @@ class MessageCache:
             m = table.get(piece)
             if m is None:
                 self.misses += 1
-                (m,) = P.decode_payload(self._one + piece, lim)  # raises the codec's error for a bad message
+                try:
+                    (m,) = P.decode_payload(self._one + piece, lim)
+                except P.ProtocolError:
+                    # the frame is bad; the codec unpacks it whole before it checks any message, so a later
+                    # message msgpack refuses decides the error over this one's: the codec gives it
+                    return P.decode_payload(payload, lim)
                 if len(table) >= self.max_entries:
                     self.clear()
                 table[piece] = m

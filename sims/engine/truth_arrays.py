@@ -18,7 +18,6 @@ trams) for the cells their length covers.
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -115,17 +114,6 @@ class TruthArrays:
         return tuple(self.cells[self.cell_off[row]:self.cell_off[row + 1]].tolist())
 
 
-def _along(route, s: float) -> tuple[int, float]:
-    """`Route.edge_offset(s)` written out: (edge, offset along the undirected edge)."""
-    cum = route.cum
-    edges = route.edges
-    k = min(max(bisect_right(cum, s) - 1, 0), len(edges) - 1)
-    e, d = edges[k]
-    length = route.net.edge_len[e]
-    along = min(max(s - cum[k], 0.0), length)
-    return e, (along if d > 0 else length - along)
-
-
 def truth_arrays(agents: Mapping[int, object], edges: EdgeArrays | None) -> TruthArrays:
     """The truth of `agents` (a world's live entities by id) as arrays. `edges`: the map's `EdgeArrays` (None:
     every entity is asked for `xy()` and `cells()`, as for a source whose bodies are not our agents)."""
@@ -148,9 +136,9 @@ def truth_arrays(agents: Mapping[int, object], edges: EdgeArrays | None) -> Trut
             own[i] = a.cells()
         r = a.route
         s = max(a.s - 0.0, 0.0)
-        e0, o0 = _along(r, s)
-        e1, o1 = _along(r, max(s - 1.0, 0.0))
-        e2, o2 = _along(r, min(s + 1.0, r.length))
+        e0, o0 = r.edge_offset(s)  # where along its route: the route's own rule, one bisection per point
+        e1, o1 = r.edge_offset(max(s - 1.0, 0.0))
+        e2, o2 = r.edge_offset(min(s + 1.0, r.length))
         fast_rows.append(i)
         lat.append(a.lateral)
         pe += (e0, e1, e2)

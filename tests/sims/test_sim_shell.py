@@ -213,3 +213,19 @@ async def test_a_run_that_keeps_real_time_gives_no_warning(tmp_path):
     with trio.fail_after(60):
         await shell.run()
     assert not [line for line in lines if "warning: behind" in line]
+
+
+def test_pausing_against_a_server_in_another_process_says_its_clock_runs_on():
+    # a child server (the default for large runs), --server or a cluster keeps the wall clock: validity periods
+    # run out there while the simulation stands still, and the user is told so when pausing
+    sim = Sim(grid(), SimConfig(entities=0, viewers=0, tick_hz=2.0, transit=False, start=100.0))
+    lines: list[str] = []
+    shell = Shell(sim, ShellConfig(keys=False, server=("127.0.0.1", 1)), lines.append)
+    shell._toggle()
+    assert "paused" in lines[-1] and "wall clock" in lines[-1] and "--server-process no" in lines[-1]
+    shell._toggle()
+    assert "resumed" in lines[-1]
+    own: list[str] = []
+    in_process = Shell(sim, ShellConfig(keys=False), own.append)
+    in_process._toggle()
+    assert own[-1].endswith("paused")  # the in-process server's clock stops with the simulation's

@@ -90,3 +90,30 @@ def test_a_sample_at_a_time_that_is_not_finite_is_refused(helsinki):
     sim = Sim(helsinki, SimConfig(entities=5, viewers=2, transit=False, subscribe="radius"))
     with pytest.raises(ValueError):
         sim.measure.sample(float("nan"), sim.world, sim.viewers, {})
+
+
+def test_cells_outside_the_map_count_as_the_per_entity_measure_counts_them():
+    # a subscription naming a cell id below zero or past the map, and a body of another source that says it is
+    # in such a cell: a cell id is only ever equal to itself (no clipping onto cell 0 or wrapping to the end)
+    from types import SimpleNamespace
+
+    class Body:
+        def __init__(self, i, cells):
+            self.id, self._cells = i, cells
+
+        def xy(self):
+            return (float(self.id), 0.0)
+
+        def cells(self):
+            return self._cells
+
+    world = SimpleNamespace(topo=SimpleNamespace(n_cells=4), net=None,
+                            agents={1: Body(1, (0,)), 2: Body(2, (3,)), 3: Body(3, (-2,)), 4: Body(4, (-1, 2))})
+    no_ghosts = SimpleNamespace(expire=lambda now: None, clock_offset=0.0, visible_cells=frozenset(), ghosts={})
+    viewers = [SimpleNamespace(high=False, subs=SimpleNamespace(cells=frozenset(s)), ghosts=no_ghosts)
+               for s in ({-1}, {-3}, {7}, {-2}, {3, -5}, {2, 9})]
+    ours, ref = Measure(), defaultdict(Tally)
+    ours.sample(10.0, world, viewers, {})
+    reference_sample(ref, 10.0, world, viewers, {})
+    _compare(ours, ref)
+    assert ref["street"].visible == 4  # -1 sees body 4, -2 body 3, 3 body 2, 2 body 4

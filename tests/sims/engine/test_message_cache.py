@@ -97,3 +97,20 @@ def test_it_is_bounded():
         assert len(cache) <= 5
     with pytest.raises(ValueError):
         MessageCache(max_entries=0)
+
+
+def test_a_frame_with_several_bad_messages_gets_the_codecs_error_not_the_first_messages():
+    # the codec unpacks the whole frame before it checks any message, so a later message that msgpack refuses
+    # (an extension type, a string that is not UTF-8) decides the error over an earlier message's bad field
+    ext = msgpack.packb([11, 1, 2, [1], 5, msgpack.ExtType(1, b"x"), None])
+    frames = [
+        P.array_header(2) + msgpack.packb([99]) + ext,  # unknown type, then an extension type
+        P.array_header(2) + msgpack.packb([99]) + b"\x91\xa1\xff",  # unknown type, then bad UTF-8
+        P.array_header(2) + msgpack.packb([11, -1, 2, [1], 5, b"x", None]) + ext,  # bad field, then extension
+    ]
+    cache = MessageCache()
+    for data in frames:
+        want = _codec(data)
+        assert want == ("error", P.ErrorCode.MALFORMED)
+        assert _cached(cache, data) == want, data
+        assert _cached(cache, data) == want, data
