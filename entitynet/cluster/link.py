@@ -54,19 +54,21 @@ class ClusterLink:
         self._nursery: trio.Nursery | None = None
         self._lost_at: float | None = None  # trio time the NATS connection was lost (None: connected)
 
-    def _poke(self) -> None:
+    def _poke(self, urgent: bool = False) -> None:
         """The core has something for NATS (or new interest): wake the pump. The first poke since the last pump
-        starts the latency budget; a REDIRECT waiting for its LEAVEs cuts the wait short."""
+        starts the latency budget; a REDIRECT waiting for its LEAVEs, or an answer another shard's request waits
+        for (`urgent`), cuts the wait short."""
         if not self._wake.is_set():
             self._poked_at = trio.current_time()
             self._wake.set()
-        if self.core is not None and self.core.redirects:
+        if urgent or (self.core is not None and self.core.redirects):
             self._urgent.set()
 
     async def _coalesce(self, budget: float) -> None:
         """Let the core's publications gather for up to `budget` seconds after the first poke, so that one wake-up
         and one NATS write carry all of them (and the other shards read them in one go) instead of one each:
-        what a shard at light load spent most of its CPU on. Held REDIRECTs do not wait (`_urgent`)."""
+        what a shard at light load spent most of its CPU on. Held REDIRECTs and answers to requests do not
+        wait (`_urgent`)."""
         if budget <= 0.0 or (self.core is not None and self.core.redirects):
             return
         with trio.move_on_at(self._poked_at + budget):
@@ -114,7 +116,9 @@ class ClusterLink:
         self.core.on_message(subject, reply, payload, self.server.clock())
         self.server._note_news()  # mirrored states for our viewers (a heartbeat wakes nobody)
         if self.core.out:
-            self._poke()
+            # a request (it names a reply subject: a QUERY, FOLLOW or snapshot another shard, and maybe its
+            # client, waits on) is answered now, not after the latency budget
+            self._poke(urgent=reply is not None)
 
     def _where(self) -> str:
         """host:port of the NATS node the shard is (or was last) connected to, else the configured URLs."""

@@ -205,7 +205,10 @@ class WritingMixin:
     def _queue_full(self) -> bool:
         """Whether what is queued is worth a flush before the latency budget runs out: on average at least
         `flush_fill` messages for each connection with news (a frame costs a wake-up of its reader and a
-        `writev` whatever it carries, so under load frames fill at once and nothing waits)."""
+        `writev` whatever it carries, so under load frames fill at once and nothing waits); or at once when a
+        reply the reader did not write is queued (`Switchboard.replies_waiting`: a client waits for it)."""
+        if self.sb.replies_waiting:
+            return True
         stats = self.sb.stats
         queued = stats["deliveries"] + stats["leaves"] - self._queued_mark
         return queued >= self.config.flush_fill * self.sb.dirty_count()

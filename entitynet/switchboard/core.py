@@ -62,6 +62,9 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         self.hello_timers = ExpiryHeap()  # client id -> handshake deadline
         self.outboxes = Outboxes(config.max_pending, config.max_control)
         self._dirty: set[int] = set()
+        # a reply was queued outside its client's own frame (a cluster's QUERY answer, FOLLOW refusal, REDIRECT):
+        # the reader will not write it, and the shell's flusher must not hold it for its latency budget
+        self.replies_waiting = False
         # Subscription ticks: a viewer set computed at tick T stays exact while none of the entity's cells has
         # changed subscribers since (and its followers have not changed), so most PUBLISHes reuse it.
         self._tick = 0

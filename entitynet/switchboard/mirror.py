@@ -138,6 +138,7 @@ class MirrorMixin:
         if c is not None:
             c.outbox.put_control(P.encode_message(P.Redirect(shard, address)))
             self._dirty.add(cid)
+            self.replies_waiting = True
 
     def answer_query(self, cid: int, query_id: int, encoded: list[bytes]) -> None:
         """The deferred answer of a QUERY by identity, once the other shards have answered."""
@@ -145,6 +146,7 @@ class MirrorMixin:
         if c is not None and not c.closing:
             c.outbox.put_control(P.encode_query_result(query_id, encoded))
             self._dirty.add(cid)
+            self.replies_waiting = True
 
     def follow_now(self, cid: int, eid: int) -> None:
         """Complete a FOLLOW the cluster resolved (the entity is mirrored now)."""
@@ -157,3 +159,4 @@ class MirrorMixin:
         c = self.clients.get(cid)
         if c is not None and not c.closing and eid not in self.entities:
             self._error(c, ErrorCode.NO_SUCH_ENTITY, f"no entity {eid}")
+            self.replies_waiting = True

@@ -40,6 +40,7 @@ class OutboundMixin:
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
         dirty = self._dirty
         self._dirty = set()
+        self.replies_waiting = False
         if not check:
             return dirty
         for cid in dirty:

@@ -126,3 +126,27 @@ async def test_a_viewer_that_vanishes_while_its_news_waits_costs_nobody_else(flu
 def test_a_budget_or_fill_out_of_range_is_refused(kw):
     with pytest.raises(ConfigError, match="latency-budget|flush-fill"):
         Server(ServerConfig(port=0, digest=DIGEST, n_cells=10, open_mode=True, **kw))
+
+
+@pytest.mark.parametrize("answer", ["query", "follow refused", "redirect"])
+async def test_a_deferred_reply_is_not_held_by_the_budget(flush_path, answer):
+    """Replies the cluster completes later (a QUERY answered by the other shards, a FOLLOW no shard owns, a
+    REDIRECT once NATS has the LEAVEs) reach the core outside the client's own frame, so the reader does not
+    write them: they must not wait out the latency budget (60 s here) with the states either."""
+    async with running(latency_budget=60.0, flush_fill=1000) as server:
+        c = await Raw.connect(server)
+        await c.send(P.Ping(1))
+        await c.expect(P.Pong)
+        (cid,) = server.conns
+        if answer == "query":
+            server.sb.answer_query(cid, 7, [])
+            kind = P.QueryResult
+        elif answer == "follow refused":
+            server.sb.refuse_follow(cid, 12345)
+            kind = P.Error
+        else:
+            server.sb.send_redirect(cid, 1, "127.0.0.1:1")
+            kind = P.Redirect
+        server._note_news()
+        await c.expect(kind, timeout=10)
+        await c.aclose()
