@@ -111,9 +111,12 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
 
     # ------------------------------------------------------------------------------------------ switchboard hooks
     def _pub(self, subject: str, payload: bytes, reply: str | None = None) -> None:
-        if not self.out:
-            self.wake()
+        """Queue a publication; wake the shell on the first since it last took them, and on every request (one
+        with a `reply` subject: the shell sends those at once instead of after its latency budget)."""
+        first = not self.out
         self.out.append((subject, payload, reply))
+        if first or reply is not None:
+            self.wake()
 
     def _state_of(self, e: Any, now: float) -> list:
         o = e.owner

@@ -243,3 +243,18 @@ def test_a_new_publisher_is_held_off_while_its_regions_owner_is_silent():
         bus.run(t)
     a.receive(p, [pub(1, 2, (60,))], 2.7)  # b declared dead: region 1 is a's now
     assert a.counts()["entities"] == 1
+
+
+def test_every_request_wakes_the_shell_when_it_is_queued():
+    """The shell holds publications for its latency budget but sends requests (a reply subject: a client waits
+    on the answer) at once; so the core wakes it for each request, behind whatever is already queued, and the
+    request is then the last publication queued."""
+    bus = Bus(2)
+    bus.run(0.0)
+    core, b = bus.cores[1], bus.sbs[1]
+    seen: list[str | None] = []
+    core.wake = lambda: seen.append(core.out[-1][2] if core.out else "empty")
+    v = join(b, now=0.1)
+    b.receive(v, [P.Query(3, P.QUERY_IDENTITY, "nobody")], 0.1)
+    b.receive(v, [P.Query(4, P.QUERY_IDENTITY, "somebody")], 0.1)
+    assert [r for r in seen if r is not None and r != "empty"] == [core.inbox, core.inbox]

@@ -47,3 +47,12 @@ async def test_a_mirrored_state_still_waits_for_the_budget():
     with trio.move_on_after(0.3) as waited:
         await link._coalesce(60.0)
     assert waited.cancelled_caught  # the budget holds it (for up to 60 s): it shares the next write
+
+
+async def test_a_request_of_ours_is_not_held_for_the_budget():
+    """Our own request (a viewer's snapshot, QUERY or FOLLOW waits for its answer) is sent at once too."""
+    link = _link()
+    link.core.out.append(("ent.snap", b"request", "_INBOX.me"))
+    link._poke()
+    with trio.fail_after(10):
+        await link._coalesce(60.0)
