@@ -71,9 +71,13 @@ class ClusterLink:
         and one NATS write carry all of them (and the other shards read them in one go) instead of one each:
         what a shard at light load spent most of its CPU on. Held REDIRECTs and answers to requests do not
         wait (`_urgent`)."""
-        if budget <= 0.0 or (self.core is not None and self.core.redirects):
+        core = self.core
+        if budget <= 0.0 or (core is not None and core.redirects):
             return
-        with trio.move_on_at(self._poked_at + budget):
+        until = self._poked_at + budget
+        if core is not None:  # nor past the core's next deadline: heartbeats and failover are not postponed
+            until = min(until, trio.current_time() + max(0.0, core.next_deadline() - self.server.clock()))
+        with trio.move_on_at(until):
             await self._urgent.wait()
 
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:

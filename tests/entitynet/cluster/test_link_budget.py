@@ -18,18 +18,22 @@ from entitynet.cluster.link import ClusterLink
 class _Core:
     """What `_on_msg` and `_coalesce` use of ClusterCore: every message it hears makes it publish something."""
 
-    def __init__(self):
+    def __init__(self, deadline: float = 1e9):
         self.redirects: list = []
         self.out: list = []
+        self.deadline = deadline
+
+    def next_deadline(self) -> float:
+        return self.deadline
 
     def on_message(self, subject, reply, payload, now):
         self.out.append(((reply or "state"), payload, None))
 
 
-def _link() -> ClusterLink:
+def _link(deadline: float = 1e9) -> ClusterLink:
     server = SimpleNamespace(clock=lambda: 0.0, _note_news=lambda: None)
     link = ClusterLink(server, None)
-    link.core = _Core()
+    link.core = _Core(deadline)
     return link
 
 
@@ -54,5 +58,14 @@ async def test_a_request_of_ours_is_not_held_for_the_budget():
     link = _link()
     link.core.out.append(("ent.snap", b"request", "_INBOX.me"))
     link._poke()
+    with trio.fail_after(10):
+        await link._coalesce(60.0)
+
+
+async def test_the_budget_does_not_postpone_the_cores_deadline():
+    """Heartbeats and failover decisions are the core's timers (`next_deadline`, 0.2 s away here): coalescing
+    ends there, whatever the budget, so that a long budget cannot make the other shards think this one dead."""
+    link = _link(deadline=0.2)
+    link._on_msg("ent.c.3", None, b"state")
     with trio.fail_after(10):
         await link._coalesce(60.0)
