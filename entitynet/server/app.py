@@ -434,8 +434,8 @@ class Server(WritingMixin):
         """Stall accounting of blocked writes and the metrics: every `STALL_TICK_S` (0.1 s) while a write is
         blocked, else every `IDLE_TICK_S` (1 s; a write that blocks meanwhile brings the tick forward,
         `_watch_stalls`). Why not always 0.1 s: ten wake-ups a second were most of an idle server's CPU (4 ms/s),
-        and an idle shard of a cluster pays them too. The table-size gauges are refreshed every `GAUGES_EVERY`
-        ticks at most (`Switchboard.counts` walks every client)."""
+        and an idle shard of a cluster pays them too. The table-size gauges are refreshed at most once per
+        `GAUGES_EVERY_S` (1 s), however often it ticks (`Switchboard.counts` walks every client)."""
         m, sb = self.metrics, self.sb
         seen_errors: dict[int, int] = {}
         pushed_msgs = pushed_frames = pushed_drops = 0
