@@ -8,6 +8,7 @@ import time
 import trio
 
 from entitynet import protocol as P
+from entitynet.server.app import STALL_TICK_S
 from entitynet.server.stall import StallClock
 from tests.entitynet.server_helpers import DIGEST, Raw, running
 
@@ -104,6 +105,11 @@ async def test_a_write_that_blocks_after_an_idle_spell_is_still_timed_from_its_s
         big = b"z" * 2000
         t0 = trio.current_time()
         await pub.send(*[P.Publish(i, 1, (1,), 60_000, big) for i in range(400)])
+        with trio.fail_after(10):
+            while not any(c.writing for c in server.conns.values()) and not server.sb.stats["slow_consumers"]:
+                await trio.sleep(0.005)
+        scope = server._tick_scope  # the write blocked: housekeeping's next tick is now at most 0.1 s away
+        assert scope is None or scope.deadline <= trio.current_time() + STALL_TICK_S
         with trio.fail_after(10):
             while server.sb.stats["slow_consumers"] == 0:
                 await trio.sleep(0.02)
