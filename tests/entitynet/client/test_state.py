@@ -162,3 +162,27 @@ def test_the_compiled_ring_keeps_what_the_reference_keeps():
         fast.put(a, [0.0] * 6)
     fast.clear(a)
     assert ref.get(a) == [] and ref.get(b) == [1.0, 1.5, 2.0, 2.5, 3.0]
+
+
+def test_the_compiled_accessors_refuse_what_the_reference_refuses():
+    """An integer field takes integers only (as `array('q')` and the reference do): a float written there is a
+    TypeError, not silently truncated (2.7 read back as 2) by the compiled kind alone."""
+    from entitynet.client import state
+
+    if state._COMPILED is None:
+        pytest.skip("the compiled accessors are not built here (the reference is in use)")
+    rec = Record(1)
+    rec.new_row()
+    for compiled in (True, False):
+        class P(Bound):
+            __slots__ = ()
+            n = column("rev", "int", compiled=compiled)
+        p = P()
+        p.bind(rec, 0)
+        p.n = np.int32(5)
+        for bad in (2.7, np.float64(2.0), "3", None):
+            with pytest.raises(TypeError):
+                p.n = bad
+        with pytest.raises(OverflowError):
+            p.n = 2**70
+        assert p.n == 5 and type(p.n) is int
