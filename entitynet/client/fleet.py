@@ -93,7 +93,7 @@ class FleetCore:
                          "scalar_fixes": 0, "scalar_ticks": 0}
         # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
         self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
-        self.rec = Record(max(int(capacity), 1))
+        self.rec = Record(max(int(capacity), 1), fleet=True)
         self._free: list[int] = []  # slots of removed players, for the next adds
         self._added = 0
         self._cap = 0
@@ -134,7 +134,9 @@ class FleetCore:
     def add(self, player: Player) -> int:
         """Take a player (its state as it is); returns its slot: a removed one's if any (the rows stay as many
         as the most entities held at once), else a new one. `order[slot]` counts the adds: a tick's messages
-        come in that order, whichever slots the entities hold."""
+        come in that order, whichever slots the entities hold. A Player in a fleet core already is refused."""
+        if player._st.fleet:  # (a second slot would step one Player twice, one of them on a row nobody reads)
+            raise ValueError(f"player {player.entity} is in a fleet core already: `remove` it there first")
         slot = player.move_to(self.rec, self._free.pop() if self._free else None)
         if self.rec.cap != self._cap:
             self._grow()

@@ -95,8 +95,9 @@ class Record:
     """The client state of `rows` entities (see the module docstring). Rows are appended, never reused while
     the record lives; growing re-allocates the blocks (numpy views taken before then are stale: `view` again)."""
 
-    def __init__(self, capacity: int = 1) -> None:
+    def __init__(self, capacity: int = 1, *, fleet: bool = False) -> None:
         self.rows = 0
+        self.fleet = fleet  # a fleet core's record: a Player bound to it is in that fleet core already
         self.cap = 0
         self.f = array("d")
         self.i = array("q")

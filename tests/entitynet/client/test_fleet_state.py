@@ -109,3 +109,18 @@ def test_a_removed_slot_goes_to_the_next_player_and_messages_keep_the_order_of_t
     out, rejected = core.step(1.0, [0, 1, 2], np.array([10.0, 20.0, 30.0]), np.array([1.0, 1.0, 1.0]), 4.0)
     assert rejected == 0 and [s for s, _m in out] == [1, 2, 0]
     assert [m[0].entity for _s, m in out] == [1, 2, 9]
+
+
+def test_a_player_in_a_fleet_core_is_not_added_again_until_removed():
+    """One Player, one slot: a second `add` (to this fleet core or another) would step it twice, once on a row
+    nobody reads; it is refused, nothing changes, and after `remove` the Player may be added again."""
+    topo = cross(arm=100.0)
+    p = Player(topo, 1, "car", accuracy=4.0)
+    core, other = FleetCore(), FleetCore()
+    slot = core.add(p)
+    for fleet in (core, other):
+        with pytest.raises(ValueError, match="in a fleet core already"):
+            fleet.add(p)
+    assert core.rec.rows == 1 and other.rec.rows == 0 and p._st is core.rec and core.player(slot) is p
+    core.remove(slot)
+    assert other.add(p) == 0 and p._st is other.rec
