@@ -4,6 +4,9 @@ path rows, growth that keeps the rows, and the clear errors of a wrong use."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -186,3 +189,20 @@ def test_the_compiled_accessors_refuse_what_the_reference_refuses():
         with pytest.raises(OverflowError):
             p.n = 2**70
         assert p.n == 5 and type(p.n) is int
+
+
+def test_without_the_compiled_module_the_reference_gives_the_pinned_messages():
+    """Where pip built no `_columns` (no C compiler: setup.py goes on without it), the Python accessors are the
+    only ones, and no other test runs them where the module is built. In a child with the module hidden: the
+    pinned replay digests, and a fleet core's messages and paths (rebuilt from the row's arrays) equal to its
+    twin Players'."""
+    code = ("import sys\nsys.modules['entitynet.client._columns'] = None\n"
+            "from entitynet.client import state\nassert state._COMPILED is None\n"
+            "from tests.entitynet.client import test_fleet_state as f, test_player_replay as r\n"
+            "from tests.entitynet.client_fixtures import cross\n"
+            "r.test_every_walk_gives_the_recorded_messages()\n"
+            "f.test_paths_extended_in_arrays_give_the_players_messages_and_state(cross(arm=100.0))\n"
+            "f.test_the_arrays_and_the_player_are_one_state()\nprint('reference ok')\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parents[3], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "reference ok", done.stderr[-3000:]
