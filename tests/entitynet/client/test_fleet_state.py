@@ -124,3 +124,36 @@ def test_a_player_in_a_fleet_core_is_not_added_again_until_removed():
     assert core.rec.rows == 1 and other.rec.rows == 0 and p._st is core.rec and core.player(slot) is p
     core.remove(slot)
     assert other.add(p) == 0 and p._st is other.rec
+
+
+def test_a_change_through_a_handed_out_player_counts_from_the_next_step():
+    """`player(slot)` hands the Player out for changes (its options, a fix fed directly): the fleet core's
+    derived columns (options, ghost, deadline, eligibility) are read again before its next step uses them, so
+    the next fixes decide what the Player alone decides (here: a drift threshold lowered mid-run)."""
+    from tests.entitynet.client.test_fleet import _twins
+
+    topo = parallel(gap=12.0, length=300.0)
+    ents = _twins(topo, 6, 1)
+    core = FleetCore()
+    slots = [core.add(e[1]) for e in ents]
+    rng = np.random.default_rng(7)
+    s = [0.0] * len(ents)
+    for k in range(80):
+        t = float(k + 1)
+        if k == 40:
+            assert core.fast[slots].any()  # (some entities are on the arrays' path when it changes)
+            for sl, e in zip(slots, ents, strict=True):
+                core.player(sl).rules.threshold = e[0].rules.threshold = 1.0
+        xs, ys, want = [], [], {}
+        for i, e in enumerate(ents):
+            s[i] = min(s[i] + e[3], e[2].length)
+            x, y = e[2].xy(s[i])
+            x, y = x + float(rng.normal(0.0, 3.0)), y + float(rng.normal(0.0, 3.0))
+            xs.append(x)
+            ys.append(y)
+            msgs = e[0].feed(x, y, t, 4.0) + e[0].tick(t)
+            if msgs:
+                want[e[0].entity] = msgs
+        res, _rejected = core.step(t, slots, np.array(xs), np.array(ys), 4.0)
+        assert {ents[sl][1].entity: m for sl, m in res} == want, f"tick {k}"
+    assert core.counters["vector_fixes"] > 0
