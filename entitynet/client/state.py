@@ -133,6 +133,8 @@ class Record:
     def take(self, other: Record, row: int, at: int | None = None) -> int:
         """Move `other`'s row here (into row `at`, a row no longer used, else a new row); the caller rebinds
         its parts."""
+        if at is not None and not 0 <= at < self.rows:  # (a slice past the end would resize the block)
+            raise IndexError(f"row {at} is not a row in use of the record ({self.rows} rows)")
         r = self.new_row() if at is None else at
         self.f[r * NF : (r + 1) * NF] = other.f[row * NF : (row + 1) * NF]
         self.i[r * NI : (r + 1) * NI] = other.i[row * NI : (row + 1) * NI]
@@ -185,7 +187,10 @@ class Bound:
     __slots__ = ("_st", "_row", "_fb", "_ib")
 
     def bind(self, st: Record, row: int) -> None:
-        """Read and write row `row` of `st` from now on."""
+        """Read and write row `row` of `st` from now on: one of its rows in use (the compiled accessors do not
+        check bounds, so a row outside the blocks is refused here, not read or written as stray memory)."""
+        if not 0 <= row < st.rows:
+            raise IndexError(f"row {row} is not a row in use of the record ({st.rows} rows)")
         self._st, self._row, self._fb, self._ib = st, row, row * NF, row * NI
 
 

@@ -206,3 +206,18 @@ def test_without_the_compiled_module_the_reference_gives_the_pinned_messages():
     done = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parents[3], capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0 and done.stdout.strip() == "reference ok", done.stderr[-3000:]
+
+
+def test_a_row_outside_the_record_is_refused_not_read_as_stray_memory():
+    """The compiled accessors index the blocks without bounds checks: binding a part (or moving a row) to a row
+    the record does not hold is an IndexError, for both kinds, before any read or write."""
+    rec = Record(4)
+    rec.new_row()
+    p = _Part()
+    for row in (1, 4, 100_000, -1):  # (1: allocated, not in use: its fields were never initialised)
+        with pytest.raises(IndexError, match="not a row in use"):
+            p.bind(rec, row)
+        with pytest.raises(IndexError, match="not a row in use"):
+            rec.take(Record(1), 0, at=row)
+    p.bind(rec, 0)
+    assert p.last_t is None and rec.rows == 1 and len(rec.f) == 4 * NF
