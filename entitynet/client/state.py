@@ -133,8 +133,9 @@ class Record:
     def take(self, other: Record, row: int, at: int | None = None) -> int:
         """Move `other`'s row here (into row `at`, a row no longer used, else a new row); the caller rebinds
         its parts."""
-        if at is not None and not 0 <= at < self.rows:  # (a slice past the end would resize the block)
-            raise IndexError(f"row {at} is not a row in use of the record ({self.rows} rows)")
+        for rec, r in ((other, row), (self, at)):  # (a slice past a block's end would resize it)
+            if r is not None and not 0 <= r < rec.rows:
+                raise IndexError(f"row {r} is not a row in use of the record ({rec.rows} rows)")
         r = self.new_row() if at is None else at
         self.f[r * NF : (r + 1) * NF] = other.f[row * NF : (row + 1) * NF]
         self.i[r * NI : (r + 1) * NI] = other.i[row * NI : (row + 1) * NI]

@@ -211,13 +211,17 @@ def test_without_the_compiled_module_the_reference_gives_the_pinned_messages():
 def test_a_row_outside_the_record_is_refused_not_read_as_stray_memory():
     """The compiled accessors index the blocks without bounds checks: binding a part (or moving a row) to a row
     the record does not hold is an IndexError, for both kinds, before any read or write."""
-    rec = Record(4)
+    rec, one = Record(4), Record(1)
     rec.new_row()
+    one.new_row()
     p = _Part()
     for row in (1, 4, 100_000, -1):  # (1: allocated, not in use: its fields were never initialised)
         with pytest.raises(IndexError, match="not a row in use"):
             p.bind(rec, row)
         with pytest.raises(IndexError, match="not a row in use"):
-            rec.take(Record(1), 0, at=row)
+            rec.take(one, 0, at=row)
+        with pytest.raises(IndexError, match="not a row in use"):
+            rec.take(one, row)  # (from a row the other record does not hold: an empty slice would shrink `f`)
     p.bind(rec, 0)
     assert p.last_t is None and rec.rows == 1 and len(rec.f) == 4 * NF
+    assert rec.take(one, 0, at=0) == 0 and rec.take(one, 0) == 1 and rec.rows == 2
