@@ -157,3 +157,18 @@ def test_a_change_through_a_handed_out_player_counts_from_the_next_step():
         res, _rejected = core.step(t, slots, np.array(xs), np.array(ys), 4.0)
         assert {ents[sl][1].entity: m for sl, m in res} == want, f"tick {k}"
     assert core.counters["vector_fixes"] > 0
+
+
+def test_the_records_columns_and_the_fleets_own_names_do_not_collide():
+    """The fleet core sets every record column as an attribute of its own (`_grow`): a record field named like
+    one of its derived columns or attributes would silently replace it."""
+    import inspect
+    import re
+
+    from entitynet.client import fleet as fleet_mod
+
+    columns = set(FleetCore().rec.view())
+    derived = {d[0] for d in fleet_mod._DERIVED} | set(fleet_mod._GHOST) | set(fleet_mod._CONST)
+    assigned = set(re.findall(r"self\.(\w+)(?:\s*:[^=\n]*)?\s*=[^=]", inspect.getsource(FleetCore)))
+    assert {"players", "rec", "counters", "deadline"} <= assigned | derived  # (the names are found)
+    assert not columns & (derived | assigned | set(dir(FleetCore)))
