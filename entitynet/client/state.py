@@ -32,7 +32,7 @@ except ImportError:  # the pure reference
     _COMPILED = None
 
 RECENT = 5  # fixes kept by the tracker's `recent_s` and the rules' `recent` (and fix intervals kept)
-_RING, _TAIL = Struct(f"={RECENT}d"), Struct(f"={RECENT - 1}d")  # a ring's columns written / shifted at once
+_TAIL = Struct(f"={RECENT - 1}d")  # a ring's newest columns, read and written one place down at once
 PATH_W = 48  # the widest path a row holds in arrays (the tracker keeps at most MAX_PATH_EDGES)
 
 # (name, initial value, meaning): the float fields of a row
@@ -236,8 +236,10 @@ class Ring:
     def push(self, o: Bound, v: float, counted: bool = True) -> None:
         """Append `v`, dropping the oldest beyond RECENT (`counted=False`: a ring sharing its count with
         another, pushed second)."""
-        f, b = o._st.f, 8 * (o._fb + self.j)
-        _RING.pack_into(f, b, *_TAIL.unpack_from(f, b + 8), v)
+        f, j = o._st.f, o._fb + self.j
+        tail = _TAIL.unpack_from(f, 8 * (j + 1))
+        f[j + RECENT - 1] = v  # (first: a value that is no number is refused, TypeError, before anything moves)
+        _TAIL.pack_into(f, 8 * j, *tail)
         if counted:
             i, c = o._st.i, o._ib + self.c
             if i[c] < RECENT:

@@ -165,6 +165,11 @@ def test_the_compiled_ring_keeps_what_the_reference_keeps():
         fast.put(a, [0.0] * 6)
     fast.clear(a)
     assert ref.get(a) == [] and ref.get(b) == [1.0, 1.5, 2.0, 2.5, 3.0]
+    for ring in (fast, ref):  # a value that is no number: the same error from both, the ring unchanged
+        for bad in ("x", None):
+            with pytest.raises(TypeError):
+                ring.push(b, bad)
+        assert ref.get(b) == [1.0, 1.5, 2.0, 2.5, 3.0]
 
 
 def test_the_compiled_accessors_refuse_what_the_reference_refuses():
