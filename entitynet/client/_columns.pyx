@@ -5,6 +5,7 @@ module is absent), a C descriptor instead of a Python function call (about half 
 write). tests/entitynet/client/test_state.py checks both kinds field for field."""
 
 from cpython.array cimport array
+from cpython.number cimport PyNumber_Index
 
 
 cdef class FloatCol:
@@ -70,7 +71,8 @@ cdef class IntCol:
     def __set__(self, obj, v):
         cdef array i = obj._st.i
         cdef Py_ssize_t b = obj._ib
-        i.data.as_longlongs[b + self.j] = (1 if v else 0) if self.as_bool else <long long>v
+        # an integer or what `operator.index` takes, as `array('q')` does: a float raises TypeError, not truncated
+        i.data.as_longlongs[b + self.j] = (1 if v else 0) if self.as_bool else <long long>PyNumber_Index(v)
 
 
 cdef class RingCols:

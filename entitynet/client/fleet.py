@@ -54,6 +54,12 @@ assert MAX_PATH_EDGES == W and FIX_INTERVALS_KEPT == RECENT
 _GHOST = ("validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
 _CONST = ("swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap", "lost_after",
           "body", "vmax")
+# the derived columns' blocks: (name, initial value, dtype, shape of a row)
+_DERIVED = (("deadline", math.inf, float, ()), ("alive", False, bool, ()), ("fast", False, bool, ()),
+            ("consts", False, bool, ()), ("has_route", False, bool, ()), ("slow", 0, np.int64, ()),
+            ("order", 0, np.int64, ()), ("confirm", 1, np.int64, ()), ("gm", 0.0, float, (len(_GHOST),)),
+            ("cm", 0.0, float, (len(_CONST),)), ("ge", 0, np.int64, (W,)), ("gd", 1, np.int64, (W,)),
+            ("gc", math.inf, float, (W + 1,)), ("gn", 0, np.int64, ()))
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
 # eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
 SCALAR_WHY = ("publish", "no_segments", "near_table", "near_off_window", "near_edge_recurs", "near_best_on",
@@ -93,8 +99,9 @@ class FleetCore:
                          "scalar_fixes": 0, "scalar_ticks": 0}
         # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
         self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
-        self.rec = Record(max(int(capacity), 1))
+        self.rec = Record(max(int(capacity), 1), fleet=True)
         self._free: list[int] = []  # slots of removed players, for the next adds
+        self._handed: set[int] = set()  # slots whose Player was handed out: `_refresh` before the next step
         self._added = 0
         self._cap = 0
         self._grow()
@@ -104,29 +111,15 @@ class FleetCore:
         cap, old = self.rec.cap, self._cap
         for name, arr in self.rec.view().items():
             setattr(self, name, arr)
-
-        def grown(a: np.ndarray | None, fill, dtype, shape=()) -> np.ndarray:
+        for name, fill, dtype, shape in _DERIVED:  # (new blocks holding the old rows)
             b = np.full((cap, *shape), fill, dtype=dtype)
-            if a is not None:
-                b[:old] = a
-            return b
-
-        self.deadline = grown(getattr(self, "deadline", None), math.inf, float)
-        for f in ("alive", "fast", "consts", "has_route"):
-            setattr(self, f, grown(getattr(self, f, None), False, bool))
-        self.slow = grown(getattr(self, "slow", None), 0, np.int64)
-        self.order = grown(getattr(self, "order", None), 0, np.int64)
-        self.confirm = grown(getattr(self, "confirm", None), 1, np.int64)
-        self.gm = grown(getattr(self, "gm", None), 0.0, float, (len(_GHOST),))
-        self.cm = grown(getattr(self, "cm", None), 0.0, float, (len(_CONST),))
+            if old:
+                b[:old] = getattr(self, name)
+            setattr(self, name, b)
         for j, f in enumerate(_GHOST):
             setattr(self, f, self.gm[:, j])
         for j, f in enumerate(_CONST):
             setattr(self, f, self.cm[:, j])
-        self.ge = grown(getattr(self, "ge", None), 0, np.int64, (W,))
-        self.gd = grown(getattr(self, "gd", None), 1, np.int64, (W,))
-        self.gc = grown(getattr(self, "gc", None), math.inf, float, (W + 1,))
-        self.gn = grown(getattr(self, "gn", None), 0, np.int64)
         self._ghosts: list = [None] * cap if old == 0 else self._ghosts + [None] * (cap - old)
         self._cap = cap
 
@@ -134,7 +127,9 @@ class FleetCore:
     def add(self, player: Player) -> int:
         """Take a player (its state as it is); returns its slot: a removed one's if any (the rows stay as many
         as the most entities held at once), else a new one. `order[slot]` counts the adds: a tick's messages
-        come in that order, whichever slots the entities hold."""
+        come in that order, whichever slots the entities hold. A Player in a fleet core already is refused."""
+        if player._st.fleet:  # (a second slot would step one Player twice, one of them on a row nobody reads)
+            raise ValueError(f"player {player.entity} is in a fleet core already: `remove` it there first")
         slot = player.move_to(self.rec, self._free.pop() if self._free else None)
         if self.rec.cap != self._cap:
             self._grow()
@@ -163,12 +158,14 @@ class FleetCore:
         return p.leave()
 
     def player(self, slot: int) -> Player:
-        """The slot's `Player` (its state is the record's row: nothing to write back)."""
+        """The slot's `Player` (its state is the record's row: nothing to write back). The caller may change
+        it (its options, a fix fed directly): the next `step` reads its ghost, options and deadline again first."""
         p = self.players[slot]
         if p is None:
             raise KeyError(f"slot {slot} holds no player")
-        self.consts[slot] = False  # the caller may change the Player: read its options at the next `_refresh`
+        self.consts[slot] = False
         self._ghosts[slot] = None
+        self._handed.add(slot)
         return p
 
     # ---- one tick ------------------------------------------------------------------------------------------
@@ -182,6 +179,10 @@ class FleetCore:
         if now < self.last_now:
             raise ValueError(f"now {now!r} is before the last step at {self.last_now!r}")
         self.last_now = now
+        for s in self._handed:  # (before any decision reads the derived columns)
+            if self.players[s] is not None:
+                self._refresh(s)
+        self._handed.clear()
         n = len(self.players)
         due = np.asarray(due, dtype=np.int64)
         x = np.asarray(x, dtype=float)

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from entitynet.client.baselines import WorldFilter, plane_model
 from entitynet.client.coverage import MAX_PUBLISH_CELLS, Coverage
 from entitynet.client.entities import EntityType, entity_type
-from entitynet.client.filters import Kinematic1D
+from entitynet.client.filters import Kinematic1D, KinematicMath
 from entitynet.client.fixes import FixRejected, check_fix, velocity
 from entitynet.client.frozen import maker
 from entitynet.client.limits import HORIZON, max_speed
@@ -125,8 +125,8 @@ class Player(PlayerState):
         return self.tracker.path if self.tracker is not None else None
 
     @property
-    def kf(self) -> Kinematic1D | None:
-        """The along-path filter (on an edge)."""
+    def kf(self) -> KinematicMath | None:
+        """The along-path filter (on an edge): the row's (`RowKinematic`, state.py), live, not a snapshot."""
         return self.tracker.kf if self.tracker is not None else None
 
     def _plane(self) -> tuple[Kinematic1D | None, Kinematic1D | None]:

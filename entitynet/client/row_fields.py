@@ -58,8 +58,6 @@ class PlayerState(Bound):
         self.last_t = value[2]
 
 
-
-
 class TrackerState(Bound):
     """The tracker's row fields as attributes (`net` is the tracker's network view, for the `Path`)."""
 
@@ -172,7 +170,6 @@ class TrackerState(Bound):
         i[b - 1], i[b] = (1 if fix[0] == "edge" else 2), fix[1]
         f, c = self._st.f, self._fb + _LF_OFF
         f[c], f[c + 1], f[c + 2], f[c + 3] = fix[2], fix[3], fix[4], fix[5]
-
 
 
 if _COMPILED is not None:  # the same accessors compiled (`_columns.pyx`), where pip built them

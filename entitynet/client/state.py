@@ -32,7 +32,7 @@ except ImportError:  # the pure reference
     _COMPILED = None
 
 RECENT = 5  # fixes kept by the tracker's `recent_s` and the rules' `recent` (and fix intervals kept)
-_RING, _TAIL = Struct(f"={RECENT}d"), Struct(f"={RECENT - 1}d")  # a ring's columns written / shifted at once
+_TAIL = Struct(f"={RECENT - 1}d")  # a ring's newest columns, read and written one place down at once
 PATH_W = 48  # the widest path a row holds in arrays (the tracker keeps at most MAX_PATH_EDGES)
 
 # (name, initial value, meaning): the float fields of a row
@@ -95,8 +95,9 @@ class Record:
     """The client state of `rows` entities (see the module docstring). Rows are appended, never reused while
     the record lives; growing re-allocates the blocks (numpy views taken before then are stale: `view` again)."""
 
-    def __init__(self, capacity: int = 1) -> None:
+    def __init__(self, capacity: int = 1, *, fleet: bool = False) -> None:
         self.rows = 0
+        self.fleet = fleet  # a fleet core's record: a Player bound to it is in that fleet core already
         self.cap = 0
         self.f = array("d")
         self.i = array("q")
@@ -132,6 +133,9 @@ class Record:
     def take(self, other: Record, row: int, at: int | None = None) -> int:
         """Move `other`'s row here (into row `at`, a row no longer used, else a new row); the caller rebinds
         its parts."""
+        for rec, r in ((other, row), (self, at)):  # (a slice past a block's end would resize it)
+            if r is not None and not 0 <= r < rec.rows:
+                raise IndexError(f"row {r} is not a row in use of the record ({rec.rows} rows)")
         r = self.new_row() if at is None else at
         self.f[r * NF : (r + 1) * NF] = other.f[row * NF : (row + 1) * NF]
         self.i[r * NI : (r + 1) * NI] = other.i[row * NI : (row + 1) * NI]
@@ -184,7 +188,10 @@ class Bound:
     __slots__ = ("_st", "_row", "_fb", "_ib")
 
     def bind(self, st: Record, row: int) -> None:
-        """Read and write row `row` of `st` from now on."""
+        """Read and write row `row` of `st` from now on: one of its rows in use (the compiled accessors do not
+        check bounds, so a row outside the blocks is refused here, not read or written as stray memory)."""
+        if not 0 <= row < st.rows:
+            raise IndexError(f"row {row} is not a row in use of the record ({st.rows} rows)")
         self._st, self._row, self._fb, self._ib = st, row, row * NF, row * NI
 
 
@@ -229,8 +236,10 @@ class Ring:
     def push(self, o: Bound, v: float, counted: bool = True) -> None:
         """Append `v`, dropping the oldest beyond RECENT (`counted=False`: a ring sharing its count with
         another, pushed second)."""
-        f, b = o._st.f, 8 * (o._fb + self.j)
-        _RING.pack_into(f, b, *_TAIL.unpack_from(f, b + 8), v)
+        f, j = o._st.f, o._fb + self.j
+        tail = _TAIL.unpack_from(f, 8 * (j + 1))
+        f[j + RECENT - 1] = v  # (first: a value that is no number is refused, TypeError, before anything moves)
+        _TAIL.pack_into(f, 8 * j, *tail)
         if counted:
             i, c = o._st.i, o._ib + self.c
             if i[c] < RECENT:

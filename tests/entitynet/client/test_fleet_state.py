@@ -109,3 +109,66 @@ def test_a_removed_slot_goes_to_the_next_player_and_messages_keep_the_order_of_t
     out, rejected = core.step(1.0, [0, 1, 2], np.array([10.0, 20.0, 30.0]), np.array([1.0, 1.0, 1.0]), 4.0)
     assert rejected == 0 and [s for s, _m in out] == [1, 2, 0]
     assert [m[0].entity for _s, m in out] == [1, 2, 9]
+
+
+def test_a_player_in_a_fleet_core_is_not_added_again_until_removed():
+    """One Player, one slot: a second `add` (to this fleet core or another) would step it twice, once on a row
+    nobody reads; it is refused, nothing changes, and after `remove` the Player may be added again."""
+    topo = cross(arm=100.0)
+    p = Player(topo, 1, "car", accuracy=4.0)
+    core, other = FleetCore(), FleetCore()
+    slot = core.add(p)
+    for fleet in (core, other):
+        with pytest.raises(ValueError, match="in a fleet core already"):
+            fleet.add(p)
+    assert core.rec.rows == 1 and other.rec.rows == 0 and p._st is core.rec and core.player(slot) is p
+    core.remove(slot)
+    assert other.add(p) == 0 and p._st is other.rec
+
+
+def test_a_change_through_a_handed_out_player_counts_from_the_next_step():
+    """`player(slot)` hands the Player out for changes (its options, a fix fed directly): the fleet core's
+    derived columns (options, ghost, deadline, eligibility) are read again before its next step uses them, so
+    the next fixes decide what the Player alone decides (here: a drift threshold lowered mid-run)."""
+    from tests.entitynet.client.test_fleet import _twins
+
+    topo = parallel(gap=12.0, length=300.0)
+    ents = _twins(topo, 6, 1)
+    core = FleetCore()
+    slots = [core.add(e[1]) for e in ents]
+    rng = np.random.default_rng(7)
+    s = [0.0] * len(ents)
+    for k in range(80):
+        t = float(k + 1)
+        if k == 40:
+            assert core.fast[slots].any()  # (some entities are on the arrays' path when it changes)
+            for sl, e in zip(slots, ents, strict=True):
+                core.player(sl).rules.threshold = e[0].rules.threshold = 1.0
+        xs, ys, want = [], [], {}
+        for i, e in enumerate(ents):
+            s[i] = min(s[i] + e[3], e[2].length)
+            x, y = e[2].xy(s[i])
+            x, y = x + float(rng.normal(0.0, 3.0)), y + float(rng.normal(0.0, 3.0))
+            xs.append(x)
+            ys.append(y)
+            msgs = e[0].feed(x, y, t, 4.0) + e[0].tick(t)
+            if msgs:
+                want[e[0].entity] = msgs
+        res, _rejected = core.step(t, slots, np.array(xs), np.array(ys), 4.0)
+        assert {ents[sl][1].entity: m for sl, m in res} == want, f"tick {k}"
+    assert core.counters["vector_fixes"] > 0
+
+
+def test_the_records_columns_and_the_fleets_own_names_do_not_collide():
+    """The fleet core sets every record column as an attribute of its own (`_grow`): a record field named like
+    one of its derived columns or attributes would silently replace it."""
+    import inspect
+    import re
+
+    from entitynet.client import fleet as fleet_mod
+
+    columns = set(FleetCore().rec.view())
+    derived = {d[0] for d in fleet_mod._DERIVED} | set(fleet_mod._GHOST) | set(fleet_mod._CONST)
+    assigned = set(re.findall(r"self\.(\w+)(?:\s*:[^=\n]*)?\s*=[^=]", inspect.getsource(FleetCore)))
+    assert {"players", "rec", "counters", "deadline"} <= assigned | derived  # (the names are found)
+    assert not columns & (derived | assigned | set(dir(FleetCore)))

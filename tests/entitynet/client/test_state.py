@@ -4,6 +4,9 @@ path rows, growth that keeps the rows, and the clear errors of a wrong use."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,3 +165,68 @@ def test_the_compiled_ring_keeps_what_the_reference_keeps():
         fast.put(a, [0.0] * 6)
     fast.clear(a)
     assert ref.get(a) == [] and ref.get(b) == [1.0, 1.5, 2.0, 2.5, 3.0]
+    for ring in (fast, ref):  # a value that is no number: the same error from both, the ring unchanged
+        for bad in ("x", None):
+            with pytest.raises(TypeError):
+                ring.push(b, bad)
+        assert ref.get(b) == [1.0, 1.5, 2.0, 2.5, 3.0]
+
+
+def test_the_compiled_accessors_refuse_what_the_reference_refuses():
+    """An integer field takes integers only (as `array('q')` and the reference do): a float written there is a
+    TypeError, not silently truncated (2.7 read back as 2) by the compiled kind alone."""
+    from entitynet.client import state
+
+    if state._COMPILED is None:
+        pytest.skip("the compiled accessors are not built here (the reference is in use)")
+    rec = Record(1)
+    rec.new_row()
+    for compiled in (True, False):
+        class P(Bound):
+            __slots__ = ()
+            n = column("rev", "int", compiled=compiled)
+        p = P()
+        p.bind(rec, 0)
+        p.n = np.int32(5)
+        for bad in (2.7, np.float64(2.0), "3", None):
+            with pytest.raises(TypeError):
+                p.n = bad
+        with pytest.raises(OverflowError):
+            p.n = 2**70
+        assert p.n == 5 and type(p.n) is int
+
+
+def test_without_the_compiled_module_the_reference_gives_the_pinned_messages():
+    """Where pip built no `_columns` (no C compiler: setup.py goes on without it), the Python accessors are the
+    only ones, and no other test runs them where the module is built. In a child with the module hidden: the
+    pinned replay digests, and a fleet core's messages and paths (rebuilt from the row's arrays) equal to its
+    twin Players'."""
+    code = ("import sys\nsys.modules['entitynet.client._columns'] = None\n"
+            "from entitynet.client import state\nassert state._COMPILED is None\n"
+            "from tests.entitynet.client import test_fleet_state as f, test_player_replay as r\n"
+            "from tests.entitynet.client_fixtures import cross\n"
+            "r.test_every_walk_gives_the_recorded_messages()\n"
+            "f.test_paths_extended_in_arrays_give_the_players_messages_and_state(cross(arm=100.0))\n"
+            "f.test_the_arrays_and_the_player_are_one_state()\nprint('reference ok')\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parents[3], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "reference ok", done.stderr[-3000:]
+
+
+def test_a_row_outside_the_record_is_refused_not_read_as_stray_memory():
+    """The compiled accessors index the blocks without bounds checks: binding a part (or moving a row) to a row
+    the record does not hold is an IndexError, for both kinds, before any read or write."""
+    rec, one = Record(4), Record(1)
+    rec.new_row()
+    one.new_row()
+    p = _Part()
+    for row in (1, 4, 100_000, -1):  # (1: allocated, not in use: its fields were never initialised)
+        with pytest.raises(IndexError, match="not a row in use"):
+            p.bind(rec, row)
+        with pytest.raises(IndexError, match="not a row in use"):
+            rec.take(one, 0, at=row)
+        with pytest.raises(IndexError, match="not a row in use"):
+            rec.take(one, row)  # (from a row the other record does not hold: an empty slice would shrink `f`)
+    p.bind(rec, 0)
+    assert p.last_t is None and rec.rows == 1 and len(rec.f) == 4 * NF
+    assert rec.take(one, 0, at=0) == 0 and rec.take(one, 0) == 1 and rec.rows == 2
