@@ -25,6 +25,15 @@ from collections.abc import Container
 
 from entitynet.client.placement import Placer, ring_distance
 
+#: the largest query radius (m) that `edges_near` and `way_cells` answer from the one bucket holding the
+#: position (each bucket also lists the edges whose boxes reach within WIDE + 1 m of it): about two thirds of the
+#: lateral cover's boxes (20 m wide, 50 m buckets) straddle a bucket boundary, and those took the walk over
+#: several buckets with a set and a sort. Larger radii take that walk.
+WIDE = 25.0
+#: the widened buckets' own size (m): smaller than the grid's 50 m, so that a bucket and its WIDE + 1 m rim list
+#: fewer edges for the box test to reject
+WIDE_SIZE = 20.0
+
 #: relative band around `r` in which `within_ring` defers to `ring_distance` (the square root of a sum of
 #: squares and `hypot` differ by a few ulps, about 1e-16 relative; far wider than that, and far narrower
 #: than any distance that matters)
@@ -34,7 +43,7 @@ BAND = 1e-9
 class NearIndex:
     """One placer's neighbourhood queries for the lateral cover (shared by every entity on that placer)."""
 
-    __slots__ = ("placer", "rows", "size", "_rings", "_ways")
+    __slots__ = ("placer", "rows", "wide", "size", "_rings", "_ways")
 
     def __init__(self, placer: Placer) -> None:
         self.placer = placer
@@ -46,6 +55,18 @@ class NearIndex:
         ways = self._ways = {e: _Way(placer, e) for e in boxes}
         self.rows = {key: tuple((e, *boxes[e], ways[e]) for e in edges) for key, edges in cells.items()}
         self.size = size
+        # per bucket: the rows of every edge whose box meets the bucket widened by WIDE + 1 m, in edge order
+        # (the 1 m absorbs the rounding of x - r and of x / size: a box within r <= WIDE of a point in the
+        # bucket meets the widened bucket with room to spare)
+        wide: dict[tuple[int, int], list] = {}
+        pad = WIDE + 1.0
+        for e in sorted(boxes):
+            bx0, by0, bx1, by1 = boxes[e]
+            row = (e, bx0, by0, bx1, by1, ways[e])
+            for gx in range(math.floor((bx0 - pad) / WIDE_SIZE), math.floor((bx1 + pad) / WIDE_SIZE) + 1):
+                for gy in range(math.floor((by0 - pad) / WIDE_SIZE), math.floor((by1 + pad) / WIDE_SIZE) + 1):
+                    wide.setdefault((gx, gy), []).append(row)
+        self.wide = {key: tuple(rows) for key, rows in wide.items()}
         self._rings: dict[int, tuple[tuple[float, float, float, float, float], ...]] = {}
 
     def edges_near(self, x: float, y: float, r: float) -> list[int]:
@@ -53,6 +74,10 @@ class NearIndex:
         order."""
         size = self.size
         x0, y0, x1, y1 = x - r, y - r, x + r, y + r
+        if r <= WIDE:  # the widened bucket of the position: its rows are in edge order, each edge once
+            key = (math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE))
+            return [e for e, bx0, by0, bx1, by1, _w in self.wide.get(key, ())
+                    if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
         gx0, gx1 = math.floor(x0 / size), math.floor(x1 / size)
         gy0, gy1 = math.floor(y0 / size), math.floor(y1 / size)
         rows = self.rows
@@ -73,13 +98,10 @@ class NearIndex:
         covered from `back` metres behind its projected point to `ahead` metres on in the direction (dx, dy)
         (an edge running against it: the other way round), clamped to the edge; in edge order, without repeats.
         `skip`: edges that are no candidates; `only`: the edges that may be (None: any)."""
-        size = self.size
         x0, y0, x1, y1 = x - r, y - r, x + r, y + r
-        gx0, gx1 = math.floor(x0 / size), math.floor(x1 / size)
-        gy0, gy1 = math.floor(y0 / size), math.floor(y1 / size)
-        rows = self.rows
-        if gx0 == gx1 and gy0 == gy1:  # one bucket: its rows are in edge order, each edge once
-            cand = [w for e, bx0, by0, bx1, by1, w in rows.get((gx0, gy0), ())
+        if r <= WIDE:  # the widened bucket of the position (`edges_near`)
+            key = (math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE))
+            cand = [w for e, bx0, by0, bx1, by1, w in self.wide.get(key, ())
                     if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
         else:
             ways = self._ways
