@@ -14,8 +14,7 @@ and to `ring_distance(...) <= r`):
   end points), the same float operations as `Placer.project_on` and `NetView.point` in the same order
   (issue 22: the lateral cover was half of a publish);
 - `within_ring`: the squared distances to the ring's segments from a per-area table of the segment terms
-  (the same floating-point operations as `ring_distance`; for a ring of more than RING_PY segments in one
-  numpy pass), and `ring_distance` itself only where the answer
+  (the same floating-point operations as `ring_distance`), and `ring_distance` itself only where the answer
   is within a relative 1e-9 of `r`, where rounding could decide it.
 """
 
@@ -23,8 +22,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Container
-
-import numpy as np
 
 from entitynet.client.placement import Placer, ring_distance
 
@@ -36,10 +33,6 @@ WIDE = 25.0
 #: the widened buckets' own size (m): smaller than the grid's 50 m, so that a bucket and its WIDE + 1 m rim list
 #: fewer edges for the box test to reject
 WIDE_SIZE = 20.0
-
-#: the most segments of an area's ring that `within_ring` walks in plain Python (most rings have about 12; the
-#: largest squares and parks 40 to 200, where one numpy pass is cheaper)
-RING_PY = 32
 
 #: relative band around `r` in which `within_ring` defers to `ring_distance` (the square root of a sum of
 #: squares and `hypot` differ by a few ulps, about 1e-16 relative; far wider than that, and far narrower
@@ -74,7 +67,7 @@ class NearIndex:
                 for gy in range(math.floor((by0 - pad) / WIDE_SIZE), math.floor((by1 + pad) / WIDE_SIZE) + 1):
                     wide.setdefault((gx, gy), []).append(row)
         self.wide = {key: tuple(rows) for key, rows in wide.items()}
-        self._rings: dict[int, tuple[tuple[float, float, float, float, float], ...] | np.ndarray] = {}
+        self._rings: dict[int, tuple[tuple[float, float, float, float, float], ...]] = {}
 
     def edges_near(self, x: float, y: float, r: float) -> list[int]:
         """`Placer.edges_near(x, y, r)`: the edges whose boxes meet the closed box of half-size r, in edge
@@ -158,17 +151,9 @@ class NearIndex:
         segs = self._rings.get(area)
         if segs is None:
             segs = self._rings[area] = self._ring_segs(area)
-        if not len(segs):
+        if not segs:
             return ring_distance(self.placer.ring(area), x, y) <= r
-        if isinstance(segs, np.ndarray):  # a large ring: the same operations per segment, as one numpy pass
-            p0x, p0y, dx, dy, l2 = segs
-            t = np.clip(((x - p0x) * dx + (y - p0y) * dy) / l2, 0.0, 1.0)
-            ex = p0x + t * dx - x
-            ey = p0y + t * dy - y
-            segs = ()
-            best = float(np.min(ex * ex + ey * ey))
-        else:
-            best = math.inf
+        best = math.inf
         for p0x, p0y, dx, dy, l2 in segs:  # ring_distance's projection, term for term
             t = ((x - p0x) * dx + (y - p0y) * dy) / l2
             t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
@@ -184,10 +169,9 @@ class NearIndex:
             return False
         return ring_distance(self.placer.ring(area), x, y) <= r
 
-    def _ring_segs(self, area: int) -> tuple[tuple[float, float, float, float, float], ...] | np.ndarray:
+    def _ring_segs(self, area: int) -> tuple[tuple[float, float, float, float, float], ...]:
         """(x0, y0, dx, dy, l2 or 1) per segment of the area's ring: the terms `ring_distance` computes per call
-        (the same operations, so the same values); empty for a ring without segments. A ring of more than
-        RING_PY segments: the same five as rows of one array (a numpy pass beats the loop there)."""
+        (the same operations, so the same values); empty for a ring without segments."""
         pts = self.placer.ring(area).tolist()
         out = []
         for (p0x, p0y), (p1x, p1y) in zip(pts, pts[1:], strict=False):
@@ -195,8 +179,6 @@ class NearIndex:
             dy = p1y - p0y
             l2 = dx * dx + dy * dy
             out.append((p0x, p0y, dx, dy, l2 if l2 > 0 else 1.0))
-        if len(out) > RING_PY:
-            return np.array(out, dtype=np.float64).T.copy()
         return tuple(out)
 
 
