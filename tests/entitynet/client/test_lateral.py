@@ -100,3 +100,22 @@ def test_edges_between_equals_the_scan():
             for hi in bounds[::7] + [lo]:
                 want = {edges[k][0] for k in range(len(edges)) if cum[k + 1] >= lo and cum[k] <= hi}
                 assert _edges_between(path, lo, hi) == want, (edges, lo, hi)
+
+
+def test_within_ring_of_a_large_ring_equals_ring_distance():
+    """A ring of 120 segments (a park or a square) and one of 3, both at their exact distances."""
+    from entitynet.client.placement import ring_distance
+
+    for n in (120, 3):
+        ring = [(40.0 * math.cos(2 * math.pi * i / n), 30.0 * math.sin(2 * math.pi * i / n)) for i in range(n)]
+        ring.append(ring[0])
+        topo = make_topology({"Q": (0.0, 0.0), "W": (-140.0, 0.0)}, [("W", "Q", PEDESTRIAN)],
+                             areas=[("Q", ring, PEDESTRIAN)], junction_radius=40.0)
+        placer = Placer(netview(topo), PEDESTRIAN)
+        idx = near_index(placer)
+        rng = random.Random(n)
+        pts = [(rng.uniform(-70.0, 70.0), rng.uniform(-60.0, 60.0)) for _ in range(400)] + ring + [(0.0, 0.0)]
+        for x, y in pts:
+            d = ring_distance(placer.ring(0), x, y)
+            for r in (d, math.nextafter(d, 0.0), math.nextafter(d, math.inf), 0.0, 10.0):
+                assert idx.within_ring(0, x, y, r) == (d <= r), (n, x, y, r)
