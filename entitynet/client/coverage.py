@@ -10,6 +10,7 @@ and the published ghost, and changes neither.
 from __future__ import annotations
 
 import math
+from bisect import bisect_left, bisect_right
 from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
@@ -46,6 +47,17 @@ def _wire(occ: Occupation) -> Occupation:
     if v == occ.validity:
         return occ
     return Occupation(occ.cells, v, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
+
+
+def _edges_between(path: Path, lo: float, hi: float) -> set[int]:
+    """The path's edges k (undirected ids) with cum[k + 1] >= lo and cum[k] <= hi: cum never decreases, so
+    they are one run of indices, found by two bisections (a NaN bound: none, as the comparisons say)."""
+    if lo != lo or hi != hi:
+        return set()
+    cum, edges = path.cum, path.edges
+    k0 = bisect_left(cum, lo) - 1  # the first k with cum[k + 1] >= lo
+    k1 = bisect_right(cum, hi)  # past the last k with cum[k] <= hi
+    return {edges[k][0] for k in range(k0 if k0 > 0 else 0, k1 if k1 < len(edges) else len(edges))}
 
 
 def _way_back(net: NetView, back: tuple[int, int], networks: int, distance: float) -> Path:
@@ -212,30 +224,12 @@ class Coverage:
         x, y = path.xy(s)
         hx, hy = path.xy(min(s + 1.0, path.length))
         bx, by = path.xy(max(s - 1.0, 0.0))
-        dx, dy = hx - bx, hy - by
-        e_cur = path.locate(s)[0]
         back = self.margin + self.body if behind is None else behind  # a standing walker: both ways
         # the path's own edges are covered where the occupation runs; one the path reaches only further on
         # (it loops back along the parallel way) is still a lateral candidate here
-        cum, edges = path.cum, path.edges
-        on_path = {edges[k][0] for k in range(len(edges)) if cum[k + 1] >= s - back and cum[k] <= s + ahead}
-        out: list[int] = []
-        # every way near the position, connected or not (footways drawn twice, a few metres apart)
-        for e in near.edges_near(x, y, lateral):
-            if e == e_cur or e in on_path or (only is not None and e not in only):
-                continue
-            f = placer.project_on(x, y, e)
-            if f.distance > lateral:
-                continue
-            hx0, hy0 = net.point(e, min(f.offset + 1.0, net.edge_len[e]))
-            bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
-            fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
-            length = net.edge_len[e]
-            lo, hi = (f.offset - back, f.offset + ahead) if fwd else (f.offset - ahead, f.offset + back)
-            lo, hi = max(lo, 0.0), min(hi, length)
-            for a0, b0, c in net.pieces(e, 1):
-                if b0 >= lo and a0 <= hi and c not in out:
-                    out.append(c)
+        skip = _edges_between(path, s - back, s + ahead)
+        skip.add(path.locate(s)[0])  # the edge it is on
+        out = near.way_cells(x, y, hx - bx, hy - by, lateral, back, ahead, skip, only)
         if only is not None:
             return out
         for area in placer.areas_near(x, y, lateral):  # an area next to the way: maybe inside it

@@ -9,6 +9,10 @@ sort), and the exact distance to every nearby area's ring (its vertices converte
 and to `ring_distance(...) <= r`):
 - `edges_near`: each bucket holds its edges' boxes as rows, in edge order, so a query box inside one bucket
   (the usual case: buckets are 50 m, the box 2 x `lateral`) needs neither the set nor the sort;
+- `way_cells`: the cells of the other ways near the position, with each candidate's projection and direction
+  from per-edge tables built once (`_Way`: the placer's segment rows, the edge's cell pieces, its one segment's
+  end points), the same float operations as `Placer.project_on` and `NetView.point` in the same order
+  (issue 22: the lateral cover was half of a publish);
 - `within_ring`: the squared distances to the ring's segments from a per-area table of the segment terms
   (the same floating-point operations as `ring_distance`), and `ring_distance` itself only where the answer
   is within a relative 1e-9 of `r`, where rounding could decide it.
@@ -17,8 +21,18 @@ and to `ring_distance(...) <= r`):
 from __future__ import annotations
 
 import math
+from collections.abc import Container
 
 from entitynet.client.placement import Placer, ring_distance
+
+#: the largest query radius (m) that `edges_near` and `way_cells` answer from the one bucket holding the
+#: position (each bucket also lists the edges whose boxes reach within WIDE + 1 m of it): about two thirds of the
+#: lateral cover's boxes (20 m wide, 50 m buckets) straddle a bucket boundary, and those took the walk over
+#: several buckets with a set and a sort. Larger radii take that walk.
+WIDE = 25.0
+#: the widened buckets' own size (m): smaller than the grid's 50 m, so that a bucket and its WIDE + 1 m rim list
+#: fewer edges for the box test to reject
+WIDE_SIZE = 20.0
 
 #: relative band around `r` in which `within_ring` defers to `ring_distance` (the square root of a sum of
 #: squares and `hypot` differ by a few ulps, about 1e-16 relative; far wider than that, and far narrower
@@ -29,7 +43,7 @@ BAND = 1e-9
 class NearIndex:
     """One placer's neighbourhood queries for the lateral cover (shared by every entity on that placer)."""
 
-    __slots__ = ("placer", "rows", "size", "_rings")
+    __slots__ = ("placer", "rows", "wide", "size", "_rings", "_ways")
 
     def __init__(self, placer: Placer) -> None:
         self.placer = placer
@@ -37,9 +51,22 @@ class NearIndex:
         if grid is None:
             grid = placer._grid = placer._edge_grid()
         cells, boxes, size = grid
-        # per bucket: (edge, box) rows in ascending edge order (the grid is built edge by edge)
-        self.rows = {key: tuple((e, *boxes[e]) for e in edges) for key, edges in cells.items()}
+        # per bucket: (edge, box, its `_Way`) rows in ascending edge order (the grid is built edge by edge)
+        ways = self._ways = {e: _Way(placer, e) for e in boxes}
+        self.rows = {key: tuple((e, *boxes[e], ways[e]) for e in edges) for key, edges in cells.items()}
         self.size = size
+        # per bucket: the rows of every edge whose box meets the bucket widened by WIDE + 1 m, in edge order
+        # (the 1 m absorbs the rounding of x - r and of x / size: a box within r <= WIDE of a point in the
+        # bucket meets the widened bucket with room to spare)
+        wide: dict[tuple[int, int], list] = {}
+        pad = WIDE + 1.0
+        for e in sorted(boxes):
+            bx0, by0, bx1, by1 = boxes[e]
+            row = (e, bx0, by0, bx1, by1, ways[e])
+            for gx in range(math.floor((bx0 - pad) / WIDE_SIZE), math.floor((bx1 + pad) / WIDE_SIZE) + 1):
+                for gy in range(math.floor((by0 - pad) / WIDE_SIZE), math.floor((by1 + pad) / WIDE_SIZE) + 1):
+                    wide.setdefault((gx, gy), []).append(row)
+        self.wide = {key: tuple(rows) for key, rows in wide.items()}
         self._rings: dict[int, tuple[tuple[float, float, float, float, float], ...]] = {}
 
     def edges_near(self, x: float, y: float, r: float) -> list[int]:
@@ -47,19 +74,76 @@ class NearIndex:
         order."""
         size = self.size
         x0, y0, x1, y1 = x - r, y - r, x + r, y + r
+        if r <= WIDE:  # the widened bucket of the position: its rows are in edge order, each edge once
+            key = (math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE))
+            return [e for e, bx0, by0, bx1, by1, _w in self.wide.get(key, ())
+                    if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
         gx0, gx1 = math.floor(x0 / size), math.floor(x1 / size)
         gy0, gy1 = math.floor(y0 / size), math.floor(y1 / size)
         rows = self.rows
         if gx0 == gx1 and gy0 == gy1:  # one bucket: its rows are in edge order, each edge once
-            return [e for e, bx0, by0, bx1, by1 in rows.get((gx0, gy0), ())
+            return [e for e, bx0, by0, bx1, by1, _w in rows.get((gx0, gy0), ())
                     if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
         out: set[int] = set()
         for gx in range(gx0, gx1 + 1):
             for gy in range(gy0, gy1 + 1):
-                for e, bx0, by0, bx1, by1 in rows.get((gx, gy), ()):
+                for e, bx0, by0, bx1, by1, _w in rows.get((gx, gy), ()):
                     if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0):
                         out.add(e)
         return sorted(out)
+
+    def way_cells(self, x: float, y: float, dx: float, dy: float, r: float, back: float, ahead: float,
+                  skip: Container[int], only: Container[int] | None) -> list[int]:
+        """The cells of the ways within `r` of (x, y) (`edges_near`, then `Placer.project_on`'s distance), each
+        covered from `back` metres behind its projected point to `ahead` metres on in the direction (dx, dy)
+        (an edge running against it: the other way round), clamped to the edge; in edge order, without repeats.
+        `skip`: edges that are no candidates; `only`: the edges that may be (None: any)."""
+        x0, y0, x1, y1 = x - r, y - r, x + r, y + r
+        if r <= WIDE:  # the widened bucket of the position (`edges_near`)
+            key = (math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE))
+            cand = [w for e, bx0, by0, bx1, by1, w in self.wide.get(key, ())
+                    if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
+        else:
+            ways = self._ways
+            cand = [ways[e] for e in self.edges_near(x, y, r)]
+        out: list[int] = []
+        hypot = math.hypot
+        for w in cand:
+            e = w.edge
+            if e in skip or (only is not None and e not in only):
+                continue
+            # Placer.project_on, term for term
+            best_d = math.inf
+            found = False
+            bu = bc0 = bsl = 0.0
+            for ax, ay, sdx, sdy, l2, c0, sl in w.segs:
+                if l2 <= 0.0:
+                    u = 0.0
+                else:
+                    u = ((x - ax) * sdx + (y - ay) * sdy) / l2
+                    u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+                dd = hypot(x - (ax + u * sdx), y - (ay + u * sdy))
+                if dd < best_d:
+                    best_d, found, bu, bc0, bsl = dd, True, u, c0, sl
+            offset = bc0 + bu * bsl if found else 0.0
+            if best_d > r:
+                continue
+            length = w.length
+            h = offset + 1.0
+            b = offset - 1.0
+            # min(h, length) and max(b, 0.0), as the builtins choose
+            hx0, hy0 = w.point(length if length < h else h)
+            bx0, by0 = w.point(0.0 if 0.0 > b else b)
+            if ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0:
+                lo, hi = offset - back, offset + ahead
+            else:
+                lo, hi = offset - ahead, offset + back
+            lo = 0.0 if 0.0 > lo else lo
+            hi = length if length < hi else hi
+            for a0, b0, c in w.pieces:
+                if b0 >= lo and a0 <= hi and c not in out:
+                    out.append(c)
+        return out
 
     def within_ring(self, area: int, x: float, y: float, r: float) -> bool:
         """`ring_distance(placer.ring(area), x, y) <= r`, decided from squared distances where rounding
@@ -96,6 +180,41 @@ class NearIndex:
             l2 = dx * dx + dy * dy
             out.append((p0x, p0y, dx, dy, l2 if l2 > 0 else 1.0))
         return tuple(out)
+
+
+class _Way:
+    """What `NearIndex.way_cells` reads of one edge: the placer's projection rows, the edge's length and cell
+    pieces, and its geometry for `point` (the map's data, fetched once)."""
+
+    __slots__ = ("edge", "segs", "length", "pieces", "net", "one")
+
+    def __init__(self, placer: Placer, edge: int) -> None:
+        net = self.net = placer.net
+        self.edge = edge
+        segs = placer._segs.get(edge)
+        if segs is None:
+            segs = placer._segs[edge] = placer._edge_segs(edge)
+        self.segs = tuple(segs)
+        self.length = net.edge_len[edge]
+        self.pieces = tuple(net.pieces(edge, 1))
+        lo, hi = net.geom_off[edge], net.geom_off[edge + 1]
+        # one segment (most edges): `NetView.point`'s operands, taken once
+        gx, gy, gcum = net.gx, net.gy, net.gcum
+        self.one = (gx[lo], gy[lo], gx[lo + 1], gy[lo + 1], gcum[lo], gcum[lo + 1], gcum[lo + 1] - gcum[lo],
+                    gx[lo + 1] - gx[lo], gy[lo + 1] - gy[lo]) if hi - lo == 2 else None
+
+    def point(self, offset: float) -> tuple[float, float]:
+        """`NetView.point(edge, offset)`: the same operations, from the operands taken once."""
+        one = self.one
+        if one is None:
+            return self.net.point(self.edge, offset)
+        x0, y0, x1, y1, c0, c1, seg, ddx, ddy = one
+        if offset <= 0.0:
+            return x0, y0
+        if offset >= c1:
+            return x1, y1
+        t = 0.0 if seg <= 0.0 else (offset - c0) / seg
+        return x0 + t * ddx, y0 + t * ddy
 
 
 def near_index(placer: Placer) -> NearIndex:

@@ -144,3 +144,16 @@ def test_near_index_within_ring_equals_ring_distance_also_at_the_boundary():
         d = ring_distance(ring, x, y)
         for r in (d, np.nextafter(d, 0.0), np.nextafter(d, np.inf), 10.0, 0.5, 25.0):
             assert idx.within_ring(0, x, y, float(r)) == (d <= r), (x, y, r)
+
+
+def test_branch_cover_memo_keeps_its_keys_up_to_its_bound():
+    """The memo starts afresh only past BRANCH_MEMO_KEYS keys (at 4,096 it was cleared every few minutes in the
+    city simulation, issue 22), and then it does, so that it stays bounded."""
+    net = netview(cross(arm=100.0))
+    cache = net.__dict__.setdefault("_branch_cover", {})
+    cache.clear()
+    cache.update({("other", i): ([], []) for i in range(occmod.BRANCH_MEMO_KEYS)})
+    branch_cover(Path(net, [(0, 1)]), 0, 10.0, VEHICLE)
+    assert len(cache) == occmod.BRANCH_MEMO_KEYS + 1  # kept, and the new key added
+    got = branch_cover(Path(net, [(2, 1)]), 0, 10.0, VEHICLE)
+    assert len(cache) == 1 and got == _branch_cover(net, (2, 1), 10.0, VEHICLE, 48, 64)

@@ -1,0 +1,121 @@
+"""The lateral cover's per-edge tables (issue 22): `NearIndex.way_cells` and `_edges_between` give exactly what
+the publish computed before them (`Placer.edges_near`, `Placer.project_on`, `NetView.point` per candidate, and
+the path's edges by a full scan), also on degenerate geometry: a zero-length edge, a zero-length segment inside
+an edge, edges of several segments, a position exactly on a node or a cell boundary, no direction at all."""
+
+import math
+import random
+
+import pytest
+
+from entitynet.client import netview
+from entitynet.client.coverage import _edges_between
+from entitynet.client.lateral import near_index
+from entitynet.client.path import Path
+from entitynet.client.placement import Placer
+from tests.entitynet.client_fixtures import ALL, area_square, cross, make_topology, parallel
+from topology.raw import PEDESTRIAN, VEHICLE
+
+
+def _degenerate():
+    """A street with a zero-length edge (B to B2 at one point), a bent edge with a repeated vertex (a
+    zero-length segment), and a parallel footway 6 m away in three segments."""
+    nodes = {"A": (0.0, 0.0), "B": (40.0, 0.0), "B2": (40.0, 0.0), "C": (120.0, 0.0),
+             "F": (0.0, 6.0), "G": (120.0, 6.0), "H": (60.0, -30.0)}
+    edges = [("A", "B"), ("B", "B2"), ("B2", "C", ALL, [(80.0, 0.0), (80.0, 0.0), (100.0, 2.0)]),
+             ("F", "G", PEDESTRIAN, [(30.0, 6.5), (70.0, 5.5)]), ("B2", "H")]
+    return make_topology(nodes, edges, junction_radius=5.0, street_cell_max=15.0)
+
+
+def _way_cells_reference(placer, x, y, dx, dy, r, back, ahead, skip, only):
+    """The candidate loop of `Coverage._lateral_cells` as written before the per-edge tables."""
+    net = placer.net
+    out = []
+    for e in placer.edges_near(x, y, r):
+        if e in skip or (only is not None and e not in only):
+            continue
+        f = placer.project_on(x, y, e)
+        if f.distance > r:
+            continue
+        hx0, hy0 = net.point(e, min(f.offset + 1.0, net.edge_len[e]))
+        bx0, by0 = net.point(e, max(f.offset - 1.0, 0.0))
+        fwd = ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0
+        length = net.edge_len[e]
+        lo, hi = (f.offset - back, f.offset + ahead) if fwd else (f.offset - ahead, f.offset + back)
+        lo, hi = max(lo, 0.0), min(hi, length)
+        for a0, b0, c in net.pieces(e, 1):
+            if b0 >= lo and a0 <= hi and c not in out:
+                out.append(c)
+    return out
+
+
+def _points(net, rng):
+    """Random points, every geometry vertex (nodes included), points on edges at their cell boundaries."""
+    pts = [(rng.uniform(-60.0, 180.0), rng.uniform(-60.0, 60.0)) for _ in range(300)]
+    pts += list(zip(net.gx, net.gy, strict=True))
+    for e in range(net.n_edges):
+        for a0, _b0, _c in net.pieces(e, 1):
+            pts.append(net.point(e, a0))
+    return pts
+
+
+@pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0),
+                                  area_square()])
+def test_way_cells_equal_the_per_candidate_projection(topo):
+    net = netview(topo)
+    rng = random.Random(22)
+    for networks in (PEDESTRIAN, VEHICLE):
+        placer = Placer(net, networks)
+        idx = near_index(placer)
+        for x, y in _points(net, rng):
+            for r in (0.0, 6.0, 10.0, 12.5, 80.0):
+                ang = rng.uniform(0.0, 2.0 * math.pi)
+                dx, dy = rng.choice([(math.cos(ang), math.sin(ang)), (0.0, 0.0), (1.0, 0.0), (0.0, -1.0)])
+                back, ahead = rng.choice([(5.0, 30.0), (0.0, 0.0), (45.0, 45.0)])
+                skip = set(rng.sample(range(net.n_edges), rng.randint(0, 2)))
+                only = rng.choice([None, frozenset({0, 2}), frozenset()])
+                want = _way_cells_reference(placer, x, y, dx, dy, r, back, ahead, skip, only)
+                got = idx.way_cells(x, y, dx, dy, r, back, ahead, skip, only)
+                assert got == want, (x, y, r, dx, dy, back, ahead, skip, only)
+
+
+def test_way_cells_at_the_exact_reach_of_a_parallel_way():
+    """A way exactly `r` away is a candidate (distance <= r), one a hair further is not."""
+    net = netview(parallel(gap=6.0))
+    idx = near_index(Placer(net, VEHICLE))
+    on = idx.way_cells(150.0, 0.0, 1.0, 0.0, 6.0, 5.0, 30.0, {0}, None)
+    off = idx.way_cells(150.0, 0.0, 1.0, 0.0, math.nextafter(6.0, 0.0), 5.0, 30.0, {0}, None)
+    assert on and on == _way_cells_reference(Placer(net, VEHICLE), 150.0, 0.0, 1.0, 0.0, 6.0, 5.0, 30.0, {0}, None)
+    assert not off
+
+
+def test_edges_between_equals_the_scan():
+    net = netview(_degenerate())
+    rng = random.Random(5)
+    for edges in ([(0, 1), (1, 1), (2, 1)], [(2, -1), (1, -1), (0, -1)], [(4, -1), (2, 1)], [(1, 1)]):
+        path = Path(net, edges)
+        cum = path.cum
+        bounds = [rng.uniform(-20.0, path.length + 20.0) for _ in range(60)] + list(cum) + [math.nan]
+        for lo in bounds:
+            for hi in bounds[::7] + [lo]:
+                want = {edges[k][0] for k in range(len(edges)) if cum[k + 1] >= lo and cum[k] <= hi}
+                assert _edges_between(path, lo, hi) == want, (edges, lo, hi)
+
+
+def test_within_ring_of_a_large_ring_equals_ring_distance():
+    """A ring of 120 segments (a park or a square) and one of 3, both at their exact distances."""
+    from entitynet.client.placement import ring_distance
+
+    for n in (120, 3):
+        ring = [(40.0 * math.cos(2 * math.pi * i / n), 30.0 * math.sin(2 * math.pi * i / n)) for i in range(n)]
+        ring.append(ring[0])
+        topo = make_topology({"Q": (0.0, 0.0), "W": (-140.0, 0.0)}, [("W", "Q", PEDESTRIAN)],
+                             areas=[("Q", ring, PEDESTRIAN)], junction_radius=40.0)
+        placer = Placer(netview(topo), PEDESTRIAN)
+        idx = near_index(placer)
+        rng = random.Random(n)
+        pts = [(rng.uniform(-70.0, 70.0), rng.uniform(-60.0, 60.0)) for _ in range(400)] + ring + [(0.0, 0.0)]
+        for x, y in pts:
+            d = ring_distance(placer.ring(0), x, y)
+            for r in (d, math.nextafter(d, 0.0), math.nextafter(d, math.inf), 0.0, 10.0):
+                assert idx.within_ring(0, x, y, r) == (d <= r), (n, x, y, r)
