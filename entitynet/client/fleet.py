@@ -38,7 +38,7 @@ import numpy as np
 
 from entitynet.client.fixes import FixRejected
 from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed, hypot_py, interval_rows, kf_update
-from entitynet.client.fleet_near import NearTables
+from entitynet.client.fleet_near import NearTables, near_fixes, s_of_rows
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
 from entitynet.client.player import Player
@@ -53,7 +53,7 @@ assert MAX_PATH_EDGES == W and FIX_INTERVALS_KEPT == RECENT
 # publish) and the entity's options, read by `_refresh`
 _GHOST = ("validity", "g_t0", "g_s0", "g_v", "g_a", "g_vmax", "g_tb", "g_sb", "g_vb", "g_b", "g_stop")
 _CONST = ("swm", "reacq", "v_start", "v_stop", "behind", "la", "mg", "thr", "heartbeat", "max_gap", "lost_after",
-          "body", "vmax")
+          "body", "vmax", "swc")
 # the derived columns' blocks: (name, initial value, dtype, shape of a row)
 _DERIVED = (("deadline", math.inf, float, ()), ("alive", False, bool, ()), ("fast", False, bool, ()),
             ("consts", False, bool, ()), ("has_route", False, bool, ()), ("slow", 0, np.int64, ()),
@@ -62,8 +62,8 @@ _DERIVED = (("deadline", math.inf, float, ()), ("alive", False, bool, ()), ("fas
             ("gc", math.inf, float, (W + 1,)), ("gn", 0, np.int64, ()))
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
 # eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
-SCALAR_WHY = ("publish", "no_segments", "near_table", "near_off_window", "near_edge_recurs", "near_best_on",
-              "near_reacquire", "near_consistency", "reacquire", "edge_recurs", "reach_jump", "filter",
+SCALAR_WHY = ("publish", "no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
+              "near_consistency", "reacquire", "reach_jump", "filter",
               "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
               "bad_fix", "not_vectorised")
 _WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
@@ -266,21 +266,24 @@ class FleetCore:
         swm, reacq = self.swm[sl], self.reacq[sl]
         written_out = (dist <= swm) & (off > 0.0) & (off < elen) & geo.inner[e]  # `track`'s test for `_track_on`
         gen = ok & ~written_out  # the neighbourhood search (`Placer.near`)
-        fail(~gen, "near_table")  # (rows of the near search: their reason is set below)
+        fail(~gen, "near_area")  # (rows of the near search: their reason is set below)
         ok &= written_out
         fail(dist <= reacq, "reacquire")
         ok &= dist <= reacq
-        # `_s_of`'s first case: the edge does not recur within three edges either side
+        # `_s_of`'s first case: the edge does not recur within three edges either side (else `_s_of` in full)
         j = k[:, None] + np.arange(-3, 4)[None, :]
         inside = (j >= 0) & (j < pn[:, None])
         same = (pe[rows[:, None], np.clip(j, 0, W - 1)] == e[:, None]) & inside
-        fail(same.sum(axis=1) == 1, "edge_recurs")
-        ok &= same.sum(axis=1) == 1
         s_meas = pc[rows, k] + np.where(pd[rows, k] > 0, off, elen - off)
+        again = np.flatnonzero(ok & (same.sum(axis=1) != 1))
+        if len(again):
+            s_meas[again] = s_of_rows(pe[again], pd[again], pc[again], pn[again], geo.edge_len, e[again],
+                                      off[again], s_pred[again], k[again])
+        pend_e, pend_n = np.full(len(sl), -1, dtype=np.int64), np.zeros(len(sl), dtype=np.int64)
         if gen.any():
             g = np.flatnonzero(gen)
-            gwhy, ge_, goff, gpx, gpy, gd, gs = self._near_fixes(sl[g], x[g], y[g], e[g], s_pred[g], pe[g], pd[g],
-                                                                 pc[g], pn[g], r)
+            gwhy, ge_, goff, gpx, gpy, gd, gs, pend_e[g], pend_n[g] = near_fixes(
+                self, sl[g], x[g], y[g], s_pred[g], pe[g], pd[g], pc[g], pn[g], k[g], r, _WHY)
             ok[g] = gwhy == 0
             why[g] = gwhy
             e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
@@ -378,8 +381,8 @@ class FleetCore:
         self.iv[c], self.iv_n[c], self.gap_lim[c], self.reach[c] = iv[w], iv_n[w], gap_lim[w], reach[w]
         self.interval[c] = interval[w]
         self.mx[c], self.my[c] = x[w], y[w]
-        # what `feed` and the usual `track` reset: no fix gap, on the network, no hysteresis candidate
-        self.off_since[c], self.halted[c], self.pend_e[c], self.pend_n[c] = math.nan, 0, -1, 0
+        # what `feed` and the usual `track` reset: no fix gap, on the network; the hysteresis candidate (near)
+        self.off_since[c], self.halted[c], self.pend_e[c], self.pend_n[c] = math.nan, 0, pend_e[w], pend_n[w]
         self.lf_kind[c] = 1
         self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
         self.dist_ema[c] = dist_ema[w]
@@ -409,42 +412,6 @@ class FleetCore:
                        np.minimum(t + self.lost_after[c], t + gap_lim[w]))
         self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
         return np.where(ok, 0, why)
-
-    def _near_fixes(self, sl, x, y, e, s_pred, pe, pd, pc, pn, r: float) -> tuple[np.ndarray, ...]:
-        """`track`'s general branch for fixes beyond the switch margin (or near an edge's end), where it ends in
-        the usual update: the fix on an edge of the path window [s_pred - body - 30, s_pred + 60], that edge once
-        in the path, no `_best_on` retry, within `reacquire`, and no consistency query of the placement index.
-        Returns (per row 0 where it qualifies, else the `SCALAR_WHY` code of the first test it fails, edge,
-        offset, px, py, distance, path coordinate)."""
-        rows = np.arange(len(sl))
-        start, count, usable = np.zeros(len(sl), np.int64), np.ones(len(sl), np.int64), np.zeros(len(sl), bool)
-        near = self._near
-        for i, (slot, edge) in enumerate(zip(sl.tolist(), e.tolist(), strict=True)):
-            start[i], count[i], usable[i] = near.rows_of(self.players[slot].tracker.placer, edge)
-        start = np.where(usable, start, 0)  # (a table not taken: any one row, searched and dropped)
-        count = np.where(usable, count, 1)
-        lo = (pc <= (s_pred - self.body[sl] - 30.0)[:, None]).sum(axis=1) - 1
-        lo = np.where(lo < 0, 0, np.where(lo >= pn, pn - 1, lo))
-        hi = (pc <= (s_pred + 60.0)[:, None]).sum(axis=1) - 1
-        hi = np.where(hi < 0, 0, np.where(hi >= pn, pn - 1, hi))
-        fe, off, px, py, d, pref = near.near(x, y, start, count, self.swm[sl], pe, lo, hi)
-        why = np.where(usable, np.where(pref, 0, _WHY["near_off_window"]), _WHY["near_table"])
-        # `_s_of(fix, s_pred, k_cur)` where the edge occurs once in the path: its one occurrence
-        occ = (pe == fe[:, None]) & (np.arange(W)[None, :] < pn[:, None])
-        why = np.where((why == 0) & (occ.sum(axis=1) != 1), _WHY["near_edge_recurs"], why)
-        kf = np.argmax(occ, axis=1)
-        elen = self.geo.edge_len[fe]
-        s_fix = pc[rows, kf] + np.where(pd[rows, kf] > 0, off, elen - off)
-        sig = math.sqrt(r)
-        several = (pe[rows[:, None], np.arange(W)[None, :]] != pe[rows, lo][:, None])
-        several &= (np.arange(W)[None, :] >= lo[:, None]) & (np.arange(W)[None, :] <= hi[:, None])
-        best_on = several.any(axis=1) & (np.abs(s_fix - s_pred) > 2.0 * sig)  # else `_best_on`
-        why = np.where((why == 0) & best_on, _WHY["near_best_on"], why)
-        why = np.where((why == 0) & (d > self.reacq[sl]), _WHY["near_reacquire"], why)
-        ema = 0.7 * self.dist_ema[sl] + 0.3 * d
-        asks = (ema > 1.5 * sig) & (d > self.swm[sl])  # else the placement index is asked
-        why = np.where((why == 0) & asks, _WHY["near_consistency"], why)
-        return why, fe, off, px, py, d, s_fix
 
     # ---- what the arrays derive from a Player -------------------------------------------------------------
     def _refresh(self, s: int) -> None:
@@ -494,6 +461,6 @@ class FleetCore:
             self.cm[s] = [placer.switch_margin if trk.switch_margin is None else trk.switch_margin,
                           placer.reacquire, et.v_start, et.v_stop, trk.body + trk.margin + 50.0, trk.lookahead,
                           trk.margin, rules.threshold, rules.heartbeat, rules.max_gap, rules.lost_after, trk.body,
-                          et.vmax]
+                          et.vmax, placer.switch_count if trk.switch_count is None else trk.switch_count]
             self.has_route[s], self.confirm[s] = trk.has_route, rules.confirm
             self.consts[s] = True

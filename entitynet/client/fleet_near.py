@@ -7,32 +7,44 @@ the same search in arrays: every segment of the current edge's two-hop table (th
 rows in its order), the cost `d + margin` off the path window, the first minimum winning, the same IEEE
 operations as `Placer._near_np` (which `_near_py` equals bit for bit). A table that holds an area of the placer's
 networks is not taken (`near` would test the fix inside it first): those fixes stay with the scalar code.
+
+The rest of `track`'s general branch is here too, over arrays: the tables that hold areas (each area's
+point-in-polygon test is `Placer.inside_area` itself, called per fix: a fix inside one stays scalar), the
+`_best_on` retry when the nearest preferred edge puts the fix far along the path, the hysteresis that keeps an
+entity on its path's edges while another edge wins fewer than `switch_count` fixes in a row (`pending`), and
+`_s_of` in full (the occurrence of an edge nearest the prediction). `near_fixes` returns, per fix, either the
+fix `track` would continue with or the reason the scalar code must decide it.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from entitynet.client.tracker import ALONG_SCALE
 
 _COLS = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen")
 
 
 class NearTables:
-    """The rows of every table asked for so far, concatenated: (networks, edge) -> (start, count, usable)."""
+    """The rows of every table asked for so far, concatenated: (networks, edge) -> (start, count, areas)."""
 
     def __init__(self) -> None:
-        self.index: dict[tuple[int, int], tuple[int, int, bool]] = {}
+        self.index: dict[tuple[int, int], tuple[int, int, tuple[int, ...]]] = {}
         self.size = 0
         self.cols = {c: np.zeros(1024) for c in _COLS}
         self.edge = np.zeros(1024, dtype=np.int64)
 
-    def rows_of(self, placer, e: int) -> tuple[int, int, bool]:
-        """Where edge e's table of `placer` lies in the concatenated rows (built on first use)."""
+    def rows_of(self, placer, e: int) -> tuple[int, int, tuple[int, ...]]:
+        """Where edge e's table of `placer` lies in the concatenated rows (built on first use), and the areas
+        of the placer's networks `Placer.near` tests the fix against first, in its order."""
         key = (placer.networks, e)
         hit = self.index.get(key)
         if hit is None:
             t = placer.table(e)
             n = len(t.edge)
-            usable = n > 0 and not any(placer.topo.area_networks[a] & placer.networks for a in t.areas)
+            areas = tuple(a for a in t.areas if placer.topo.area_networks[a] & placer.networks)
             if self.size + n > len(self.edge):
                 cap = max(2 * len(self.edge), self.size + n)
                 for c in _COLS:
@@ -45,14 +57,15 @@ class NearTables:
             for c in _COLS:
                 self.cols[c][self.size : self.size + n] = getattr(t, c)
             self.edge[self.size : self.size + n] = t.edge
-            hit = self.index[key] = (self.size, n, usable)
+            hit = self.index[key] = (self.size, n, areas)
             self.size += n
         return hit
 
     def near(self, x: np.ndarray, y: np.ndarray, start: np.ndarray, count: np.ndarray, margin: np.ndarray,
              pe: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
         """`Placer.near(x[i], y[i], ., preferred_i, margin[i])` for tables (start[i], count[i]) without areas,
-        preferred_i being the edges pe[i, lo[i]..hi[i]]: (edge, offset, px, py, distance, preferred?)."""
+        preferred_i being the edges pe[i, lo[i]..hi[i]]: (edge, offset, px, py, distance, preferred?, whether
+        any segment of the table is preferred: `near`'s best preferred distance is finite)."""
         n = len(x)
         gstart = np.cumsum(count) - count
         rep = np.repeat(np.arange(n), count)
@@ -80,5 +93,132 @@ class NearTables:
         hit = np.flatnonzero(cost == cmin[rep])
         b = hit[np.searchsorted(rep[hit], np.arange(n))]
         kb = k[b]
+        any_pref = np.logical_or.reduceat(pref, gstart)
         return (edge[b], cols["cum0"][kb] + u[b] * cols["slen"][kb], ax[b] + u[b] * dx[b], ay[b] + u[b] * dy[b],
-                d[b], pref[b])
+                d[b], pref[b], any_pref)
+
+
+def s_of_rows(pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, edge_len: np.ndarray, e: np.ndarray,
+              off: np.ndarray, s_pred: np.ndarray, k_hint: np.ndarray) -> np.ndarray:
+    """`NetworkTracker._s_of(fix, s_pred, k_hint)` for rows of padded paths (edges `pe`, directions `pd`,
+    cumulative lengths `pc`, `pn` edges): the fix's edge at the hint (or next to it: k, k + 1, k - 1 in that
+    order) with no other occurrence within three edges, else its occurrence nearest `s_pred` (the first of
+    equals), else `s_pred`. The same additions as the scalar code (`dist_of`: offset, or length - offset)."""
+    m, w = pe.shape
+    rows = np.arange(m)
+    cols = np.arange(w)[None, :]
+    occ = (pe == e[:, None]) & (cols < pn[:, None])
+    elen = edge_len[e]
+    along = np.where(pd > 0, off[:, None], (elen - off)[:, None])  # `dist_of` per column
+    kk = k_hint.copy()
+    found = np.zeros(m, dtype=bool)
+    for k in (k_hint, k_hint + 1, k_hint - 1):
+        at = ~found & (k >= 0) & (k < pn) & occ[rows, np.clip(k, 0, w - 1)]
+        kk = np.where(at, k, kk)
+        found |= at
+    kc = np.clip(kk, 0, w - 1)
+    again = (occ & (np.abs(cols - kc[:, None]) <= 3) & (cols != kc[:, None])).any(axis=1)
+    first = pc[rows, kc] + along[rows, kc]
+    with np.errstate(invalid="ignore"):
+        gap = np.where(occ, np.abs(pc[:, :w] + along - s_pred[:, None]), np.inf)
+    jb = np.argmin(gap, axis=1)  # (the first minimum: the scalar loop takes a later one only if smaller)
+    nearest = np.where(occ.any(axis=1), pc[rows, jb] + along[rows, jb], s_pred)
+    return np.where(found & ~again, first, nearest)
+
+
+def best_on_rows(geo, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, x: np.ndarray, y: np.ndarray,
+                 s_pred: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`NetworkTracker._best_on(x, y, s_pred, lo, hi)` for rows of padded paths: each distinct edge of the
+    window lo..hi (its first occurrence) projected as `Placer.project_on` does (`Geometry.project`), cost
+    d * d + w * ds * ds with ds from `_s_of` hinted at that occurrence, the first minimum winning. Returns (per
+    row whether it was decided here: every window edge has a segment and some cost is finite, edge, offset, px,
+    py, distance)."""
+    m, w = pe.shape
+    span = hi - lo + 1
+    rep = np.repeat(np.arange(m), span)
+    col = np.arange(int(span.sum())) - np.repeat(np.cumsum(span) - span, span) + lo[rep]
+    ce = pe[rep, col]
+    cols = np.arange(w)[None, :]
+    earlier = ((pe[rep] == ce[:, None]) & (cols >= lo[rep][:, None]) & (cols < col[:, None])).any(axis=1)
+    keep = ~earlier  # (`seen`: an edge's first occurrence in the window only)
+    rep, col, ce = rep[keep], col[keep], ce[keep]
+    segs = geo.nseg[ce] > 0
+    ok = np.ones(m, dtype=bool)
+    ok[rep[~segs]] = False  # (`project_on` gives an edge without segments an infinite distance: left scalar)
+    n = len(ce)
+    off, px, py, d = (np.full(n, np.inf) for _ in range(4))
+    c = np.flatnonzero(segs)
+    if len(c):
+        off[c], px[c], py[c], d[c] = geo.project(x[rep[c]], y[rep[c]], ce[c])
+    with np.errstate(invalid="ignore"):
+        ds = s_of_rows(pe[rep], pd[rep], pc[rep], pn[rep], geo.edge_len, ce, off, s_pred[rep], col) - s_pred[rep]
+        wt = 1.0 / (ALONG_SCALE * ALONG_SCALE)
+        cost = d * d + wt * ds * ds
+    cost = np.where(segs, cost, np.inf)
+    start = np.cumsum(np.bincount(rep, minlength=m)) - np.bincount(rep, minlength=m)
+    cmin = np.minimum.reduceat(cost, start) if n else np.zeros(0)
+    ok &= cmin < math.inf
+    hit = np.flatnonzero(cost == cmin[rep])
+    b = hit[np.searchsorted(rep[hit], np.arange(m))] if len(hit) else np.zeros(m, dtype=np.int64)
+    b = np.minimum(b, max(n - 1, 0))
+    return ok, ce[b], off[b], px[b], py[b], d[b]
+
+
+def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.ndarray, pe: np.ndarray,
+               pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, k_cur: np.ndarray, r: float,
+               code: dict[str, int]) -> tuple[np.ndarray, ...]:
+    """`track`'s general branch for fixes beyond the switch margin (or near an edge's end) of fleet core
+    `core`'s slots `sl`, where it ends in the usual update: `Placer.near` over the path window [s_pred - body -
+    30, s_pred + 60] (no area of the table holding the fix), then `_best_on` where the nearest preferred edge
+    puts the fix farther along than 2 sigma, or the hysteresis where a foreign edge wins (its count below
+    `switch_count`), within `reacquire`, and no consistency query of the placement index. Returns (per row 0
+    where it qualifies, else `code` of the first test it fails; edge, offset, px, py, distance, path coordinate
+    of the fix `track` continues with; the hysteresis candidate and its count)."""
+    m = len(sl)
+    rows = np.arange(m)
+    start, count = np.zeros(m, np.int64), np.ones(m, np.int64)
+    usable = np.zeros(m, dtype=bool)
+    near, players = core._near, core.players
+    e_cur = pe[rows, k_cur].tolist()
+    for i, slot in enumerate(sl.tolist()):
+        placer = players[slot].tracker.placer
+        start[i], count[i], areas = near.rows_of(placer, int(e_cur[i]))
+        # `near` tests the fix inside each area of the table first (`inside_area` itself: the same answer)
+        usable[i] = count[i] > 0 and not (areas and any(placer.inside_area(a, float(x[i]), float(y[i]))
+                                                        for a in areas))
+    start = np.where(usable, start, 0)  # (a table not taken: any one row, searched and dropped)
+    count = np.where(usable, count, 1)
+    lo = (pc <= (s_pred - core.body[sl] - 30.0)[:, None]).sum(axis=1) - 1
+    lo = np.where(lo < 0, 0, np.where(lo >= pn, pn - 1, lo))
+    hi = (pc <= (s_pred + 60.0)[:, None]).sum(axis=1) - 1
+    hi = np.where(hi < 0, 0, np.where(hi >= pn, pn - 1, hi))
+    swm, reacq = core.swm[sl], core.reacq[sl]
+    fe, off, px, py, d, pref, any_pref = near.near(x, y, start, count, swm, pe, lo, hi)
+    why = np.where(usable, 0, code["near_area"])
+    sig = math.sqrt(r)
+    cols = np.arange(pe.shape[1])[None, :]
+    several = ((pe != pe[rows, lo][:, None]) & (cols >= lo[:, None]) & (cols <= hi[:, None])).any(axis=1)
+    s_fix = s_of_rows(pe, pd, pc, pn, core.geo.edge_len, fe, off, s_pred, k_cur)
+    retry = pref & several & (np.abs(s_fix - s_pred) > 2.0 * sig)  # `_best_on` instead of the nearest
+    # a foreign edge: the reacquire test on it, then the hysteresis (`pending`) or the switch (scalar)
+    foreign = ~pref
+    why = np.where((why == 0) & foreign & (d > reacq), code["near_reacquire"], why)
+    pend_n = np.where(core.pend_e[sl] == fe, core.pend_n[sl] + 1, 1)
+    switch = foreign & ((pend_n >= core.swc[sl]) | ~any_pref)
+    why = np.where((why == 0) & switch, code["near_switch"], why)
+    pend_e = np.where(foreign, fe, -1)
+    pend_n = np.where(foreign, pend_n, 0)
+    bo = np.flatnonzero((why == 0) & (retry | foreign))
+    if len(bo):
+        b_ok, be, boff, bpx, bpy, bd = best_on_rows(core.geo, pe[bo], pd[bo], pc[bo], pn[bo], x[bo], y[bo],
+                                                    s_pred[bo], lo[bo], hi[bo])
+        why[bo] = np.where(b_ok, 0, code["near_best_on"])
+        fe, off, px, py, d = fe.copy(), off.copy(), px.copy(), py.copy(), d.copy()
+        fe[bo], off[bo], px[bo], py[bo], d[bo] = be, boff, bpx, bpy, bd
+        s_fix = s_fix.copy()
+        s_fix[bo] = s_of_rows(pe[bo], pd[bo], pc[bo], pn[bo], core.geo.edge_len, be, boff, s_pred[bo], k_cur[bo])
+    why = np.where((why == 0) & ~foreign & (d > reacq), code["near_reacquire"], why)  # (the retried fix's)
+    ema = 0.7 * core.dist_ema[sl] + 0.3 * d
+    asks = (ema > 1.5 * sig) & (d > swm)  # else the placement index is asked
+    why = np.where((why == 0) & asks, code["near_consistency"], why)
+    return why, fe, off, px, py, d, s_fix, pend_e, pend_n
