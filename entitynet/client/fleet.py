@@ -95,8 +95,8 @@ class FleetCore:
         self._near = NearTables()
         self.net = None
         self.last_now = -math.inf
-        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_trims": 0, "vector_extends": 0,
-                         "scalar_fixes": 0, "scalar_ticks": 0}
+        self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_best_on": 0, "vector_hysteresis": 0,
+                         "vector_trims": 0, "vector_extends": 0, "scalar_fixes": 0, "scalar_ticks": 0}
         # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
         self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
         self.rec = Record(max(int(capacity), 1), fleet=True)
@@ -280,9 +280,10 @@ class FleetCore:
             s_meas[again] = s_of_rows(pe[again], pd[again], pc[again], pn[again], geo.edge_len, e[again],
                                       off[again], s_pred[again], k[again])
         pend_e, pend_n = np.full(len(sl), -1, dtype=np.int64), np.zeros(len(sl), dtype=np.int64)
+        retried = np.zeros(len(sl), dtype=bool)
         if gen.any():
             g = np.flatnonzero(gen)
-            gwhy, ge_, goff, gpx, gpy, gd, gs, pend_e[g], pend_n[g] = near_fixes(
+            gwhy, ge_, goff, gpx, gpy, gd, gs, pend_e[g], pend_n[g], retried[g] = near_fixes(
                 self, sl[g], x[g], y[g], s_pred[g], pe[g], pd[g], pc[g], pn[g], k[g], r, _WHY)
             ok[g] = gwhy == 0
             why[g] = gwhy
@@ -375,6 +376,8 @@ class FleetCore:
         ok &= ~publish
         # commit the rows that stay in arrays
         self.counters["vector_near"] += int((ok & near_rows).sum())
+        self.counters["vector_best_on"] += int((ok & retried).sum())
+        self.counters["vector_hysteresis"] += int((ok & (pend_e >= 0)).sum())
         w = np.flatnonzero(ok)
         c = sl[w]
         self.last_t[c] = t

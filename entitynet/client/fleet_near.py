@@ -173,7 +173,7 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     puts the fix farther along than 2 sigma, or the hysteresis where a foreign edge wins (its count below
     `switch_count`), within `reacquire`, and no consistency query of the placement index. Returns (per row 0
     where it qualifies, else `code` of the first test it fails; edge, offset, px, py, distance, path coordinate
-    of the fix `track` continues with; the hysteresis candidate and its count)."""
+    of the fix `track` continues with; the hysteresis candidate and its count; whether `_best_on` chose it)."""
     m = len(sl)
     rows = np.arange(m)
     start, count = np.zeros(m, np.int64), np.ones(m, np.int64)
@@ -221,4 +221,6 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     ema = 0.7 * core.dist_ema[sl] + 0.3 * d
     asks = (ema > 1.5 * sig) & (d > swm)  # else the placement index is asked
     why = np.where((why == 0) & asks, code["near_consistency"], why)
-    return why, fe, off, px, py, d, s_fix, pend_e, pend_n
+    retried = np.zeros(m, dtype=bool)
+    retried[bo] = True
+    return why, fe, off, px, py, d, s_fix, pend_e, pend_n, retried

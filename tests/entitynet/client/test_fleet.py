@@ -109,18 +109,21 @@ AREA = area_square()
 
 
 @pytest.mark.parametrize(("topo", "share"), [(cross(arm=100.0), 0.25), (parallel(gap=12.0, length=300.0), 0.25),
-                                             (chain(), 0.1), (AREA, 0.0)],
+                                             (chain(), 0.1), (AREA, 0.25)],
                          ids=["cross", "parallel", "chain", "area"])
-def test_fleet_core_publishes_what_each_player_publishes(topo, share):
-    """`share`: the least fraction of fixes the arrays must carry (none in the area map: every way there ends
-    at the area, where the scalar path decides)."""
-    got_a, got_b, core, ents = _run(topo)
+@pytest.mark.parametrize("seed", [1, 2])
+def test_fleet_core_publishes_what_each_player_publishes(topo, share, seed):
+    """`share`: the least fraction of fixes the arrays must carry (in the area map every way ends at the
+    area: only fixes beyond the switch margin, outside the area, are decided in arrays)."""
+    got_a, got_b, core, ents = _run(topo, seed=seed)
     for k, (a, b) in enumerate(zip(got_a, got_b, strict=True)):
         assert a == b, f"tick {k}: per-entity {a} != fleet {b}"
     c = core.counters
     assert c["vector_fixes"] >= share * (c["vector_fixes"] + c["scalar_fixes"]), c  # the arrays did the work
     assert c["scalar_ticks"] > 0
-    assert c["vector_near"] > 0 or share == 0.0  # fixes beyond the switch margin too (`Placer.near` in arrays)
+    assert c["vector_near"] > 0  # fixes beyond the switch margin too (`Placer.near` in arrays)
+    if topo is not AREA:  # (`_best_on` and the hysteresis between ways, in arrays too)
+        assert c["vector_best_on"] > 0 and c["vector_hysteresis"] > 0, c
     stats: dict[str, int] = {}
     for e in ents:  # (stats change only in scalar calls: the fleet's players hold them)
         for key, v in e[1].stats.items():
@@ -134,6 +137,7 @@ def _state(p: Player) -> tuple:
     """The state a fix changes: fix history, tracker, along-path filter, update rules."""
     trk, kf = p.tracker, p.tracker.kf
     return (p.last_t, p.measured, trk.recent_s, p.rules.recent, p.rules.over, trk.last_fix, trk.dist_ema, trk.vpeak,
+            trk.pending,
             None if kf is None else [getattr(kf, f) for f in kf.FIELDS])
 
 
