@@ -62,11 +62,13 @@ _DERIVED = (("deadline", math.inf, float, ()), ("alive", False, bool, ()), ("fas
             ("gc", math.inf, float, (W + 1,)), ("gn", 0, np.int64, ()))
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
 # eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
-SCALAR_WHY = ("publish", "no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
+SCALAR_WHY = ("stop", "no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
               "near_consistency", "reacquire", "reach_jump", "filter",
               "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
               "bad_fix", "not_vectorised")
 _WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
+# the reasons of a publish the arrays decide (`UpdateRules.decide`'s, but "stop": `_halts_here` is per entity)
+PUBLISH_WHY = ("start", "drift", "expiry", "heartbeat")
 
 
 def _deadline(p: Player) -> float:
@@ -96,7 +98,8 @@ class FleetCore:
         self.net = None
         self.last_now = -math.inf
         self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_best_on": 0, "vector_hysteresis": 0,
-                         "vector_trims": 0, "vector_extends": 0, "scalar_fixes": 0, "scalar_ticks": 0}
+                         "vector_trims": 0, "vector_extends": 0, "vector_publishes": 0, "scalar_fixes": 0,
+                         "scalar_ticks": 0}
         # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
         self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
         self.rec = Record(max(int(capacity), 1), fleet=True)
@@ -188,6 +191,7 @@ class FleetCore:
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         done = np.zeros(len(due), dtype=bool)
+        pub = np.zeros(len(due), dtype=np.int64)
         acc = float(accuracy)
         why = np.full(len(due), _WHY["not_vectorised"], dtype=np.int64)
         if len(due) and math.isfinite(acc) and acc > 0.0 and self.vectorised:
@@ -196,13 +200,17 @@ class FleetCore:
             why = np.where(fast, _WHY["bad_fix"], self.slow[due])
             rows = np.flatnonzero(fast & good)
             if len(rows):
-                why[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+                why[rows], pub[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
                 done[rows] = why[rows] == 0
         self.counters["vector_fixes"] += int(done.sum())
         for code, count in enumerate(np.bincount(why[~done], minlength=len(SCALAR_WHY) + 1).tolist()):
             if code and count:
                 self.scalar_why[SCALAR_WHY[code - 1]] += count
-        work: dict[int, int] = {int(s): k for k, s in enumerate(due.tolist()) if not done[k]}
+        # per slot: k >= 0 the scalar fix due[k], -1 a timer's tick, -2 `feed`'s publish after a fix decided and
+        # committed in arrays (its reason `pubs[slot]`: j of `pub`)
+        work: dict[int, int] = {int(s): k if not done[k] else -2
+                                for k, s in enumerate(due.tolist()) if not done[k] or pub[k]}
+        pubs = {int(due[k]): int(pub[k]) for k in np.flatnonzero(pub).tolist()}
         timers = self.alive[:n] & (self.deadline[:n] <= now) if self.vectorised else self.alive[:n].copy()
         timers[due[due < n]] = False
         for s in idle:
@@ -217,7 +225,13 @@ class FleetCore:
             p = self.players[s]
             if p is None:
                 continue
-            if k < 0:
+            if k < -1:  # `feed`'s publish, after the fix done in arrays
+                j = pubs[s]
+                if j < 0:
+                    p.rules.reposition = True  # (`decide`: still standing, just somewhere else)
+                self.counters["vector_publishes"] += 1
+                msgs = [p._publish(now, PUBLISH_WHY[abs(j) - 1])] + p.tick(now)
+            elif k < 0:
                 self.counters["scalar_ticks"] += 1
                 msgs = p.tick(now)
                 if not msgs:
@@ -236,10 +250,12 @@ class FleetCore:
         return out, rejected
 
     # ---- the vectorised fix --------------------------------------------------------------------------------
-    def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float) -> np.ndarray:
-        """`Player.feed` + `tick` at `t` for slots `sl` where the fix ends in the usual update with no publish
-        (module docstring): commits those rows and returns per row 0 (done here) or the `SCALAR_WHY` code (1..)
-        of the first test that leaves it to the scalar path."""
+    def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float,
+                    r: float) -> tuple[np.ndarray, np.ndarray]:
+        """`Player.feed` at `t` for slots `sl` where the fix ends in the usual update (module docstring):
+        commits those rows and returns per row 0 (done here) or the `SCALAR_WHY` code (1..) of the first test
+        that leaves it to the scalar path, and per row done here the publish `decide` asks for: 0 none, else
+        j with `PUBLISH_WHY[abs(j) - 1]` (j < 0: a reposition)."""
         geo = self.geo
         pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
         rows = np.arange(len(sl))
@@ -371,9 +387,16 @@ class FleetCore:
         drifted = (over >= self.confirm[sl]) | (drift > 1.5 * thr)
         pub_t = self.pub_t[sl]
         due = (t >= pub_t + self.validity[sl]) | (t - pub_t >= self.heartbeat[sl])
-        publish = stop | (standing & moved) | (~standing & drifted) | due
-        fail(~publish, "publish")
-        ok &= ~publish
+        expiry = t >= pub_t + self.validity[sl]
+        due = expiry | (t - pub_t >= self.heartbeat[sl])
+        fail(~stop, "stop")  # (`_halts_here` asks the ghost's path: per entity)
+        ok &= ~stop
+        # `decide`'s reason where it publishes: standing and moved: start, else drift (a reposition where the
+        # filter stands too); moving and drifted: drift; else expiry or heartbeat where due; else none (0)
+        pub = np.where(expiry, 3, np.where(due, 4, 0))
+        pub = np.where(~standing & drifted, 2, pub)
+        nv_start = nv > self.v_start[sl]
+        pub = np.where(standing & moved, np.where(nv_start, 1, np.where(nv <= v_stop, -2, 2)), pub)
         # commit the rows that stay in arrays
         self.counters["vector_near"] += int((ok & near_rows).sum())
         self.counters["vector_best_on"] += int((ok & retried).sum())
@@ -414,7 +437,7 @@ class FleetCore:
         d = np.minimum(np.minimum(pub_t[w] + self.validity[c], pub_t[w] + self.heartbeat[c]),
                        np.minimum(t + self.lost_after[c], t + gap_lim[w]))
         self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
-        return np.where(ok, 0, why)
+        return np.where(ok, 0, why), np.where(ok, pub, 0)
 
     # ---- what the arrays derive from a Player -------------------------------------------------------------
     def _refresh(self, s: int) -> None:
