@@ -62,12 +62,12 @@ _DERIVED = (("deadline", math.inf, float, ()), ("alive", False, bool, ()), ("fas
             ("gc", math.inf, float, (W + 1,)), ("gn", 0, np.int64, ()))
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
 # eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
-SCALAR_WHY = ("stop", "no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
+SCALAR_WHY = ("no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
               "near_consistency", "reacquire", "reach_jump", "filter",
               "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
               "bad_fix", "not_vectorised")
 _WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
-# the reasons of a publish the arrays decide (`UpdateRules.decide`'s, but "stop": `_halts_here` is per entity)
+# the reasons of a publish the arrays decide (`UpdateRules.decide`'s; a "stop" asks `_halts_here` per entity)
 PUBLISH_WHY = ("start", "drift", "expiry", "heartbeat")
 
 
@@ -227,10 +227,17 @@ class FleetCore:
                 continue
             if k < -1:  # `feed`'s publish, after the fix done in arrays
                 j = pubs[s]
-                if j < 0:
+                why_pub = PUBLISH_WHY[abs(j) - 1] if 0 < abs(j) < 10 else None
+                if j >= 10:  # a stop, unless the ghost halts here by itself (then `decide` goes on: j - 10)
+                    halts = p.rules._halts_here(p.ghost, p.estimate, p, now)
+                    why_pub = PUBLISH_WHY[j - 11] if halts and j > 10 else None if halts else "stop"
+                elif j < 0:
                     p.rules.reposition = True  # (`decide`: still standing, just somewhere else)
-                self.counters["vector_publishes"] += 1
-                msgs = [p._publish(now, PUBLISH_WHY[abs(j) - 1])] + p.tick(now)
+                if why_pub is None:
+                    msgs = p.tick(now)
+                else:
+                    self.counters["vector_publishes"] += 1
+                    msgs = [p._publish(now, why_pub)] + p.tick(now)
             elif k < 0:
                 self.counters["scalar_ticks"] += 1
                 msgs = p.tick(now)
@@ -255,7 +262,8 @@ class FleetCore:
         """`Player.feed` at `t` for slots `sl` where the fix ends in the usual update (module docstring):
         commits those rows and returns per row 0 (done here) or the `SCALAR_WHY` code (1..) of the first test
         that leaves it to the scalar path, and per row done here the publish `decide` asks for: 0 none, else
-        j with `PUBLISH_WHY[abs(j) - 1]` (j < 0: a reposition)."""
+        j with `PUBLISH_WHY[abs(j) - 1]` (j < 0: a reposition), or 10 + j for a stop unless the ghost halts
+        there by itself (`_halts_here`, asked per entity after the commit; then j as before)."""
         geo = self.geo
         pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
         rows = np.arange(len(sl))
@@ -389,14 +397,13 @@ class FleetCore:
         due = (t >= pub_t + self.validity[sl]) | (t - pub_t >= self.heartbeat[sl])
         expiry = t >= pub_t + self.validity[sl]
         due = expiry | (t - pub_t >= self.heartbeat[sl])
-        fail(~stop, "stop")  # (`_halts_here` asks the ghost's path: per entity)
-        ok &= ~stop
         # `decide`'s reason where it publishes: standing and moved: start, else drift (a reposition where the
         # filter stands too); moving and drifted: drift; else expiry or heartbeat where due; else none (0)
         pub = np.where(expiry, 3, np.where(due, 4, 0))
         pub = np.where(~standing & drifted, 2, pub)
         nv_start = nv > self.v_start[sl]
         pub = np.where(standing & moved, np.where(nv_start, 1, np.where(nv <= v_stop, -2, 2)), pub)
+        pub = np.where(stop, 10 + pub, pub)  # "stop" unless `_halts_here` (per entity, after the commit): pub
         # commit the rows that stay in arrays
         self.counters["vector_near"] += int((ok & near_rows).sum())
         self.counters["vector_best_on"] += int((ok & retried).sum())

@@ -219,8 +219,14 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
         s_fix[bo] = s_of_rows(pe[bo], pd[bo], pc[bo], pn[bo], core.geo.edge_len, be, boff, s_pred[bo], k_cur[bo])
     why = np.where((why == 0) & ~foreign & (d > reacq), code["near_reacquire"], why)  # (the retried fix's)
     ema = 0.7 * core.dist_ema[sl] + 0.3 * d
-    asks = (ema > 1.5 * sig) & (d > swm)  # else the placement index is asked
-    why = np.where((why == 0) & asks, code["near_consistency"], why)
+    # the consistency test: where it asks the placement index (`_first`, the tracker's own call), the fix goes
+    # on in arrays unless the answer is an area or a nearer other edge (then `track` places afresh)
+    asks = np.flatnonzero((why == 0) & (ema > 1.5 * sig) & (d > swm))
+    for i in asks.tolist():
+        g = players[int(sl[i])].tracker._first(float(x[i]), float(y[i]))
+        if g is not None and (g.kind == "area" or (g.kind == "edge" and g.index != fe[i]
+                                                    and g.distance + swm[i] < d[i])):
+            why[i] = code["near_consistency"]
     retried = np.zeros(m, dtype=bool)
     retried[bo] = True
     return why, fe, off, px, py, d, s_fix, pend_e, pend_n, retried
