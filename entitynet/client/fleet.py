@@ -407,7 +407,7 @@ class FleetCore:
         # commit the rows that stay in arrays
         self.counters["vector_near"] += int((ok & near_rows).sum())
         self.counters["vector_best_on"] += int((ok & retried).sum())
-        self.counters["vector_hysteresis"] += int((ok & (pend_e >= 0)).sum())
+        self.counters["vector_hysteresis"] += int((ok & (pend_e != -1)).sum())  # (an area not entered yet too)
         w = np.flatnonzero(ok)
         c = sl[w]
         self.last_t[c] = t

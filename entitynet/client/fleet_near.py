@@ -169,23 +169,27 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
                code: dict[str, int]) -> tuple[np.ndarray, ...]:
     """`track`'s general branch for fixes beyond the switch margin (or near an edge's end) of fleet core
     `core`'s slots `sl`, where it ends in the usual update: `Placer.near` over the path window [s_pred - body -
-    30, s_pred + 60] (no area of the table holding the fix), then `_best_on` where the nearest preferred edge
-    puts the fix farther along than 2 sigma, or the hysteresis where a foreign edge wins (its count below
-    `switch_count`), within `reacquire`, and no consistency query of the placement index. Returns (per row 0
-    where it qualifies, else `code` of the first test it fails; edge, offset, px, py, distance, path coordinate
-    of the fix `track` continues with; the hysteresis candidate and its count; whether `_best_on` chose it)."""
+    30, s_pred + 60] (or, where an area of the table holds the fix, `_best_on` until the area is entered), then
+    `_best_on` where the nearest preferred edge puts the fix farther along than 2 sigma, or the hysteresis
+    where a foreign edge wins (its count below `switch_count`), within `reacquire`, and the consistency query
+    of the placement index (asked per fix) placing nothing afresh. Returns (per row 0 where it qualifies, else
+    `code` of the first test it fails; edge, offset, px, py, distance, path coordinate of the fix `track` goes
+    on with; the hysteresis candidate and its count; whether `_best_on` chose it)."""
     m = len(sl)
     rows = np.arange(m)
     start, count = np.zeros(m, np.int64), np.ones(m, np.int64)
-    usable = np.zeros(m, dtype=bool)
+    area_in = np.full(m, -1, dtype=np.int64)  # the area `near` finds the fix in (its first, in table order)
     near, players = core._near, core.players
     e_cur = pe[rows, k_cur].tolist()
     for i, slot in enumerate(sl.tolist()):
         placer = players[slot].tracker.placer
         start[i], count[i], areas = near.rows_of(placer, int(e_cur[i]))
-        # `near` tests the fix inside each area of the table first (`inside_area` itself: the same answer)
-        usable[i] = count[i] > 0 and not (areas and any(placer.inside_area(a, float(x[i]), float(y[i]))
-                                                        for a in areas))
+        for a in areas:  # `near` tests the fix inside each area of the table first (`inside_area` itself)
+            if placer.inside_area(a, float(x[i]), float(y[i])):
+                area_in[i] = a
+                break
+    entering = area_in >= 0  # (`track`: one noisy fix inside an area is not an entry yet: `_best_on`)
+    usable = (count > 0) & ~entering
     start = np.where(usable, start, 0)  # (a table not taken: any one row, searched and dropped)
     count = np.where(usable, count, 1)
     lo = (pc <= (s_pred - core.body[sl] - 30.0)[:, None]).sum(axis=1) - 1
@@ -194,25 +198,30 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     hi = np.where(hi < 0, 0, np.where(hi >= pn, pn - 1, hi))
     swm, reacq = core.swm[sl], core.reacq[sl]
     fe, off, px, py, d, pref, any_pref = near.near(x, y, start, count, swm, pe, lo, hi)
-    why = np.where(usable, 0, code["near_area"])
+    why = np.where(usable | entering, 0, code["near_area"])
     sig = math.sqrt(r)
     cols = np.arange(pe.shape[1])[None, :]
     several = ((pe != pe[rows, lo][:, None]) & (cols >= lo[:, None]) & (cols <= hi[:, None])).any(axis=1)
     s_fix = s_of_rows(pe, pd, pc, pn, core.geo.edge_len, fe, off, s_pred, k_cur)
-    retry = pref & several & (np.abs(s_fix - s_pred) > 2.0 * sig)  # `_best_on` instead of the nearest
+    retry = pref & several & (np.abs(s_fix - s_pred) > 2.0 * sig) & ~entering  # `_best_on`, not the nearest
     # a foreign edge: the reacquire test on it, then the hysteresis (`pending`) or the switch (scalar)
-    foreign = ~pref
+    foreign = ~pref & ~entering
     why = np.where((why == 0) & foreign & (d > reacq), code["near_reacquire"], why)
     pend_n = np.where(core.pend_e[sl] == fe, core.pend_n[sl] + 1, 1)
     switch = foreign & ((pend_n >= core.swc[sl]) | ~any_pref)
     why = np.where((why == 0) & switch, code["near_switch"], why)
-    pend_e = np.where(foreign, fe, -1)
-    pend_n = np.where(foreign, pend_n, 0)
-    bo = np.flatnonzero((why == 0) & (retry | foreign))
+    enter_n = np.where(core.pend_e[sl] == -2 - area_in, core.pend_n[sl] + 1, 1)
+    pend_e = np.where(foreign, fe, np.where(entering, -2 - area_in, -1))
+    pend_n = np.where(foreign, pend_n, np.where(entering, enter_n, 0))
+    bo = np.flatnonzero((why == 0) & (retry | foreign | entering))
     if len(bo):
         b_ok, be, boff, bpx, bpy, bd = best_on_rows(core.geo, pe[bo], pd[bo], pc[bo], pn[bo], x[bo], y[bo],
                                                     s_pred[bo], lo[bo], hi[bo])
         why[bo] = np.where(b_ok, 0, code["near_best_on"])
+        # the area entered: after `switch_count` fixes in a row, or a fix farther from the path's ways than
+        # GPS noise goes (scalar: `_init_at` the area)
+        enters = entering[bo] & ((enter_n[bo] >= core.swc[sl[bo]]) | (bd > 3.0 * sig))
+        why[bo] = np.where((why[bo] == 0) & enters, code["near_area"], why[bo])
         fe, off, px, py, d = fe.copy(), off.copy(), px.copy(), py.copy(), d.copy()
         fe[bo], off[bo], px[bo], py[bo], d[bo] = be, boff, bpx, bpy, bd
         s_fix = s_fix.copy()

@@ -122,8 +122,9 @@ def test_fleet_core_publishes_what_each_player_publishes(topo, share, seed):
     assert c["vector_fixes"] >= share * (c["vector_fixes"] + c["scalar_fixes"]), c  # the arrays did the work
     assert c["scalar_ticks"] > 0
     assert c["vector_near"] > 0  # fixes beyond the switch margin too (`Placer.near` in arrays)
-    if topo is not AREA:  # (`_best_on` and the hysteresis between ways, in arrays too)
-        assert c["vector_best_on"] > 0 and c["vector_hysteresis"] > 0, c
+    # `_best_on` and the hysteresis between ways (or before an area's entry), in arrays too
+    assert c["vector_best_on"] > 0 and c["vector_hysteresis"] > 0, c
+    assert c["vector_publishes"] > 0  # (decided in arrays, built by the Player)
     stats: dict[str, int] = {}
     for e in ents:  # (stats change only in scalar calls: the fleet's players hold them)
         for key, v in e[1].stats.items():
