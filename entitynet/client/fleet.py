@@ -10,14 +10,14 @@ once and calls an entity's own `Player` only where something happens:
    lost_after` and the like are a subtraction and a compare: one rounding). Before its deadline an entity's
    `tick` provably returns nothing and changes nothing, so only entities whose deadline has come call it.
 2. **The steady-state fix.** An entity placed on an edge, with a network ghost, whose fix ends in `track`'s
-   usual update is done entirely in arrays: either `NetworkTracker._track_on` (within the switch margin of the
-   current edge, away from its ends, no area at either end, the edge not repeated nearby) or, beyond the
-   margin, `Placer.near`'s neighbourhood search (fleet_near.py) choosing an edge of the path window that occurs
-   once in the path; then the along-path filter, the recent-fix bookkeeping, the path trimmed behind the body
-   and extended ahead (`follow` row by row: `extend_rows`), and `UpdateRules.decide`'s stop / start / drift /
-   expiry tests (fleet_kernels.py). Every other fix (first placement, an area or a neighbourhood holding one, a
-   fix nearest another way, a reversal, re-acquisition, any fix that publishes) goes to the entity's `Player`
-   (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
+   usual update is decided in arrays: `NetworkTracker._track_on` (within the switch margin of the current edge,
+   away from its ends, no area at either end) or, beyond it, `track`'s general branch (fleet_near.py:
+   `Placer.near`, an area of the neighbourhood not entered yet, `_best_on`, the hysteresis, `_s_of`, the
+   consistency query asked per fix); then the along-path filter, the recent fixes, the path trimmed and
+   extended (`extend_rows`), and `UpdateRules.decide` (fleet_kernels.py). Where `decide` publishes, the row is
+   committed and the Player builds the publish (`_publish`; a stop asks `_halts_here` first). Every other fix
+   (first placement, an area, a switch to another way, a reversal, re-acquisition) goes to the Player (`feed`
+   then `tick`, as `sims.engine.clients.Fleet` calls them).
 
 One home: the entities' state is the fleet's client-state `Record` (entitynet/client/state.py). `add` moves a
 Player's row there (`Player.move_to`); the vectorised fix reads and writes the record's columns through numpy
