@@ -59,7 +59,7 @@ _DERIVED = (("deadline", math.inf, float, ()), ("alive", False, bool, ()), ("fas
             ("consts", False, bool, ()), ("has_route", False, bool, ()), ("slow", 0, np.int64, ()),
             ("order", 0, np.int64, ()), ("confirm", 1, np.int64, ()), ("gm", 0.0, float, (len(_GHOST),)),
             ("cm", 0.0, float, (len(_CONST),)), ("ge", 0, np.int64, (W,)), ("gd", 1, np.int64, (W,)),
-            ("gc", math.inf, float, (W + 1,)), ("gn", 0, np.int64, ()))
+            ("gc", math.inf, float, (W + 1,)), ("gn", 0, np.int64, ()), ("ncls", 0, np.int64, ()))
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
 # eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
 SCALAR_WHY = ("no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
@@ -496,4 +496,5 @@ class FleetCore:
                           trk.margin, rules.threshold, rules.heartbeat, rules.max_gap, rules.lost_after, trk.body,
                           et.vmax, placer.switch_count if trk.switch_count is None else trk.switch_count]
             self.has_route[s], self.confirm[s] = trk.has_route, rules.confirm
+            self.ncls[s] = self._near.class_of(placer.networks, len(self.geo.edge_len))
             self.consts[s] = True

@@ -28,38 +28,68 @@ _COLS = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen")
 
 
 class NearTables:
-    """The rows of every table asked for so far, concatenated: (networks, edge) -> (start, count, areas)."""
+    """The segment rows of every table asked for so far, concatenated, and where each table lies: per class of
+    networks (a placer's `networks`, numbered in the order met) and edge, its first row (`start`, -1: not built
+    yet), its row count and whether the placer's areas lie at its nodes (`areas`: their tuples, in `near`'s
+    order). Built from the placer's own lists (`Placer.neighbourhood`) with the operations of `_SegTable`, the
+    arrays in one pass (tests/entitynet/client/test_fleet_near.py holds them equal to `Placer.table`'s)."""
 
     def __init__(self) -> None:
-        self.index: dict[tuple[int, int], tuple[int, int, tuple[int, ...]]] = {}
+        self.classes: dict[int, int] = {}  # networks -> class
+        self.start = np.zeros((0, 0), dtype=np.int64)
+        self.count = np.zeros((0, 0), dtype=np.int64)
+        self.has_areas = np.zeros((0, 0), dtype=bool)
+        self.areas: dict[tuple[int, int], tuple[int, ...]] = {}
         self.size = 0
         self.cols = {c: np.zeros(1024) for c in _COLS}
         self.edge = np.zeros(1024, dtype=np.int64)
 
-    def rows_of(self, placer, e: int) -> tuple[int, int, tuple[int, ...]]:
-        """Where edge e's table of `placer` lies in the concatenated rows (built on first use), and the areas
-        of the placer's networks `Placer.near` tests the fix against first, in its order."""
-        key = (placer.networks, e)
-        hit = self.index.get(key)
-        if hit is None:
-            t = placer.table(e)
-            n = len(t.edge)
-            areas = tuple(a for a in t.areas if placer.topo.area_networks[a] & placer.networks)
-            if self.size + n > len(self.edge):
-                cap = max(2 * len(self.edge), self.size + n)
-                for c in _COLS:
-                    grown = np.zeros(cap)
-                    grown[: self.size] = self.cols[c][: self.size]
-                    self.cols[c] = grown
-                grown_e = np.zeros(cap, dtype=np.int64)
-                grown_e[: self.size] = self.edge[: self.size]
-                self.edge = grown_e
+    def class_of(self, networks: int, n_edges: int) -> int:
+        """The class number of a placer's networks (a new row of the lookup arrays the first time)."""
+        c = self.classes.get(networks)
+        if c is None:
+            c = self.classes[networks] = len(self.classes)
+            grow = ((self.start, -1, np.int64), (self.count, 0, np.int64), (self.has_areas, False, bool))
+            self.start, self.count, self.has_areas = (
+                np.concatenate([old.reshape(-1, n_edges), np.full((1, n_edges), fill, dtype=dtype)])
+                for old, fill, dtype in grow)
+        return c
+
+    def rows_of(self, geo, placer, cls: int, e: int) -> tuple[int, int, tuple[int, ...]]:
+        """Where edge e's table of `placer` (class `cls`) lies in the concatenated rows (built on first use),
+        and the areas of the placer's networks `Placer.near` tests the fix against first, in its order."""
+        if self.start[cls, e] >= 0:
+            return int(self.start[cls, e]), int(self.count[cls, e]), self.areas.get((cls, e), ())
+        edges, at_nodes = placer.neighbourhood(e)
+        ed = np.array(edges, dtype=np.int64)
+        lo = geo.geom_off[ed]
+        per = np.maximum(geo.geom_off[ed + 1] - lo - 1, 0)
+        rep = np.repeat(np.arange(len(ed)), per)
+        k = np.arange(int(per.sum())) - (np.cumsum(per) - per)[rep] + lo[rep]
+        n = len(k)
+        ax, ay = geo.gx[k], geo.gy[k]
+        dx, dy = geo.gx[k + 1] - ax, geo.gy[k + 1] - ay
+        l2 = dx * dx + dy * dy  # (`_SegTable`'s operations, in its order)
+        rows = {"ax": ax, "ay": ay, "dx": dx, "dy": dy, "inv_l2": np.where(l2 > 0.0, 1.0 / np.where(l2 > 0.0, l2, 1.0),
+                0.0), "cum0": geo.gcum[k], "slen": np.sqrt(l2)}
+        if self.size + n > len(self.edge):
+            cap = max(2 * len(self.edge), self.size + n)
             for c in _COLS:
-                self.cols[c][self.size : self.size + n] = getattr(t, c)
-            self.edge[self.size : self.size + n] = t.edge
-            hit = self.index[key] = (self.size, n, areas)
-            self.size += n
-        return hit
+                grown = np.zeros(cap)
+                grown[: self.size] = self.cols[c][: self.size]
+                self.cols[c] = grown
+            grown_e = np.zeros(cap, dtype=np.int64)
+            grown_e[: self.size] = self.edge[: self.size]
+            self.edge = grown_e
+        for c in _COLS:
+            self.cols[c][self.size : self.size + n] = rows[c]
+        self.edge[self.size : self.size + n] = ed[rep]
+        areas = tuple(a for a in at_nodes if placer.topo.area_networks[a] & placer.networks)
+        self.start[cls, e], self.count[cls, e], self.has_areas[cls, e] = self.size, n, bool(areas)
+        if areas:
+            self.areas[(cls, e)] = areas
+        self.size += n
+        return self.size - n, n, areas
 
     def near(self, x: np.ndarray, y: np.ndarray, start: np.ndarray, count: np.ndarray, margin: np.ndarray,
              pe: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -177,15 +207,17 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     on with; the hysteresis candidate and its count; whether `_best_on` chose it)."""
     m = len(sl)
     rows = np.arange(m)
-    start, count = np.zeros(m, np.int64), np.ones(m, np.int64)
     area_in = np.full(m, -1, dtype=np.int64)  # the area `near` finds the fix in (its first, in table order)
     near, players = core._near, core.players
-    e_cur = pe[rows, k_cur].tolist()
-    for i, slot in enumerate(sl.tolist()):
-        placer = players[slot].tracker.placer
-        start[i], count[i], areas = near.rows_of(placer, int(e_cur[i]))
-        for a in areas:  # `near` tests the fix inside each area of the table first (`inside_area` itself)
-            if placer.inside_area(a, float(x[i]), float(y[i])):
+    e_cur = pe[rows, k_cur]
+    cls = core.ncls[sl]
+    for i in np.flatnonzero(near.start[cls, e_cur] < 0).tolist():  # tables not built yet (the arrays: once)
+        near.rows_of(core.geo, players[int(sl[i])].tracker.placer, int(cls[i]), int(e_cur[i]))
+    start, count = near.start[cls, e_cur], near.count[cls, e_cur]
+    for i in np.flatnonzero(near.has_areas[cls, e_cur]).tolist():
+        placer = players[int(sl[i])].tracker.placer
+        for a in near.areas[(int(cls[i]), int(e_cur[i]))]:  # `near` tests the fix inside each area first
+            if placer.inside_area(a, float(x[i]), float(y[i])):  # (`inside_area` itself)
                 area_in[i] = a
                 break
     entering = area_in >= 0  # (`track`: one noisy fix inside an area is not an entry yet: `_best_on`)

@@ -161,15 +161,17 @@ class Placer:
         projects a fix onto (built once per edge, reused for every later fix near it)."""
         t = self._tables.get(edge)
         if t is None:
-            net = self.net
-            hop1 = net.edges_near_nodes([net.edge_from[edge], net.edge_to[edge]], self.networks)
-            nodes = {net.edge_from[e] for e in hop1} | {net.edge_to[e] for e in hop1}
-            hop2 = net.edges_near_nodes(sorted(nodes), self.networks)
-            edges = sorted(set(hop2) | {edge})
-            areas = sorted({net.node_area[n] for n in nodes if net.node_area[n] >= 0})
-            t = _SegTable(net, edges, areas)
-            self._tables[edge] = t
+            t = self._tables[edge] = _SegTable(self.net, *self.neighbourhood(edge))
         return t
+
+    def neighbourhood(self, edge: int) -> tuple[list[int], list[int]]:
+        """The edges of `table(edge)` (within two hops of `edge`, sorted) and the areas at their nodes (the
+        fleet core's own segment rows are built from the same lists: fleet_near.NearTables)."""
+        net = self.net
+        hop1 = net.edges_near_nodes([net.edge_from[edge], net.edge_to[edge]], self.networks)
+        nodes = {net.edge_from[e] for e in hop1} | {net.edge_to[e] for e in hop1}
+        hop2 = net.edges_near_nodes(sorted(nodes), self.networks)
+        return sorted(set(hop2) | {edge}), sorted({net.node_area[n] for n in nodes if net.node_area[n] >= 0})
 
     def on_edges(self, x: float, y: float, edges: list[int]) -> Fix:
         """Nearest point on a given set of edges (a route), in one vectorised pass; cached per edge set."""

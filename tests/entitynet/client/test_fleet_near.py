@@ -16,14 +16,14 @@ import pytest
 from entitynet.client import fleet_near as near_mod
 from entitynet.client import netview
 from entitynet.client.fleet_kernels import Geometry
-from entitynet.client.fleet_near import best_on_rows, s_of_rows
+from entitynet.client.fleet_near import NearTables, best_on_rows, s_of_rows
 from entitynet.client.path import Path
 from entitynet.client.placement import Fix, Placer
 from entitynet.client.state import PATH_W
 from entitynet.client.tracker import NetworkTracker
 from tests.entitynet.client.test_fleet import _run
 from tests.entitynet.client.test_player_replay import _walk_path
-from tests.entitynet.client_fixtures import chain, cross, hairpin, parallel
+from tests.entitynet.client_fixtures import area_square, chain, cross, hairpin, parallel
 from topology.raw import PEDESTRIAN, VEHICLE
 
 
@@ -102,6 +102,35 @@ def test_best_on_rows_is_the_trackers_best_on(name):
         trk._s_of = lambda f, s, k, trk=trk: NetworkTracker._s_of(trk, f, s, k)
         want = NetworkTracker._best_on(trk, float(x[i]), float(y[i]), float(s_pred[i]), int(lo[i]), int(hi[i]))
         assert (e[i], off[i], px[i], py[i], d[i]) == (want.index, want.offset, want.x, want.y, want.distance), i
+
+
+@pytest.mark.parametrize("name", sorted(TOPOS) + ["area_square"])
+def test_the_near_tables_hold_the_placers_tables(name):
+    """`NearTables` builds its rows itself (in one numpy pass per table): per networks class and edge, the
+    rows are `Placer.table`'s columns bit for bit, in its order, and the areas those of the placer's networks
+    at the table's nodes; a table asked for again is not built again."""
+    net = netview(area_square() if name == "area_square" else TOPOS[name])
+    geo = Geometry(net)
+    tables = NearTables()
+    for networks in (VEHICLE | PEDESTRIAN, PEDESTRIAN, VEHICLE):
+        placer = Placer(net, networks)
+        cls = tables.class_of(networks, net.n_edges)
+        assert tables.class_of(networks, net.n_edges) == cls
+        for e in [*range(net.n_edges), *range(net.n_edges)]:  # (twice: the second time from the index)
+            size = tables.size
+            start, count, areas = tables.rows_of(geo, placer, cls, e)
+            assert tables.size == size or start == size
+            t = placer.table(e)
+            assert count == len(t.edge)
+            for c in ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen"):
+                assert tables.cols[c][start : start + count].tolist() == getattr(t, c).tolist(), (e, c)
+            assert tables.edge[start : start + count].tolist() == t.edge.tolist()
+            assert areas == tuple(a for a in t.areas if net.topo.area_networks[a] & networks)
+            assert bool(tables.has_areas[cls, e]) == bool(areas)
+    assert len(tables.classes) == 3
+    if name == "area_square":  # (the area is pedestrian: a vehicle placer's tables hold none of it)
+        assert tables.has_areas[tables.classes[PEDESTRIAN]].any()
+        assert not tables.has_areas[tables.classes[VEHICLE]].any()
 
 
 def _state(p) -> tuple:
