@@ -14,10 +14,10 @@ once and calls an entity's own `Player` only where something happens:
    away from its ends, no area at either end) or, beyond it, `track`'s general branch (fleet_near.py:
    `Placer.near`, an area of the neighbourhood not entered yet, `_best_on`, the hysteresis, `_s_of`, the
    consistency query asked per fix); then the along-path filter, the recent fixes, the path trimmed and
-   extended (`extend_rows`), and `UpdateRules.decide` (fleet_kernels.py). Where `decide` publishes, the row is
-   committed and the Player builds the publish (`_publish`; a stop asks `_halts_here` first). Every other fix
-   (first placement, an area, a switch to another way, a reversal, re-acquisition) goes to the Player (`feed`
-   then `tick`, as `sims.engine.clients.Fleet` calls them).
+   extended (`extend_rows`), and `UpdateRules.decide` (fleet_kernels.py; the fix itself: fleet_fix.py).
+   Where `decide` publishes, the row is committed and the Player builds the publish (`_publish`; a stop asks
+   `_halts_here` first). Every other fix (first placement, an area, a switch to another way, a reversal,
+   re-acquisition) goes to the Player (`feed` then `tick`, as `sims.engine.clients.Fleet` calls them).
 
 One home: the entities' state is the fleet's client-state `Record` (entitynet/client/state.py). `add` moves a
 Player's row there (`Player.move_to`); the vectorised fix reads and writes the record's columns through numpy
@@ -37,12 +37,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from entitynet.client.fixes import FixRejected
-from entitynet.client.fleet_kernels import Geometry, extend_rows, ghost_s_speed, hypot_py, interval_rows, kf_update
-from entitynet.client.fleet_near import NearTables, near_fixes, s_of_rows
+from entitynet.client.fleet_fix import SCALAR_WHY, WHY, fast_fixes
+from entitynet.client.fleet_kernels import Geometry
+from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
 from entitynet.client.player import Player
-from entitynet.client.rules import FIX_INTERVALS_KEPT, GAP_INTERVALS, MIN_INTERVALS, OWN_ESTIMATE
+from entitynet.client.rules import FIX_INTERVALS_KEPT, OWN_ESTIMATE
 from entitynet.client.state import PATH_W, RECENT, Record
 from entitynet.client.tracker import MAX_PATH_EDGES
 from entitynet.protocol import Publish, Unpublish
@@ -60,13 +61,6 @@ _DERIVED = (("deadline", math.inf, float, ()), ("alive", False, bool, ()), ("fas
             ("order", 0, np.int64, ()), ("confirm", 1, np.int64, ()), ("gm", 0.0, float, (len(_GHOST),)),
             ("cm", 0.0, float, (len(_CONST),)), ("ge", 0, np.int64, (W,)), ("gd", 1, np.int64, (W,)),
             ("gc", math.inf, float, (W + 1,)), ("gn", 0, np.int64, ()), ("ncls", 0, np.int64, ()))
-# why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
-# eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
-SCALAR_WHY = ("no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
-              "near_consistency", "reacquire", "reach_jump", "filter",
-              "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
-              "bad_fix", "not_vectorised")
-_WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
 # the reasons of a publish the arrays decide (`UpdateRules.decide`'s; a "stop" asks `_halts_here` per entity)
 PUBLISH_WHY = ("start", "drift", "expiry", "heartbeat")
 
@@ -193,14 +187,14 @@ class FleetCore:
         done = np.zeros(len(due), dtype=bool)
         pub = np.zeros(len(due), dtype=np.int64)
         acc = float(accuracy)
-        why = np.full(len(due), _WHY["not_vectorised"], dtype=np.int64)
+        why = np.full(len(due), WHY["not_vectorised"], dtype=np.int64)
         if len(due) and math.isfinite(acc) and acc > 0.0 and self.vectorised:
             fast = self.fast[due] & self.alive[due]
             good = np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
-            why = np.where(fast, _WHY["bad_fix"], self.slow[due])
+            why = np.where(fast, WHY["bad_fix"], self.slow[due])
             rows = np.flatnonzero(fast & good)
             if len(rows):
-                why[rows], pub[rows] = self._fast_fixes(due[rows], x[rows], y[rows], now, acc * acc)
+                why[rows], pub[rows] = fast_fixes(self, due[rows], x[rows], y[rows], now, acc * acc)
                 done[rows] = why[rows] == 0
         self.counters["vector_fixes"] += int(done.sum())
         for code, count in enumerate(np.bincount(why[~done], minlength=len(SCALAR_WHY) + 1).tolist()):
@@ -256,196 +250,6 @@ class FleetCore:
                 out.append((s, msgs))
         return out, rejected
 
-    # ---- the vectorised fix --------------------------------------------------------------------------------
-    def _fast_fixes(self, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float,
-                    r: float) -> tuple[np.ndarray, np.ndarray]:
-        """`Player.feed` at `t` for slots `sl` where the fix ends in the usual update (module docstring):
-        commits those rows and returns per row 0 (done here) or the `SCALAR_WHY` code (1..) of the first test
-        that leaves it to the scalar path, and per row done here the publish `decide` asks for: 0 none, else
-        j with `PUBLISH_WHY[abs(j) - 1]` (j < 0: a reposition), or 10 + j for a stop unless the ghost halts
-        there by itself (`_halts_here`, asked per entity after the commit; then j as before)."""
-        geo = self.geo
-        pn, pe, pd, pc = self.pn[sl], self.pe[sl], self.pd[sl], self.pc[sl]
-        rows = np.arange(len(sl))
-        ks, kv, ka, kt = self.ks[sl], self.kv[sl], self.ka[sl], self.kt[sl]
-        iv, iv_n, gap_lim, reach, interval = interval_rows(
-            self.iv[sl], self.iv_n[sl], t - self.last_t[sl], self.max_gap[sl], self.lost_after[sl], self.reacq[sl],
-            self.vmax[sl], GAP_INTERVALS, MIN_INTERVALS)
-        dt = np.where(t > kt, t - kt, 0.0)
-        s_pred = ks + kv * dt + 0.5 * ka * dt * dt
-        k = (pc <= s_pred[:, None]).sum(axis=1) - 1
-        k = np.where(k < 0, 0, np.where(k >= pn, pn - 1, k))
-        e = pe[rows, k]
-        ok = geo.nseg[e] > 0
-        why = np.where(ok, 0, _WHY["no_segments"])
-
-        def fail(cond: np.ndarray, reason: str) -> None:  # rows still ok that fail `cond` leave for `reason`
-            why[ok & ~cond] = _WHY[reason]
-        off = px = py = dist = np.zeros(len(sl))
-        if ok.any():
-            off, px, py, dist = (np.zeros(len(sl)) for _ in range(4))
-            w = np.flatnonzero(ok)
-            off[w], px[w], py[w], dist[w] = geo.project(x[w], y[w], e[w])
-        elen = geo.edge_len[e]
-        swm, reacq = self.swm[sl], self.reacq[sl]
-        written_out = (dist <= swm) & (off > 0.0) & (off < elen) & geo.inner[e]  # `track`'s test for `_track_on`
-        gen = ok & ~written_out  # the neighbourhood search (`Placer.near`)
-        fail(~gen, "near_area")  # (rows of the near search: their reason is set below)
-        ok &= written_out
-        fail(dist <= reacq, "reacquire")
-        ok &= dist <= reacq
-        # `_s_of`'s first case: the edge does not recur within three edges either side (else `_s_of` in full)
-        j = k[:, None] + np.arange(-3, 4)[None, :]
-        inside = (j >= 0) & (j < pn[:, None])
-        same = (pe[rows[:, None], np.clip(j, 0, W - 1)] == e[:, None]) & inside
-        s_meas = pc[rows, k] + np.where(pd[rows, k] > 0, off, elen - off)
-        again = np.flatnonzero(ok & (same.sum(axis=1) != 1))
-        if len(again):
-            s_meas[again] = s_of_rows(pe[again], pd[again], pc[again], pn[again], geo.edge_len, e[again],
-                                      off[again], s_pred[again], k[again])
-        pend_e, pend_n = np.full(len(sl), -1, dtype=np.int64), np.zeros(len(sl), dtype=np.int64)
-        retried = np.zeros(len(sl), dtype=bool)
-        if gen.any():
-            g = np.flatnonzero(gen)
-            gwhy, ge_, goff, gpx, gpy, gd, gs, pend_e[g], pend_n[g], retried[g] = near_fixes(
-                self, sl[g], x[g], y[g], s_pred[g], pe[g], pd[g], pc[g], pn[g], k[g], r, _WHY)
-            ok[g] = gwhy == 0
-            why[g] = gwhy
-            e, off, px, py, dist, s_meas = e.copy(), off.copy(), px.copy(), py.copy(), dist.copy(), s_meas.copy()
-            e[g], off[g], px[g], py[g], dist[g], s_meas[g] = ge_, goff, gpx, gpy, gd, gs
-        fail(~(np.abs(s_meas - s_pred) > reach), "reach_jump")
-        ok &= ~(np.abs(s_meas - s_pred) > reach)
-        near_rows = gen
-        dist_ema = 0.7 * self.dist_ema[sl] + 0.3 * dist
-        kup = kt < t
-        *new, sden = kf_update(s_meas, t, r, ks, kv, ka, self.p00[sl], self.p01[sl], self.p02[sl], self.p11[sl],
-                        self.p12[sl], self.p22[sl], kt, self.kq[sl], self.kacc[sl])
-        ns, nv, na, n00, n01, n02, n11, n12, n22 = new
-        fail(kup & (sden > 0.0) & np.isfinite(ns), "filter")
-        ok &= kup & (sden > 0.0) & np.isfinite(ns)
-        vpeak_set = (nv > self.vpeak[sl]) | (t - self.vpeak_t[sl] > 120.0)
-        has_route = self.has_route[sl]
-        backwards = (nv < -self.v_start[sl]) & (nv + np.sqrt(np.maximum(n11, 0.0)) < 0.0)
-        rev = np.where(has_route | ~backwards, 0, self.rev[sl] + 1)
-        fail(rev < 3, "reversal")
-        ok &= rev < 3
-        # the recent fixes: path coordinates (tracker) and projected points (rules)
-        rs = np.concatenate([self.rs[sl][:, 1:], s_meas[:, None]], axis=1)
-        # `_maintain_path`: the edges behind the body and margin are trimmed here (`Path.trimmed`, `kf.shift`,
-        # `recent_s` shifted: the same subtractions); a path to extend ahead is extended below, row by row
-        keep = ns - self.behind[sl]
-        trim = (pn + 1 > 2) & (keep > pc[:, 1])
-        if trim.any():  # (the trimmed rows only: shifting every row's 49 columns costs more than the rest)
-            tr = np.flatnonzero(trim)
-            kk = (pc[tr] <= keep[tr, None]).sum(axis=1) - 1
-            kk = np.where(kk < 0, 0, np.where(kk >= pn[tr], pn[tr] - 1, kk))
-            c0 = pc[tr, kk]
-            real = (kk > 0) & (c0 > 0.0)  # (`trimmed` gives shift 0.0 otherwise: nothing changes)
-            trim[tr] = real
-            tr, kk, c0 = tr[real], kk[real], c0[real]
-            jj = np.minimum(np.arange(W)[None, :] + kk[:, None], W - 1)
-            jc = np.arange(W + 1)[None, :] + kk[:, None]
-            pe, pd, pc, pn, ns, rs = pe.copy(), pd.copy(), pc.copy(), pn.copy(), ns.copy(), rs.copy()
-            pe[tr], pd[tr] = pe[tr[:, None], jj], pd[tr[:, None], jj]
-            pc[tr] = np.where(jc <= pn[tr, None], pc[tr[:, None], np.minimum(jc, W)] - c0[:, None], np.inf)
-            pn[tr] = pn[tr] - kk
-            ns[tr] = ns[tr] - c0
-            rs[tr] = rs[tr] - c0[:, None]
-        vpos = np.where(nv > 0.0, nv, 0.0)
-        last = pe[rows, pn - 1], pd[rows, pn - 1]
-        need = ns + self.la[sl] + self.mg[sl] + 80.0 + 15.0 * vpos
-        extend = (pc[rows, pn] < need) & (pn < W) & ~((last[0] == self.dead_e[sl]) & (last[1] == self.dead_d[sl]))
-        dead = np.zeros(len(sl), dtype=bool)
-        ext = np.flatnonzero(extend & ok)
-        if len(ext):  # `_maintain_path`'s extension ahead, row by row (rows that stay in arrays otherwise)
-            pe, pd, pc, pn = pe.copy(), pd.copy(), pc.copy(), pn.copy()
-            dead[ext] = extend_rows(self.players, self.net, sl, ext, need, pe, pd, pc, pn)
-            trim[ext] = True  # (the path changed: committed like a trimmed one)
-            self.counters["vector_extends"] += len(ext)
-        else:
-            ok &= ~extend
-        rx = np.concatenate([self.rx[sl][:, 1:], px[:, None]], axis=1)
-        ry = np.concatenate([self.ry[sl][:, 1:], py[:, None]], axis=1)
-        rr_n = np.minimum(self.rr_n[sl] + 1, RECENT)
-        # `UpdateRules.decide` against the ghost
-        gs, gv, _beyond = ghost_s_speed(np.full(len(sl), t), self.g_t0[sl], self.g_s0[sl], self.g_v[sl],
-                                        self.g_a[sl], self.g_vmax[sl], self.g_tb[sl], self.g_sb[sl], self.g_vb[sl],
-                                        self.g_b[sl], self.g_stop[sl])
-        gv = np.where(_beyond, 0.0, gv)
-        gn = self.gn[sl]
-        glen = self.gc[sl][rows, gn]
-        gx, gy = geo.path_xy(np.where(glen < gs, glen, gs), self.ge[sl], self.gd[sl], self.gc[sl], gn)
-        v_stop = self.v_stop[sl]
-        thr = self.thr[sl]
-        stop = (gv > v_stop) & (nv < v_stop)
-        standing = gv <= v_stop
-        moved = np.zeros(len(sl), dtype=bool)
-        for m_n, limit in ((5, thr), (2, 1.6 * thr)):
-            m = np.minimum(rr_n, m_n)
-            mx = np.zeros(len(sl))
-            my = np.zeros(len(sl))
-            for c in range(RECENT - m_n, RECENT):
-                use = c >= RECENT - m
-                mx = np.where(use, mx + rx[:, c], mx)
-                my = np.where(use, my + ry[:, c], my)
-            moved |= hypot_py(mx / m - gx, my / m - gy) > limit
-        ex, ey = geo.path_xy(ns, pe, pd, pc, pn)
-        drift = hypot_py(gx - ex, gy - ey)
-        over = np.where(drift > thr, self.over[sl] + 1, 0)
-        drifted = (over >= self.confirm[sl]) | (drift > 1.5 * thr)
-        pub_t = self.pub_t[sl]
-        due = (t >= pub_t + self.validity[sl]) | (t - pub_t >= self.heartbeat[sl])
-        expiry = t >= pub_t + self.validity[sl]
-        due = expiry | (t - pub_t >= self.heartbeat[sl])
-        # `decide`'s reason where it publishes: standing and moved: start, else drift (a reposition where the
-        # filter stands too); moving and drifted: drift; else expiry or heartbeat where due; else none (0)
-        pub = np.where(expiry, 3, np.where(due, 4, 0))
-        pub = np.where(~standing & drifted, 2, pub)
-        nv_start = nv > self.v_start[sl]
-        pub = np.where(standing & moved, np.where(nv_start, 1, np.where(nv <= v_stop, -2, 2)), pub)
-        pub = np.where(stop, 10 + pub, pub)  # "stop" unless `_halts_here` (per entity, after the commit): pub
-        # commit the rows that stay in arrays
-        self.counters["vector_near"] += int((ok & near_rows).sum())
-        self.counters["vector_best_on"] += int((ok & retried).sum())
-        self.counters["vector_hysteresis"] += int((ok & (pend_e != -1)).sum())  # (an area not entered yet too)
-        w = np.flatnonzero(ok)
-        c = sl[w]
-        self.last_t[c] = t
-        self.iv[c], self.iv_n[c], self.gap_lim[c], self.reach[c] = iv[w], iv_n[w], gap_lim[w], reach[w]
-        self.interval[c] = interval[w]
-        self.mx[c], self.my[c] = x[w], y[w]
-        # what `feed` and the usual `track` reset: no fix gap, on the network; the hysteresis candidate (near)
-        self.off_since[c], self.halted[c], self.pend_e[c], self.pend_n[c] = math.nan, 0, pend_e[w], pend_n[w]
-        self.lf_kind[c] = 1
-        self.lf_e[c], self.lf_off[c], self.lf_x[c], self.lf_y[c], self.lf_d[c] = e[w], off[w], px[w], py[w], dist[w]
-        self.dist_ema[c] = dist_ema[w]
-        for f, v in zip(("ks", "kv", "ka", "p00", "p01", "p02", "p11", "p12", "p22"), [ns, *new[1:]], strict=True):
-            getattr(self, f)[c] = v[w]
-        dw = w[dead[w]]
-        if len(dw):  # nothing follows the path's last edge: `dead_end`, not asked again
-            self.dead_e[sl[dw]], self.dead_d[sl[dw]] = pe[dw, pn[dw] - 1], pd[dw, pn[dw] - 1]
-        tw = w[trim[w]]
-        if len(tw):
-            self.counters["vector_trims"] += len(tw)
-            ct = sl[tw]
-            self.pe[ct], self.pd[ct], self.pc[ct], self.pn[ct] = pe[tw], pd[tw], pc[tw], pn[tw]
-            paths = self.rec.paths
-            for slot in ct.tolist():
-                paths[slot] = None  # the row's path changed: its `Path` is built again when asked
-        self.kt[c] = t
-        vs = w[vpeak_set[w]]
-        self.vpeak[sl[vs]] = nv[vs]
-        self.vpeak_t[sl[vs]] = t
-        self.rev[c] = rev[w]
-        self.rs[c] = rs[w]
-        self.rs_n[c] = np.minimum(self.rs_n[c] + 1, RECENT)
-        self.rx[c], self.ry[c], self.rr_n[c] = rx[w], ry[w], rr_n[w]
-        self.over[c] = np.where(standing[w], self.over[c], over[w])
-        d = np.minimum(np.minimum(pub_t[w] + self.validity[c], pub_t[w] + self.heartbeat[c]),
-                       np.minimum(t + self.lost_after[c], t + gap_lim[w]))
-        self.deadline[c] = d - (1e-6 + np.abs(d) * 1e-12)
-        return np.where(ok, 0, why), np.where(ok, pub, 0)
-
     # ---- what the arrays derive from a Player -------------------------------------------------------------
     def _refresh(self, s: int) -> None:
         """After a scalar call (or `add`): the slot's deadline, whether its next fix may take the arrays, and
@@ -474,7 +278,7 @@ class FleetCore:
                 self.net, self.geo = p.net, Geometry(p.net)
             slow = None if p.net is self.net and ghost.path.net is self.net else "other_net"
         ok = slow is None
-        self.slow[s] = 0 if ok else _WHY[slow]
+        self.slow[s] = 0 if ok else WHY[slow]
         self.fast[s] = ok
         if not ok:
             return

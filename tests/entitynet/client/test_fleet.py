@@ -16,8 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from entitynet.client import Player, netview
-from entitynet.client import fleet as fleet_mod
+from entitynet.client import Player, fleet_fix, netview
 from entitynet.client.fixes import FixRejected
 from entitynet.client.fleet import FleetCore, _deadline
 from entitynet.client.path import Path
@@ -156,8 +155,8 @@ def test_written_back_state_is_the_players_own():
 def test_the_comparisons_see_an_error(monkeypatch, error, seen_in):
     """Both checks above can fail: a filter update off by 1e-9 m in the arrays shows in the written-back state
     (the payload's quantisation hides it from the messages for a while), one off by 0.5 m in the messages."""
-    real = fleet_mod.kf_update
-    monkeypatch.setattr(fleet_mod, "kf_update", lambda z, *a: real(z + error, *a))
+    real = fleet_fix.kf_update
+    monkeypatch.setattr(fleet_fix, "kf_update", lambda z, *a: real(z + error, *a))
     got_a, got_b, core, ents = _run(parallel(gap=12.0, length=300.0), n=6, ticks=120)
     if seen_in == "messages":
         assert got_a != got_b

@@ -153,7 +153,7 @@ def test_the_twins_see_an_error_in_the_retry_or_the_hysteresis(monkeypatch, muta
                 return real(core, *a)
             finally:
                 core.swc[:] -= 1
-        monkeypatch.setattr("entitynet.client.fleet.near_fixes", one_more)
+        monkeypatch.setattr("entitynet.client.fleet_fix.near_fixes", one_more)
     got_a, got_b, core, ents = _run(cross(arm=100.0))
     live = [slot for slot in range(len(ents)) if core.players[slot] is not None]
     assert got_a != got_b or any(_state(ents[slot][0]) != _state(core.player(slot)) for slot in live)
