@@ -117,7 +117,7 @@ def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: 
         tr, kk, c0 = tr[real], kk[real], c0[real]
         jj = np.minimum(np.arange(W)[None, :] + kk[:, None], W - 1)
         jc = np.arange(W + 1)[None, :] + kk[:, None]
-        pe, pd, pc, pn, ns, rs = pe.copy(), pd.copy(), pc.copy(), pn.copy(), ns.copy(), rs.copy()
+        ns, rs = ns.copy(), rs.copy()  # (pe, pd, pc, pn are this call's own: `core.pe[sl]` copies the rows)
         pe[tr], pd[tr] = pe[tr[:, None], jj], pd[tr[:, None], jj]
         pc[tr] = np.where(jc <= pn[tr, None], pc[tr[:, None], np.minimum(jc, W)] - c0[:, None], np.inf)
         pn[tr] = pn[tr] - kk
@@ -130,7 +130,6 @@ def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: 
     dead = np.zeros(len(sl), dtype=bool)
     ext = np.flatnonzero(extend & ok)
     if len(ext):  # `_maintain_path`'s extension ahead, row by row (rows that stay in arrays otherwise)
-        pe, pd, pc, pn = pe.copy(), pd.copy(), pc.copy(), pn.copy()
         dead[ext] = extend_rows(core.players, core.net, sl, ext, need, pe, pd, pc, pn)
         trim[ext] = True  # (the path changed: committed like a trimmed one)
         core.counters["vector_extends"] += len(ext)
@@ -145,8 +144,9 @@ def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: 
                                     core.g_b[sl], core.g_stop[sl])
     gv = np.where(_beyond, 0.0, gv)
     gn = core.gn[sl]
-    glen = core.gc[sl][rows, gn]
-    gx, gy = geo.path_xy(np.where(glen < gs, glen, gs), core.ge[sl], core.gd[sl], core.gc[sl], gn)
+    gc = core.gc[sl]
+    glen = gc[rows, gn]
+    gx, gy = geo.path_xy(np.where(glen < gs, glen, gs), core.ge[sl], core.gd[sl], gc, gn)
     v_stop = core.v_stop[sl]
     thr = core.thr[sl]
     stop = (gv > v_stop) & (nv < v_stop)

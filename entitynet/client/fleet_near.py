@@ -31,8 +31,7 @@ class NearTables:
     """The segment rows of every table asked for so far, concatenated, and where each table lies: per class of
     networks (a placer's `networks`, numbered in the order met) and edge, its first row (`start`, -1: not built
     yet), its row count and whether the placer's areas lie at its nodes (`areas`: their tuples, in `near`'s
-    order). Built from the placer's own lists (`Placer.neighbourhood`) with the operations of `_SegTable`, the
-    arrays in one pass (tests/entitynet/client/test_fleet_near.py holds them equal to `Placer.table`'s)."""
+    order). The rows are the placer's own tables' (`Placer.table`, shared with the entities' scalar fixes)."""
 
     def __init__(self) -> None:
         self.classes: dict[int, int] = {}  # networks -> class
@@ -55,23 +54,14 @@ class NearTables:
                 for old, fill, dtype in grow)
         return c
 
-    def rows_of(self, geo, placer, cls: int, e: int) -> tuple[int, int, tuple[int, ...]]:
-        """Where edge e's table of `placer` (class `cls`) lies in the concatenated rows (built on first use),
-        and the areas of the placer's networks `Placer.near` tests the fix against first, in its order."""
+    def rows_of(self, placer, cls: int, e: int) -> tuple[int, int, tuple[int, ...]]:
+        """Where edge e's table of `placer` (class `cls`) lies in the concatenated rows (copied from
+        `Placer.table` on first use), and the areas of the placer's networks `Placer.near` tests the fix
+        against first, in its order."""
         if self.start[cls, e] >= 0:
             return int(self.start[cls, e]), int(self.count[cls, e]), self.areas.get((cls, e), ())
-        edges, at_nodes = placer.neighbourhood(e)
-        ed = np.array(edges, dtype=np.int64)
-        lo = geo.geom_off[ed]
-        per = np.maximum(geo.geom_off[ed + 1] - lo - 1, 0)
-        rep = np.repeat(np.arange(len(ed)), per)
-        k = np.arange(int(per.sum())) - (np.cumsum(per) - per)[rep] + lo[rep]
-        n = len(k)
-        ax, ay = geo.gx[k], geo.gy[k]
-        dx, dy = geo.gx[k + 1] - ax, geo.gy[k + 1] - ay
-        l2 = dx * dx + dy * dy  # (`_SegTable`'s operations, in its order)
-        rows = {"ax": ax, "ay": ay, "dx": dx, "dy": dy, "inv_l2": np.where(l2 > 0.0, 1.0 / np.where(l2 > 0.0, l2, 1.0),
-                0.0), "cum0": geo.gcum[k], "slen": np.sqrt(l2)}
+        t = placer.table(e)
+        n = len(t.edge)
         if self.size + n > len(self.edge):
             cap = max(2 * len(self.edge), self.size + n)
             for c in _COLS:
@@ -82,9 +72,9 @@ class NearTables:
             grown_e[: self.size] = self.edge[: self.size]
             self.edge = grown_e
         for c in _COLS:
-            self.cols[c][self.size : self.size + n] = rows[c]
-        self.edge[self.size : self.size + n] = ed[rep]
-        areas = tuple(a for a in at_nodes if placer.topo.area_networks[a] & placer.networks)
+            self.cols[c][self.size : self.size + n] = getattr(t, c)
+        self.edge[self.size : self.size + n] = t.edge
+        areas = tuple(a for a in t.areas if placer.topo.area_networks[a] & placer.networks)
         self.start[cls, e], self.count[cls, e], self.has_areas[cls, e] = self.size, n, bool(areas)
         if areas:
             self.areas[(cls, e)] = areas
@@ -136,24 +126,39 @@ def s_of_rows(pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, ed
     equals), else `s_pred`. The same additions as the scalar code (`dist_of`: offset, or length - offset)."""
     m, w = pe.shape
     rows = np.arange(m)
-    cols = np.arange(w)[None, :]
-    occ = (pe == e[:, None]) & (cols < pn[:, None])
     elen = edge_len[e]
-    along = np.where(pd > 0, off[:, None], (elen - off)[:, None])  # `dist_of` per column
+
+    def holds(k: np.ndarray) -> np.ndarray:  # column k is one of the path's and holds the fix's edge
+        return (k >= 0) & (k < pn) & (pe[rows, np.clip(k, 0, w - 1)] == e)
     kk = k_hint.copy()
     found = np.zeros(m, dtype=bool)
     for k in (k_hint, k_hint + 1, k_hint - 1):
-        at = ~found & (k >= 0) & (k < pn) & occ[rows, np.clip(k, 0, w - 1)]
+        at = ~found & holds(k)
         kk = np.where(at, k, kk)
         found |= at
     kc = np.clip(kk, 0, w - 1)
-    again = (occ & (np.abs(cols - kc[:, None]) <= 3) & (cols != kc[:, None])).any(axis=1)
-    first = pc[rows, kc] + along[rows, kc]
+    again = np.zeros(m, dtype=bool)  # another occurrence within three columns of kc (only these are looked at)
+    for d in (-3, -2, -1, 1, 2, 3):
+        again |= holds(kc + d)
+    out = pc[rows, kc] + np.where(pd[rows, kc] > 0, off, elen - off)  # (`dist_of` at kc)
+    far = np.flatnonzero(~(found & ~again))  # (rows that need the nearest occurrence: the whole path is searched)
+    if len(far):
+        out[far] = _nearest_occurrence(pe[far], pd[far], pc[far], pn[far], e[far], off[far], elen[far], s_pred[far])
+    return out
+
+
+def _nearest_occurrence(pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, e: np.ndarray,
+                        off: np.ndarray, elen: np.ndarray, s_pred: np.ndarray) -> np.ndarray:
+    """`_s_of`'s second case: the path coordinate of the occurrence of edge e nearest `s_pred` (the first of
+    equals), or `s_pred` where the path does not hold e."""
+    m, w = pe.shape
+    rows = np.arange(m)
+    occ = (pe == e[:, None]) & (np.arange(w)[None, :] < pn[:, None])
+    along = np.where(pd > 0, off[:, None], (elen - off)[:, None])  # `dist_of` per column
     with np.errstate(invalid="ignore"):
         gap = np.where(occ, np.abs(pc[:, :w] + along - s_pred[:, None]), np.inf)
     jb = np.argmin(gap, axis=1)  # (the first minimum: the scalar loop takes a later one only if smaller)
-    nearest = np.where(occ.any(axis=1), pc[rows, jb] + along[rows, jb], s_pred)
-    return np.where(found & ~again, first, nearest)
+    return np.where(occ.any(axis=1), pc[rows, jb] + along[rows, jb], s_pred)
 
 
 def best_on_rows(geo, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, x: np.ndarray, y: np.ndarray,
@@ -212,7 +217,7 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     e_cur = pe[rows, k_cur]
     cls = core.ncls[sl]
     for i in np.flatnonzero(near.start[cls, e_cur] < 0).tolist():  # tables not built yet (the arrays: once)
-        near.rows_of(core.geo, players[int(sl[i])].tracker.placer, int(cls[i]), int(e_cur[i]))
+        near.rows_of(players[int(sl[i])].tracker.placer, int(cls[i]), int(e_cur[i]))
     start, count = near.start[cls, e_cur], near.count[cls, e_cur]
     for i in np.flatnonzero(near.has_areas[cls, e_cur]).tolist():
         placer = players[int(sl[i])].tracker.placer

@@ -71,25 +71,24 @@ class _SegTable:
     __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks", "rows",
                  "slen_py", "cum0_py", "groups", "group_of")
 
-    def __init__(self, net: NetView, edges: list[int], areas: list[int]) -> None:
+    def __init__(self, geom: tuple[np.ndarray, ...], edges: list[int], areas: list[int]) -> None:
+        """The rows of `edges`' segments (sorted by edge, then along it) from the network's vertex arrays `geom`
+        (x, y, cumulative length, per-edge offsets: `Placer.geom`), in one numpy pass: the same IEEE operations
+        per segment as a loop over the vertices (tests/entitynet/client/test_fleet_near.py compares them)."""
+        gx, gy, gcum, goff = geom
         edges = sorted(set(edges))
-        ax, ay, dx, dy, cum0, eid = [], [], [], [], [], []
-        for e in edges:
-            lo, hi = net.geom_off[e], net.geom_off[e + 1]
-            for k in range(lo, hi - 1):
-                ax.append(net.gx[k])
-                ay.append(net.gy[k])
-                dx.append(net.gx[k + 1] - net.gx[k])
-                dy.append(net.gy[k + 1] - net.gy[k])
-                cum0.append(net.gcum[k])
-                eid.append(e)
-        self.ax, self.ay = np.array(ax), np.array(ay)
-        self.dx, self.dy = np.array(dx), np.array(dy)
+        ed = np.array(edges, dtype=np.int64)
+        lo = goff[ed]
+        per = np.maximum(goff[ed + 1] - lo - 1, 0)  # (an edge's last vertex starts no segment)
+        rep = np.repeat(np.arange(len(ed)), per)
+        k = np.arange(int(per.sum()), dtype=np.int64) - (np.cumsum(per) - per)[rep] + lo[rep]
+        self.ax, self.ay = gx[k], gy[k]
+        self.dx, self.dy = gx[k + 1] - self.ax, gy[k + 1] - self.ay
         l2 = self.dx * self.dx + self.dy * self.dy
         self.inv_l2 = np.where(l2 > 0.0, 1.0 / np.where(l2 > 0.0, l2, 1.0), 0.0)
         self.slen = np.sqrt(l2)
-        self.cum0 = np.array(cum0)
-        self.edge = np.array(eid, dtype=np.int64)
+        self.cum0 = gcum[k]
+        self.edge = ed[rep]
         self.edges = edges
         self.areas = areas
         self.masks: dict[frozenset[int], np.ndarray] = {}
@@ -100,22 +99,21 @@ class _SegTable:
         self.slen_py: list[float] = self.slen.tolist()
         self.cum0_py: list[float] = self.cum0.tolist()
         # per edge, in table order: (edge, box of its vertices, first row, end row), for skipping whole edges
+        # (the box of each segment's two ends, a + d as the loop computed them)
         self.groups: list[tuple[int, float, float, float, float, int, int]] = []
         self.group_of: dict[int, tuple[int, float, float, float, float, int, int]] = {}
-        k = 0
-        rows = self.rows
-        while k < len(rows):
-            e, k1 = rows[k][5], k
-            xs, ys = [], []
-            while k1 < len(rows) and rows[k1][5] == e:
-                ax, ay, dx, dy = rows[k1][:4]
-                xs += (ax, ax + dx)
-                ys += (ay, ay + dy)
-                k1 += 1
-            g = (e, min(xs), min(ys), max(xs), max(ys), k, k1)
-            self.groups.append(g)
-            self.group_of[e] = g
-            k = k1
+        if len(k):
+            has = per > 0
+            first = (np.cumsum(per) - per)[has]
+            bx, by = self.ax + self.dx, self.ay + self.dy
+            boxes = zip(ed[has].tolist(), np.minimum.reduceat(np.minimum(self.ax, bx), first).tolist(),
+                        np.minimum.reduceat(np.minimum(self.ay, by), first).tolist(),
+                        np.maximum.reduceat(np.maximum(self.ax, bx), first).tolist(),
+                        np.maximum.reduceat(np.maximum(self.ay, by), first).tolist(), first.tolist(),
+                        (first + per[has]).tolist(), strict=True)
+            for g in boxes:
+                self.groups.append(g)
+                self.group_of[g[0]] = g
 
     def mask(self, preferred: frozenset[int]) -> np.ndarray:
         m = self.masks.get(preferred)
@@ -145,6 +143,7 @@ class Placer:
         self._area_bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._area_rows: dict[tuple[int, int], list[tuple[int, float, float, float, float]]] | None = None
         self._grid: tuple[dict[tuple[int, int], list[int]], dict, float] | None = None
+        self._geom: tuple[np.ndarray, ...] | None = None
 
     # ---- first fix -----------------------------------------------------------------------------------------
     def first(self, x: float, y: float) -> Fix | None:
@@ -155,18 +154,27 @@ class Placer:
             return None
         return p
 
+    @property
+    def geom(self) -> tuple[np.ndarray, ...]:
+        """The network's vertex x, y, cumulative length and per-edge vertex offsets as numpy arrays (converted
+        once per placer from the NetView's lists), for building segment tables in one pass."""
+        if self._geom is None:
+            net = self.net
+            self._geom = (np.array(net.gx, dtype=float), np.array(net.gy, dtype=float),
+                          np.array(net.gcum, dtype=float), np.array(net.geom_off, dtype=np.int64))
+        return self._geom
+
     # ---- continuity ----------------------------------------------------------------------------------------
     def table(self, edge: int) -> _SegTable:
         """The cached segment table of the edges within two hops of `edge`, the only candidates continuity
         projects a fix onto (built once per edge, reused for every later fix near it)."""
         t = self._tables.get(edge)
         if t is None:
-            t = self._tables[edge] = _SegTable(self.net, *self.neighbourhood(edge))
+            t = self._tables[edge] = _SegTable(self.geom, *self.neighbourhood(edge))
         return t
 
     def neighbourhood(self, edge: int) -> tuple[list[int], list[int]]:
-        """The edges of `table(edge)` (within two hops of `edge`, sorted) and the areas at their nodes (the
-        fleet core's own segment rows are built from the same lists: fleet_near.NearTables)."""
+        """The edges of `table(edge)` (within two hops of `edge`, sorted) and the areas at their nodes."""
         net = self.net
         hop1 = net.edges_near_nodes([net.edge_from[edge], net.edge_to[edge]], self.networks)
         nodes = {net.edge_from[e] for e in hop1} | {net.edge_to[e] for e in hop1}
@@ -178,7 +186,7 @@ class Placer:
         key = -1 - hash(tuple(sorted(set(edges))))
         t = self._tables.get(key)
         if t is None:
-            t = self._tables[key] = _SegTable(self.net, list(edges), [])
+            t = self._tables[key] = _SegTable(self.geom, list(edges), [])
         rx, ry = x - t.ax, y - t.ay
         u = np.clip((rx * t.dx + ry * t.dy) * t.inv_l2, 0.0, 1.0)
         ex, ey = rx - u * t.dx, ry - u * t.dy

@@ -543,10 +543,12 @@ def test_track_on_equals_the_general_track(ti, etype, with_route, seed, noise, d
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, len(TOPOS)), st.data())
 def test_segment_table_rows_and_groups_equal_the_vertex_loop(ti, data):
-    """The rows the plain loop reads are the numpy arrays' numbers, and the groups cover them edge by edge."""
+    """The table built in one numpy pass holds the vertex loop's numbers (the loop it replaced, here verbatim),
+    the rows the plain loop reads are the numpy arrays' numbers, and the groups are the loop's boxes and row
+    ranges edge by edge."""
     net = NETS[ti] if ti < len(TOPOS) else MESH
     edges = data.draw(st.lists(st.integers(0, net.n_edges - 1), min_size=1, max_size=12))
-    t = _SegTable(net, edges, [])
+    t = _SegTable(Placer(net, VEHICLE).geom, edges, [])
     ax, ay, dx, dy, cum0, eid = [], [], [], [], [], []
     for e in sorted(set(edges)):
         for k in range(net.geom_off[e], net.geom_off[e + 1] - 1):
@@ -565,6 +567,17 @@ def test_segment_table_rows_and_groups_equal_the_vertex_loop(ti, data):
     assert t.rows == list(zip(ax.tolist(), ay.tolist(), dx.tolist(), dy.tolist(), inv_l2.tolist(), eid, strict=True))
     assert t.slen_py == np.sqrt(l2).tolist() and t.cum0_py == cum0
     assert [g[0] for g in t.groups] == sorted(set(eid)) and all(t.rows[g[5]][5] == g[0] for g in t.groups)
+    groups, k = [], 0
+    while k < len(t.rows):  # (the loop that built the groups before)
+        e, k1, xs, ys = t.rows[k][5], k, [], []
+        while k1 < len(t.rows) and t.rows[k1][5] == e:
+            rax, ray, rdx, rdy = t.rows[k1][:4]
+            xs += (rax, rax + rdx)
+            ys += (ray, ray + rdy)
+            k1 += 1
+        groups.append((e, min(xs), min(ys), max(xs), max(ys), k, k1))
+        k = k1
+    assert t.groups == groups and t.group_of == {g[0]: g for g in groups}
 
 
 def _point_reference(net, edge, offset):

@@ -106,11 +106,9 @@ def test_best_on_rows_is_the_trackers_best_on(name):
 
 @pytest.mark.parametrize("name", sorted(TOPOS) + ["area_square"])
 def test_the_near_tables_hold_the_placers_tables(name):
-    """`NearTables` builds its rows itself (in one numpy pass per table): per networks class and edge, the
-    rows are `Placer.table`'s columns bit for bit, in its order, and the areas those of the placer's networks
-    at the table's nodes; a table asked for again is not built again."""
+    """`NearTables` per networks class and edge: the rows of `Placer.table`, in its order, and the areas of
+    the placer's networks at the table's nodes; a table asked for again is not copied again."""
     net = netview(area_square() if name == "area_square" else TOPOS[name])
-    geo = Geometry(net)
     tables = NearTables()
     for networks in (VEHICLE | PEDESTRIAN, PEDESTRIAN, VEHICLE):
         placer = Placer(net, networks)
@@ -118,7 +116,7 @@ def test_the_near_tables_hold_the_placers_tables(name):
         assert tables.class_of(networks, net.n_edges) == cls
         for e in [*range(net.n_edges), *range(net.n_edges)]:  # (twice: the second time from the index)
             size = tables.size
-            start, count, areas = tables.rows_of(geo, placer, cls, e)
+            start, count, areas = tables.rows_of(placer, cls, e)
             assert tables.size == size or start == size
             t = placer.table(e)
             assert count == len(t.edge)
