@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from entitynet.client.placement import segment_rows
 from entitynet.client.tracker import ALONG_SCALE
 
 _COLS = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen")
@@ -31,7 +32,9 @@ class NearTables:
     """The segment rows of every table asked for so far, concatenated, and where each table lies: per class of
     networks (a placer's `networks`, numbered in the order met) and edge, its first row (`start`, -1: not built
     yet), its row count and whether the placer's areas lie at its nodes (`areas`: their tuples, in `near`'s
-    order). The rows are the placer's own tables' (`Placer.table`, shared with the entities' scalar fixes)."""
+    order). The rows are those of `Placer.table` (the same lists and arithmetic: `Placer.neighbourhood`,
+    `segment_rows`), built for all of a tick's new tables at once (tests/entitynet/client/test_fleet_near.py
+    holds them equal to the placer's tables)."""
 
     def __init__(self) -> None:
         self.classes: dict[int, int] = {}  # networks -> class
@@ -54,16 +57,24 @@ class NearTables:
                 for old, fill, dtype in grow)
         return c
 
-    def rows_of(self, placer, cls: int, e: int) -> tuple[int, int, tuple[int, ...]]:
-        """Where edge e's table of `placer` (class `cls`) lies in the concatenated rows (copied from
-        `Placer.table` on first use), and the areas of the placer's networks `Placer.near` tests the fix
-        against first, in its order."""
-        if self.start[cls, e] >= 0:
-            return int(self.start[cls, e]), int(self.count[cls, e]), self.areas.get((cls, e), ())
-        t = placer.table(e)
-        n = len(t.edge)
-        if self.size + n > len(self.edge):
-            cap = max(2 * len(self.edge), self.size + n)
+    def build(self, wanted: dict[tuple[int, int], object]) -> None:
+        """The tables (class, edge) -> placer not built yet, all in one pass: each table's edges and areas
+        from `Placer.neighbourhood` (what `Placer.table` holds), the rows by `segment_rows` (its arithmetic)."""
+        wanted = {key: placer for key, placer in wanted.items() if self.start[key] < 0}
+        if not wanted:
+            return
+        tables, flat = [], []
+        for (cls, e), placer in wanted.items():
+            edges, at_nodes = placer.neighbourhood(e)
+            tables.append((cls, e, len(edges), tuple(a for a in at_nodes
+                                                     if placer.topo.area_networks[a] & placer.networks)))
+            flat += edges
+        per, rows = segment_rows(next(iter(wanted.values())).geom, np.array(flat, dtype=np.int64))
+        n_edges = np.array([t[2] for t in tables], dtype=np.int64)
+        counts = np.add.reduceat(per, np.cumsum(n_edges) - n_edges)  # (a table holds at least its own edge)
+        total = int(counts.sum())
+        if self.size + total > len(self.edge):
+            cap = max(2 * len(self.edge), self.size + total)
             for c in _COLS:
                 grown = np.zeros(cap)
                 grown[: self.size] = self.cols[c][: self.size]
@@ -72,14 +83,20 @@ class NearTables:
             grown_e[: self.size] = self.edge[: self.size]
             self.edge = grown_e
         for c in _COLS:
-            self.cols[c][self.size : self.size + n] = getattr(t, c)
-        self.edge[self.size : self.size + n] = t.edge
-        areas = tuple(a for a in t.areas if placer.topo.area_networks[a] & placer.networks)
-        self.start[cls, e], self.count[cls, e], self.has_areas[cls, e] = self.size, n, bool(areas)
-        if areas:
-            self.areas[(cls, e)] = areas
-        self.size += n
-        return self.size - n, n, areas
+            self.cols[c][self.size : self.size + total] = rows[c]
+        self.edge[self.size : self.size + total] = rows["edge"]
+        starts = self.size + np.cumsum(counts) - counts
+        for (cls, e, _n, areas), start, count in zip(tables, starts.tolist(), counts.tolist(), strict=True):
+            self.start[cls, e], self.count[cls, e], self.has_areas[cls, e] = start, count, bool(areas)
+            if areas:
+                self.areas[(cls, e)] = areas
+        self.size += total
+
+    def rows_of(self, placer, cls: int, e: int) -> tuple[int, int, tuple[int, ...]]:
+        """Where edge e's table of `placer` (class `cls`) lies in the concatenated rows (built on first use),
+        and the areas of the placer's networks `Placer.near` tests the fix against first, in its order."""
+        self.build({(cls, e): placer})
+        return int(self.start[cls, e]), int(self.count[cls, e]), self.areas.get((cls, e), ())
 
     def near(self, x: np.ndarray, y: np.ndarray, start: np.ndarray, count: np.ndarray, margin: np.ndarray,
              pe: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -216,8 +233,9 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     near, players = core._near, core.players
     e_cur = pe[rows, k_cur]
     cls = core.ncls[sl]
-    for i in np.flatnonzero(near.start[cls, e_cur] < 0).tolist():  # tables not built yet (the arrays: once)
-        near.rows_of(players[int(sl[i])].tracker.placer, int(cls[i]), int(e_cur[i]))
+    missing = np.flatnonzero(near.start[cls, e_cur] < 0).tolist()
+    if missing:  # tables not built yet (once in a run, all of a tick's together)
+        near.build({(int(cls[i]), int(e_cur[i])): players[int(sl[i])].tracker.placer for i in missing})
     start, count = near.start[cls, e_cur], near.count[cls, e_cur]
     for i in np.flatnonzero(near.has_areas[cls, e_cur]).tolist():
         placer = players[int(sl[i])].tracker.placer

@@ -67,6 +67,23 @@ def _ring_distance_np(ring: np.ndarray, x: float, y: float) -> float:
     return float(np.min(np.hypot(p0[:, 0] + t * d[:, 0] - x, p0[:, 1] + t * d[:, 1] - y)))
 
 
+def segment_rows(geom: tuple[np.ndarray, ...], ed: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The segment rows of edges `ed` in their order (each edge's segments along it), from the network's vertex
+    arrays `geom` (`Placer.geom`): per edge its number of segments, and the columns ax, ay, dx, dy, inv_l2 (0.0
+    for a segment of no length), slen, cum0 and edge. One home for that arithmetic: the placer's tables and
+    the fleet core's (fleet_near.NearTables, many tables in one pass) are built by it."""
+    gx, gy, gcum, goff = geom
+    lo = goff[ed]
+    per = np.maximum(goff[ed + 1] - lo - 1, 0)  # (an edge's last vertex starts no segment)
+    rep = np.repeat(np.arange(len(ed)), per)
+    k = np.arange(int(per.sum()), dtype=np.int64) - (np.cumsum(per) - per)[rep] + lo[rep]
+    ax, ay = gx[k], gy[k]
+    dx, dy = gx[k + 1] - ax, gy[k + 1] - ay
+    l2 = dx * dx + dy * dy
+    return per, {"ax": ax, "ay": ay, "dx": dx, "dy": dy, "inv_l2": np.where(l2 > 0.0, 1.0 / np.where(l2 > 0.0, l2, 1.0),
+                 0.0), "slen": np.sqrt(l2), "cum0": gcum[k], "edge": ed[rep]}
+
+
 class _SegTable:
     __slots__ = ("ax", "ay", "dx", "dy", "inv_l2", "cum0", "slen", "edge", "edges", "areas", "masks", "rows",
                  "slen_py", "cum0_py", "groups", "group_of")
@@ -75,20 +92,11 @@ class _SegTable:
         """The rows of `edges`' segments (sorted by edge, then along it) from the network's vertex arrays `geom`
         (x, y, cumulative length, per-edge offsets: `Placer.geom`), in one numpy pass: the same IEEE operations
         per segment as a loop over the vertices (tests/entitynet/client/test_fleet_near.py compares them)."""
-        gx, gy, gcum, goff = geom
         edges = sorted(set(edges))
         ed = np.array(edges, dtype=np.int64)
-        lo = goff[ed]
-        per = np.maximum(goff[ed + 1] - lo - 1, 0)  # (an edge's last vertex starts no segment)
-        rep = np.repeat(np.arange(len(ed)), per)
-        k = np.arange(int(per.sum()), dtype=np.int64) - (np.cumsum(per) - per)[rep] + lo[rep]
-        self.ax, self.ay = gx[k], gy[k]
-        self.dx, self.dy = gx[k + 1] - self.ax, gy[k + 1] - self.ay
-        l2 = self.dx * self.dx + self.dy * self.dy
-        self.inv_l2 = np.where(l2 > 0.0, 1.0 / np.where(l2 > 0.0, l2, 1.0), 0.0)
-        self.slen = np.sqrt(l2)
-        self.cum0 = gcum[k]
-        self.edge = ed[rep]
+        per, cols = segment_rows(geom, ed)
+        self.ax, self.ay, self.dx, self.dy = cols["ax"], cols["ay"], cols["dx"], cols["dy"]
+        self.inv_l2, self.slen, self.cum0, self.edge = cols["inv_l2"], cols["slen"], cols["cum0"], cols["edge"]
         self.edges = edges
         self.areas = areas
         self.masks: dict[frozenset[int], np.ndarray] = {}
@@ -102,7 +110,7 @@ class _SegTable:
         # (the box of each segment's two ends, a + d as the loop computed them)
         self.groups: list[tuple[int, float, float, float, float, int, int]] = []
         self.group_of: dict[int, tuple[int, float, float, float, float, int, int]] = {}
-        if len(k):
+        if len(self.edge):
             has = per > 0
             first = (np.cumsum(per) - per)[has]
             bx, by = self.ax + self.dx, self.ay + self.dy
