@@ -92,12 +92,6 @@ class NearTables:
                 self.areas[(cls, e)] = areas
         self.size += total
 
-    def rows_of(self, placer, cls: int, e: int) -> tuple[int, int, tuple[int, ...]]:
-        """Where edge e's table of `placer` (class `cls`) lies in the concatenated rows (built on first use),
-        and the areas of the placer's networks `Placer.near` tests the fix against first, in its order."""
-        self.build({(cls, e): placer})
-        return int(self.start[cls, e]), int(self.count[cls, e]), self.areas.get((cls, e), ())
-
     def near(self, x: np.ndarray, y: np.ndarray, start: np.ndarray, count: np.ndarray, margin: np.ndarray,
              pe: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
         """`Placer.near(x[i], y[i], ., preferred_i, margin[i])` for tables (start[i], count[i]) without areas,

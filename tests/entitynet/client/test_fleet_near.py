@@ -108,7 +108,7 @@ def test_best_on_rows_is_the_trackers_best_on(name):
 def test_the_near_tables_hold_the_placers_tables(name):
     """`NearTables` per networks class and edge: the rows of `Placer.table`, in its order, and the areas of
     the placer's networks at the table's nodes, whether built many at once (`build`, half the edges in one
-    pass) or one by one (`rows_of`); a table asked for again is not built again."""
+    pass) or one by one; a table asked for again is not built again."""
     net = netview(area_square() if name == "area_square" else TOPOS[name])
     tables = NearTables()
     for networks in (VEHICLE | PEDESTRIAN, PEDESTRIAN, VEHICLE):
@@ -120,7 +120,9 @@ def test_the_near_tables_hold_the_placers_tables(name):
         seen: set[int] = set()
         for e in [*range(net.n_edges), *range(net.n_edges)]:  # (twice: the second time from the index)
             size = tables.size
-            start, count, areas = tables.rows_of(placer, cls, e)
+            tables.build({(cls, e): placer})
+            start, count = int(tables.start[cls, e]), int(tables.count[cls, e])
+            areas = tables.areas.get((cls, e), ())
             assert start == size if e % 2 and e not in seen else tables.size == size
             seen.add(e)
             t = placer.table(e)
