@@ -165,11 +165,16 @@ class Placer:
     @property
     def geom(self) -> tuple[np.ndarray, ...]:
         """The network's vertex x, y, cumulative length and per-edge vertex offsets as numpy arrays (converted
-        once per placer from the NetView's lists), for building segment tables in one pass."""
+        once per NetView from its lists, kept on it as `placer_for` keeps the placers: one copy for all the
+        placers of a map), for building segment tables in one pass."""
         if self._geom is None:
             net = self.net
-            self._geom = (np.array(net.gx, dtype=float), np.array(net.gy, dtype=float),
-                          np.array(net.gcum, dtype=float), np.array(net.geom_off, dtype=np.int64))
+            geom = net.__dict__.get("_vertex_arrays")
+            if geom is None:
+                geom = net.__dict__["_vertex_arrays"] = (
+                    np.array(net.gx, dtype=float), np.array(net.gy, dtype=float), np.array(net.gcum, dtype=float),
+                    np.array(net.geom_off, dtype=np.int64))
+            self._geom = geom
         return self._geom
 
     # ---- continuity ----------------------------------------------------------------------------------------

@@ -133,6 +133,7 @@ def test_the_near_tables_hold_the_placers_tables(name):
             assert areas == tuple(a for a in t.areas if net.topo.area_networks[a] & networks)
             assert bool(tables.has_areas[cls, e]) == bool(areas)
     assert len(tables.classes) == 3
+    assert Placer(net, PEDESTRIAN).geom is Placer(net, VEHICLE).geom  # (the vertex arrays: one copy per map)
     if name == "area_square":  # (the area is pedestrian: a vehicle placer's tables hold none of it)
         assert tables.has_areas[tables.classes[PEDESTRIAN]].any()
         assert not tables.has_areas[tables.classes[VEHICLE]].any()
