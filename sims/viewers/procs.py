@@ -50,6 +50,7 @@ class ViewerProcesses:
         self.reports: list[dict | None] = [None] * n
         self.deaths: list[dict] = []
         self.k = -1
+        self.tick_wait_s = 0.0  # wall seconds the coordinator spent handing ticks over (a slow reader shows here)
 
     @property
     def pids(self) -> list[int]:
@@ -113,6 +114,7 @@ class ViewerProcesses:
         pub = [[m.entity, m.payload] for ms in msgs for m in ms if isinstance(m, P.Publish)]
         unpub = [m.entity for ms in msgs for m in ms if isinstance(m, P.Unpublish)]
         frame = wire.encode("tick", k=k, pub=pub, unpub=unpub)
+        t0 = time.monotonic()
         for i in self.live():
             if self.procs[i].exitcode is not None:
                 self._lose(i, "its process ended")
@@ -124,6 +126,7 @@ class ViewerProcesses:
                 self._lose(i, f"did not read its tick within {self.timeout:g} s")
             except (OSError, trio.BrokenResourceError, trio.ClosedResourceError):
                 self._lose(i, "its socket broke (the process ended)")
+        self.tick_wait_s += time.monotonic() - t0
 
     async def finish(self) -> None:
         """Stop every live process and gather its report (each waited for up to the timeout)."""
@@ -153,6 +156,8 @@ class ViewerProcesses:
         rep["viewer_processes"] = {
             "processes": self.n, "measured_viewers": viewers["street"] + viewers["roof"],
             "viewers": self.config.viewers, "subscribe_msgs": subscribe_msgs, "deaths": list(self.deaths),
+            "cpu_s": [None if r is None else round(r["cpu_s"], 2) for r in self.reports],
+            "coordinator_tick_wait_s": round(self.tick_wait_s, 3),
             "note": "each process measured its own viewers against the truth it stepped from the seed; the "
                     "figures are those processes' tallies summed (the error list in process order)"}
         return rep

@@ -11,6 +11,7 @@ frame) name them (`sims.engine.payload_ids`).
 
 from __future__ import annotations
 
+import time
 from collections import namedtuple
 from collections.abc import Iterable
 
@@ -20,6 +21,7 @@ from sims.engine.schedule import Schedule
 from sims.engine.sim import Sim, SimConfig
 
 Sent = namedtuple("Sent", "entity payload")  # what `PayloadIds.published` reads of a PUBLISH
+UNKNOWN_TICKS = 20  # how long an UPDATE whose payload is not known yet waits for its tick frame
 
 
 def share_of(viewers: int, processes: int, index: int) -> list[int]:
@@ -38,9 +40,10 @@ class ViewerShare:
         keep = set(indices)
         self.viewers = self.sim.viewers = [v for v in self.sim.viewers if v.index in keep]
         self.ids = PayloadIds()
-        #: UPDATEs whose payload was not known yet (server id -> payload): the tick frame naming it and the
-        #: server's UPDATE race to this process, so these are tried again once the frame is in (each tick)
-        self._unknown: dict[int, bytes] = {}
+        #: UPDATEs whose payload was not known yet (server id -> (payload, tick)): the tick frame naming it and
+        #: the server's UPDATE race to this process (and a process behind real time reads its frames late), so
+        #: these are tried again at each tick frame, for up to `UNKNOWN_TICKS` ticks (bounded: one per id)
+        self._unknown: dict[int, tuple[bytes, int]] = {}
         self.k = -1
         self.subscribe_msgs = 0
 
@@ -60,9 +63,12 @@ class ViewerShare:
         if k > 0:
             sim.maybe_sample(self.ids.local_of)
         self.ids.published(Sent(int(e), bytes(p)) for e, p in published)
-        for eid, payload in self._unknown.items():
-            self.ids.learn(eid, payload)
-        self._unknown.clear()
+        if self._unknown:
+            local_of = self.ids.local_of
+            for eid, (payload, since) in list(self._unknown.items()):
+                self.ids.learn(eid, payload)
+                if eid in local_of or k - since > UNKNOWN_TICKS:
+                    del self._unknown[eid]
         for e in unpublished:
             self.ids.forget(int(e))
         if k == 0:
@@ -88,7 +94,7 @@ class ViewerShare:
         if m.entity not in ids.local_of:
             ids.learn(m.entity, m.payload)
             if m.entity not in ids.local_of:
-                self._unknown[m.entity] = m.payload
+                self._unknown[m.entity] = (m.payload, self.k)
 
     def report(self) -> dict:
         """What the coordinator merges: the raw tallies per viewer group and the viewers' counters."""
@@ -97,6 +103,7 @@ class ViewerShare:
                        "stale": t.stale, "viewer_samples": t.viewer_samples}
                    for g, t in self.sim.measure.tallies.items()}
         return {"tallies": tallies, "subscribe_msgs": self.subscribe_msgs, "ticks": self.sim.ticks,
+                "cpu_s": float(time.process_time()),
                 "viewers": {"street": sum(not x.high for x in v), "roof": sum(x.high for x in v),
                             "deliveries": sum(x.deliveries for x in v), "leaves": sum(x.leaves for x in v),
                             "bytes": sum(x.bytes for x in v)}}

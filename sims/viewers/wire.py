@@ -22,7 +22,7 @@ FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "ready": {"viewers": int},
     "tick": {"k": int, "pub": list, "unpub": list},
     "stop": {},
-    "report": {"tallies": dict, "viewers": dict, "subscribe_msgs": int, "ticks": int},
+    "report": {"tallies": dict, "viewers": dict, "subscribe_msgs": int, "ticks": int, "cpu_s": float},
 }
 
 
