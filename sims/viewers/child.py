@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import signal
 import socket
+import time
 
 from sims.viewers import wire
 
@@ -100,7 +101,8 @@ async def _run(sock: socket.socket, reader: wire.FrameReader, share, address: tu
                 if f["t"] == "tick":
                     messages.clear()
                     sizes.clear()
-                    for c, msgs in zip(conns, share.tick(f["k"], f["pub"], f["unpub"]), strict=True):
+                    subs = share.tick(f["k"], f["pub"], f["unpub"], time.monotonic() - f["sent"])
+                    for c, msgs in zip(conns, subs, strict=True):
                         for m in msgs:
                             await c.subscribe(m.added, m.removed)
                 elif f["t"] == "stop":

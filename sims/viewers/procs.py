@@ -113,7 +113,7 @@ class ViewerProcesses:
         self.k = k
         pub = [[m.entity, m.payload] for ms in msgs for m in ms if isinstance(m, P.Publish)]
         unpub = [m.entity for ms in msgs for m in ms if isinstance(m, P.Unpublish)]
-        frame = wire.encode("tick", k=k, pub=pub, unpub=unpub)
+        frame = wire.encode("tick", k=k, pub=pub, unpub=unpub, sent=time.monotonic())
         t0 = time.monotonic()
         for i in self.live():
             if self.procs[i].exitcode is not None:
@@ -158,8 +158,11 @@ class ViewerProcesses:
             "viewers": self.config.viewers, "subscribe_msgs": subscribe_msgs, "deaths": list(self.deaths),
             "cpu_s": [None if r is None else round(r["cpu_s"], 2) for r in self.reports],
             "coordinator_tick_wait_s": round(self.tick_wait_s, 3),
+            "tick_delay_p99_ms": [None if r is None else round(r["tick_delay_p99_ms"], 1) for r in self.reports],
             "note": "each process measured its own viewers against the truth it stepped from the seed; the "
-                    "figures are those processes' tallies summed (the error list in process order)"}
+                    "figures are those processes' tallies summed (the error list in process order); "
+                    "tick_delay_p99_ms: how late each process took up its ticks (a process behind real time "
+                    "subscribes late and counts the joins it has not received yet as missed)"}
         return rep
 
     def close(self) -> None:

@@ -15,6 +15,8 @@ import time
 from collections import namedtuple
 from collections.abc import Iterable
 
+import numpy as np
+
 from entitynet import protocol as P
 from sims.engine.payload_ids import PayloadIds
 from sims.engine.schedule import Schedule
@@ -46,20 +48,23 @@ class ViewerShare:
         self._unknown: dict[int, tuple[bytes, int]] = {}
         self.k = -1
         self.subscribe_msgs = 0
+        self.delays: list[float] = []  # seconds from the coordinator's send of each tick to its use here
 
     @property
     def now(self) -> float:
         """The truth's clock (service-day seconds), the viewers' receiver time."""
         return self.sim.now
 
-    def tick(self, k: int, published: list, unpublished: list) -> list[list[P.Subscribe]]:
+    def tick(self, k: int, published: list, unpublished: list, delay: float = 0.0) -> list[list[P.Subscribe]]:
         """Tick `k` (0: the start): sample the viewers when due (before the truth moves: the deliveries of
         tick k - 1's messages have had the tick's wait to arrive, as in one process), learn the payloads the
         coordinator's publishers send in this tick, step the truth and move the cameras; the SUBSCRIBE
-        differences each viewer sends."""
+        differences each viewer sends. `delay`: seconds between the coordinator's send and this call (kept
+        for the report: a process behind real time measures its viewers less well)."""
         if k != self.k + 1:
             raise ValueError(f"tick {k} after tick {self.k}: ticks come in order")
         sim = self.sim
+        self.delays.append(delay)
         if k > 0:
             sim.maybe_sample(self.ids.local_of)
         self.ids.published(Sent(int(e), bytes(p)) for e, p in published)
@@ -104,6 +109,7 @@ class ViewerShare:
                    for g, t in self.sim.measure.tallies.items()}
         return {"tallies": tallies, "subscribe_msgs": self.subscribe_msgs, "ticks": self.sim.ticks,
                 "cpu_s": float(time.process_time()),
+                "tick_delay_p99_ms": float(np.percentile(self.delays, 99) * 1000) if self.delays else 0.0,
                 "viewers": {"street": sum(not x.high for x in v), "roof": sum(x.high for x in v),
                             "deliveries": sum(x.deliveries for x in v), "leaves": sum(x.leaves for x in v),
                             "bytes": sum(x.bytes for x in v)}}

@@ -20,9 +20,10 @@ HEADER = struct.Struct(">I")
 FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "start": {"host": str, "port": int, "token": str},
     "ready": {"viewers": int},
-    "tick": {"k": int, "pub": list, "unpub": list},
+    "tick": {"k": int, "pub": list, "unpub": list, "sent": float},
     "stop": {},
-    "report": {"tallies": dict, "viewers": dict, "subscribe_msgs": int, "ticks": int, "cpu_s": float},
+    "report": {"tallies": dict, "viewers": dict, "subscribe_msgs": int, "ticks": int, "cpu_s": float,
+               "tick_delay_p99_ms": float},
 }
 
 

@@ -98,15 +98,15 @@ def test_a_share_moves_the_same_cameras_as_one_process(helsinki):
 
 def test_bad_frames_and_bad_sizes_are_refused():
     r = wire.FrameReader(max_frame=100)
-    r.feed(wire.encode("tick", k=1, pub=[], unpub=[]))
+    r.feed(wire.encode("tick", k=1, pub=[], unpub=[], sent=0.0))
     assert r.frames()[0]["k"] == 1
     for bad in (b"\x00\x00\x00\x02\xc1\xc1", wire.HEADER.pack(1000)):  # not msgpack; over the limit
         r = wire.FrameReader(max_frame=100)
         r.feed(bad)
         with pytest.raises(wire.WireError):
             r.frames()
-    for frame in ([1, 2], {"t": "nope"}, {"t": "tick", "k": "1", "pub": [], "unpub": []},
-                  {"t": "tick", "k": True, "pub": [], "unpub": []}, {"t": "start", "host": "h", "port": 1}):
+    for frame in ([1, 2], {"t": "nope"}, {"t": "tick", "k": "1", "pub": [], "unpub": [], "sent": 0.0},
+                  {"t": "tick", "k": True, "pub": [], "unpub": [], "sent": 0.0}, {"t": "start", "host": "h", "port": 1}):
         with pytest.raises(wire.WireError):
             wire.check(frame)
     r = wire.FrameReader()
