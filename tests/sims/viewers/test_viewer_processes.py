@@ -106,7 +106,8 @@ def test_bad_frames_and_bad_sizes_are_refused():
         with pytest.raises(wire.WireError):
             r.frames()
     for frame in ([1, 2], {"t": "nope"}, {"t": "tick", "k": "1", "pub": [], "unpub": [], "sent": 0.0},
-                  {"t": "tick", "k": True, "pub": [], "unpub": [], "sent": 0.0}, {"t": "start", "host": "h", "port": 1}):
+                  {"t": "tick", "k": True, "pub": [], "unpub": [], "sent": 0.0},
+                  {"t": "start", "host": "h", "port": 1}):
         with pytest.raises(wire.WireError):
             wire.check(frame)
     r = wire.FrameReader()
