@@ -27,10 +27,11 @@ def _config(**kw) -> SimConfig:
     return SimConfig(**{**base, **kw})
 
 
-def _run(topo, path, config: SimConfig, processes: int, duration: float, kill_at: float | None = None):
+def _run(topo, path, config: SimConfig, processes: int, duration: float, kill_at: float | None = None,
+         sig: int = signal.SIGKILL, timeout: float = 10.0):
     sim = Sim(topo, config)
     sim.viewers = []
-    vp = ViewerProcesses(processes, topo, None, config, timeout=10.0)
+    vp = ViewerProcesses(processes, topo, None, config, timeout=timeout)
     lines: list[str] = []
     shell = Shell(sim, ShellConfig(duration=duration, speed=SPEED, summary_every=100.0, artifact=path, keys=False,
                                    viewer_processes=vp), lines.append)
@@ -40,7 +41,7 @@ def _run(topo, path, config: SimConfig, processes: int, duration: float, kill_at
             if kill_at is not None:
                 async def killer():
                     await trio.sleep(kill_at)
-                    os.kill(vp.pids[0], signal.SIGKILL)
+                    os.kill(vp.pids[0], sig)
                 n.start_soon(killer)
             with trio.fail_after(90):
                 rep = await shell.run()
@@ -77,6 +78,14 @@ def test_a_viewer_process_killed_mid_run_is_named_and_the_run_ends_on_time(helsi
     assert rep["viewer_processes"]["measured_viewers"] == 3  # the survivor's viewers only, and it says so
     assert rep["truth_vs_viewer"]["all"]["visible_entity_samples"] > 0
     assert any("viewer process 0" in line and "gone" in line for line in lines)
+
+
+def test_a_viewer_process_that_stops_answering_is_named_and_nothing_hangs(helsinki, helsinki_path):
+    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 3.0, kill_at=0.5, sig=signal.SIGSTOP,
+                          timeout=2.0)
+    deaths = rep["viewer_processes"]["deaths"]
+    assert [d["index"] for d in deaths] == [0] and "no report within 2 s" in deaths[0]["why"]
+    assert rep["viewer_processes"]["measured_viewers"] == 3
 
 
 def test_a_share_moves_the_same_cameras_as_one_process(helsinki):
