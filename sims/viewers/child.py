@@ -48,6 +48,7 @@ def child_main(sock: socket.socket, topo, schedule, config, indices: list[int]) 
     from sims.viewers.share import ViewerShare
 
     share = ViewerShare(topo, schedule, config, indices)
+    share.prepare()  # before the coordinator's first tick, which waits for this process's `ready`
     try:
         trio.run(_run, sock, reader, share, (start["host"], start["port"]), start["token"])
     except (OSError, wire.WireError, trio.BrokenResourceError, trio.ClosedResourceError):
