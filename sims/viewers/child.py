@@ -47,12 +47,18 @@ def child_main(sock: socket.socket, topo, schedule, config, indices: list[int]) 
 
     from sims.viewers.share import ViewerShare
 
-    share = ViewerShare(topo, schedule, config, indices)
-    share.prepare()  # before the coordinator's first tick, which waits for this process's `ready`
     try:
+        share = ViewerShare(topo, schedule, config, indices)
+        share.prepare()  # before the coordinator's first tick, which waits for this process's `ready`
         trio.run(_run, sock, reader, share, (start["host"], start["port"]), start["token"])
     except (OSError, wire.WireError, trio.BrokenResourceError, trio.ClosedResourceError):
         return  # the coordinator is gone, or sent what is not a frame: nothing to report to
+    except Exception as exc:  # one line, no traceback: the coordinator names this process as gone
+        import sys
+
+        which = indices[0] if indices else "?"  # a share starts at its process's index (`share_of`)
+        print(f"entitynet sim: viewer process {which}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        sys.exit(1)
 
 
 async def _run(sock: socket.socket, reader: wire.FrameReader, share, address: tuple[str, int], token: str) -> None:

@@ -86,14 +86,20 @@ class ViewerProcesses:
         for i, sock in enumerate(self._socks):
             self._streams[i] = trio.SocketStream(trio.socket.from_stdlib_socket(sock))
         start = wire.encode("start", host=str(address[0]), port=int(address[1]), token=token)
-        for i in self.live():
-            await self._exchange(i, start, "ready")
+        for i in self.live():  # every process starts at once (each builds its share and connects)...
+            await self._exchange(i, start, None)
+        for i in self.live():  # ...then each is waited for
+            await self._exchange(i, b"", "ready")
 
-    async def _exchange(self, i: int, frame: bytes, answer: str) -> dict | None:
-        """Send `frame` to process i and wait for its `answer` frame; a process that fails is declared dead."""
+    async def _exchange(self, i: int, frame: bytes, answer: str | None) -> dict | None:
+        """Send `frame` to process i (if any) and wait for its `answer` frame (if one is named); a process that
+        fails is declared dead."""
         try:
             with trio.fail_after(self.timeout):
-                await self._streams[i].send_all(frame)
+                if frame:
+                    await self._streams[i].send_all(frame)
+                if answer is None:
+                    return None
                 got = await self._read(i)
         except trio.TooSlowError:
             self._lose(i, f"no {answer} within {self.timeout:g} s")
@@ -140,17 +146,28 @@ class ViewerProcesses:
         measure = Measure()
         viewers = {"street": 0, "roof": 0, "deliveries": 0, "leaves": 0, "bytes": 0}
         subscribe_msgs = 0
-        for r in self.reports:
+        for i, r in enumerate(self.reports):
             if r is None:
                 continue
-            for k in viewers:
-                viewers[k] += int(r["viewers"].get(k, 0))
+            try:
+                counts = {k: int(r["viewers"].get(k, 0)) for k in viewers}
+                tallies = {str(g): Tally([float(x) for x in t["errors"]], int(t["visible"]), int(t["missed"]),
+                                         int(t["shown"]), int(t["stale"]), int(t["viewer_samples"]))
+                           for g, t in r["tallies"].items()}
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+                self.reports[i] = None
+                self.deaths.append({"index": i, "pid": self.procs[i].pid, "tick": self.k,
+                                    "why": f"sent a report that does not read ({exc!r:.80})",
+                                    "viewers": len(self.shares[i])})
+                continue
+            for k, n in counts.items():
+                viewers[k] += n
             subscribe_msgs += r["subscribe_msgs"]
-            for g, t in r["tallies"].items():
+            for g, t in tallies.items():
                 acc: Tally = measure.tallies[g]
-                acc.errors += [float(x) for x in t["errors"]]
+                acc.errors += t.errors
                 for f in ("visible", "missed", "shown", "stale", "viewer_samples"):
-                    setattr(acc, f, getattr(acc, f) + int(t[f]))
+                    setattr(acc, f, getattr(acc, f) + getattr(t, f))
         rep["viewers"] = viewers
         rep["truth_vs_viewer"] = measure.summary()
         rep["viewer_processes"] = {

@@ -158,3 +158,19 @@ def test_the_default_keeps_the_viewers_here_on_a_small_machine():
     assert auto_viewer_processes(1000, 2) == 0 and auto_viewer_processes(1000, 4) == 0
     assert auto_viewer_processes(100, 16) == 0
     assert auto_viewer_processes(1000, 16) == 4 and auto_viewer_processes(1000, 5) == 3
+
+
+def test_a_report_that_does_not_read_is_named_and_the_others_still_count(helsinki):
+    vp = ViewerProcesses(2, helsinki, None, _config())
+    try:
+        good = {"viewers": {"street": 2, "roof": 1, "deliveries": 5, "leaves": 0, "bytes": 50}, "subscribe_msgs": 3,
+                "tallies": {"street": {"errors": [1.0, 2.0], "visible": 4, "missed": 1, "shown": 3, "stale": 0,
+                                       "viewer_samples": 2}}, "cpu_s": 0.1, "tick_delay_p99_ms": 1.0}
+        vp.reports = [good, {**good, "tallies": {"street": {"errors": ["x"]}}}]
+        rep = vp.merge({})
+    finally:
+        vp.close()
+    assert [d["index"] for d in rep["viewer_processes"]["deaths"]] == [1]
+    assert "does not read" in rep["viewer_processes"]["deaths"][0]["why"]
+    assert rep["viewers"]["deliveries"] == 5 and rep["truth_vs_viewer"]["all"]["visible_entity_samples"] == 4
+    assert rep["truth_vs_viewer"]["all"]["missed_visibility"] == 0.25
