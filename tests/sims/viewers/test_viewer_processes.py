@@ -40,6 +40,8 @@ def _run(topo, path, config: SimConfig, processes: int, duration: float, kill_at
         async with trio.open_nursery() as n:
             if kill_at is not None:
                 async def killer():
+                    while vp.k < 2:  # mid-run: once the ticks flow (building a share may take a while)
+                        await trio.sleep(0.05)
                     await trio.sleep(kill_at)
                     os.kill(vp.pids[0], sig)
                 n.start_soon(killer)
@@ -70,7 +72,7 @@ def test_viewers_in_two_processes_are_measured_and_gathered(helsinki, helsinki_p
 
 
 def test_a_viewer_process_killed_mid_run_is_named_and_the_run_ends_on_time(helsinki, helsinki_path):
-    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 6.0, kill_at=0.8)
+    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 6.0, kill_at=0.3)
     deaths = rep["viewer_processes"]["deaths"]
     assert [d["index"] for d in deaths] == [0] and deaths[0]["pid"] == vp.pids[0]
     assert deaths[0]["viewers"] == 3
@@ -81,10 +83,10 @@ def test_a_viewer_process_killed_mid_run_is_named_and_the_run_ends_on_time(helsi
 
 
 def test_a_viewer_process_that_stops_answering_is_named_and_nothing_hangs(helsinki, helsinki_path):
-    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 3.0, kill_at=0.5, sig=signal.SIGSTOP,
+    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 3.0, kill_at=0.2, sig=signal.SIGSTOP,
                           timeout=2.0)
     deaths = rep["viewer_processes"]["deaths"]
-    assert [d["index"] for d in deaths] == [0] and "no report within 2 s" in deaths[0]["why"]
+    assert [d["index"] for d in deaths] == [0] and "within 2 s" in deaths[0]["why"]  # no report (or, its buffer full, no tick read)
     assert rep["viewer_processes"]["measured_viewers"] == 3
 
 
