@@ -86,7 +86,8 @@ def test_a_viewer_process_that_stops_answering_is_named_and_nothing_hangs(helsin
     rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 3.0, kill_at=0.2, sig=signal.SIGSTOP,
                           timeout=2.0)
     deaths = rep["viewer_processes"]["deaths"]
-    assert [d["index"] for d in deaths] == [0] and "within 2 s" in deaths[0]["why"]  # no report (or, its buffer full, no tick read)
+    # no report within the timeout (or, its socket buffer full, no tick read within it)
+    assert [d["index"] for d in deaths] == [0] and "within 2 s" in deaths[0]["why"]
     assert rep["viewer_processes"]["measured_viewers"] == 3
 
 
