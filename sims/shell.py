@@ -57,6 +57,9 @@ class ShellConfig:
     #: started with the server's address once the clients are connected (`await nursery.start(part, address)`)
     parts: tuple[Callable[..., Awaitable[object]], ...] = ()
     behind_warn_every: float = 30.0  # wall seconds between two warnings that the run is behind real time
+    #: a sims.viewers.procs.ViewerProcesses: the viewers live there (the sim then holds none), with their own
+    #: connections to the server and their own measure, gathered into the report at the end
+    viewer_processes: Any = None
 
 
 class Shell:
@@ -69,6 +72,9 @@ class Shell:
         if config.http_port is not None and config.server is not None:
             raise ValueError("the browser viewer is served by the in-process server: an external server serves "
                              "its own (entitynet serve --ws-port P --http-port Q)")
+        if config.viewer_processes is not None and (sim.viewers or config.cluster is not None):
+            raise ValueError("with viewer processes the simulation holds no viewers of its own, and a cluster's "
+                             "viewers follow their cameras between shards, which viewer processes do not")
         self.sim = sim
         self.config = config
         self.say = say
@@ -95,6 +101,7 @@ class Shell:
         self._frozen = sim.now  # the clock while paused
         self.ids = PayloadIds()  # an external server's entity ids -> ours (truth against viewers)
         self.server_info: dict = {}  # more about where the server ran (a child process: its pid), for the report
+        self._deaths_said = 0  # viewer processes' deaths already said on the live output
 
     def clock(self) -> float:
         """The simulation's time now, between ticks too (the in-process server's clock, see the module
@@ -143,6 +150,9 @@ class Shell:
                 self.publishers = pubs
                 for c in pubs + views:
                     await clients.start(c.run)
+                if cfg.viewer_processes is not None:
+                    await cfg.viewer_processes.connect(address, cfg.token)
+                    self._say_viewer_deaths()
                 for part in cfg.parts:
                     self._part_states.append(await clients.start(part, address))
                 task_status.started(self.server)
@@ -151,6 +161,9 @@ class Shell:
                 if cfg.keys and sys.stdin is not None and sys.stdin.isatty():
                     clients.start_soon(self._keys)
                 await self._loop(pubs, views, stop)
+                if cfg.viewer_processes is not None:
+                    await cfg.viewer_processes.finish()
+                    self._say_viewer_deaths()
                 self.say(self.final_line())
                 clients.cancel_scope.cancel()  # clients first, so that none of them sees the server go away
             if self.server is not None:
@@ -196,7 +209,11 @@ class Shell:
     async def _loop(self, pubs: list[Connection], views: list[Connection], stop: trio.Event) -> None:
         sim, cfg = self.sim, self.config
         period = sim.dt / cfg.speed
-        await self._send(pubs, views, *sim.start())
+        vp = cfg.viewer_processes
+        first = sim.start()
+        if vp is not None:
+            await vp.tick(0, first[0])
+        await self._send(pubs, views, *first)
         self._tick_wall = time.monotonic()
         wall0 = last_summary = trio.current_time()
         due = wall0 + period
@@ -240,6 +257,9 @@ class Shell:
             self.sample_before_step(pubs)
             out = sim.step()
             self._tick_wall = time.monotonic()
+            if vp is not None:  # before the publishes: a viewer process learns a payload before its UPDATEs
+                await vp.tick(sim.ticks, out[0])
+                self._say_viewer_deaths()
             await self._send(pubs, views, *out)
             due += period
             if t - due > 10 * period:  # hopelessly behind: do not try to catch up in a burst
@@ -281,6 +301,14 @@ class Shell:
             for m in msgs:
                 await c.subscribe(m.added, m.removed)
                 self.subscribe_msgs += 1
+
+    def _say_viewer_deaths(self) -> None:
+        """Name each viewer process declared dead since the last call, once, on the live output."""
+        vp = self.config.viewer_processes
+        for d in vp.deaths[self._deaths_said:]:
+            self.say(f"[{self.sim.ticks * self.sim.dt:6.0f}s] viewer process {d['index']} (pid {d['pid']}) is "
+                     f"gone: {d['why']}; its {d['viewers']} viewers are not measured, the run goes on")
+        self._deaths_said = len(vp.deaths)
 
     def _eid_map(self, pubs: list[Connection]) -> dict[int, int] | None:
         """Server entity id -> simulated entity, for the entities our publishers own (the demo's transit proxy
@@ -385,6 +413,9 @@ class Shell:
                 f"missed {100 * tv['missed_visibility']:.1f}% | {self._lateness_text()}")
         if self.config.cluster is not None:
             line += " | " + self.config.cluster.summary()
+        if self.config.viewer_processes is not None:
+            vp = self.config.viewer_processes
+            line += f" | viewers in {len(vp.live())} of {vp.n} processes (figures at the end)"
         if self.config.duration and self.config.speed > 1.0:
             frac = min(1.0, sim.ticks * sim.dt / self.config.duration)
             line += f" [{'#' * int(20 * frac):<20}] {100 * frac:3.0f}%"
@@ -394,13 +425,23 @@ class Shell:
         """What the run did, in one line (before the JSON report)."""
         sim = self.sim
         return (f"[{sim.ticks * sim.dt:6.0f}s] stopped after {sim.ticks * sim.dt:.0f} simulated s: "
-                f"{self.published} updates published, {sum(v.deliveries for v in sim.viewers)} deliveries to "
+                f"{self.published} updates published, {self._deliveries()} deliveries to "
                 f"viewers, {self.counts()['stops_served']} bus and tram stops served")
+
+    def _deliveries(self) -> int:
+        """UPDATEs delivered to the viewers so far: this process's, or at the end those the viewer processes
+        reported."""
+        vp = self.config.viewer_processes
+        if vp is not None:
+            return sum(int(r["viewers"]["deliveries"]) for r in vp.reports if r is not None)
+        return sum(v.deliveries for v in self.sim.viewers)
 
     def report(self) -> dict:
         """The simulation's report plus the shell's own figures: tick lateness, ticks behind, server gaps and
         where the server ran."""
         rep = self.sim.report()
+        if self.config.viewer_processes is not None:
+            rep = self.config.viewer_processes.merge(rep)
         parts = self.part_counts()
         if parts:  # every entity the viewers saw, the parts' too; each part's own figures beside
             c = self.counts()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -64,6 +65,11 @@ def register(sub) -> None:
                    help="share of the viewers measured against the truth at each 1 s sample, in turn (default "
                         "0.25: each viewer every 4 s, so the measure does not make real time late); 1 = the full "
                         "measure")
+    p.add_argument("--viewer-processes", type=bounded_int(0, 64), metavar="K",
+                   help="run the viewers in K processes of their own, each with its share of the viewers, their "
+                        "server connections and their measure against the truth it steps from the seed (0: in "
+                        "this process; default: 0 on 4 cores or fewer, else one per 250 viewers up to cores - 2; "
+                        "docs/simulation.md)")
     p.add_argument("--seed", type=SEED, default=1, help="random seed (default 1)")
     p.add_argument("--summary-every", type=positive_seconds(86400),
                    default=5.0, metavar="S", help="summary interval (default 5 s)")
@@ -127,6 +133,16 @@ def run(args: argparse.Namespace) -> int:
     from sims.workers.commands import check as check_workers
 
     problems += check_workers(args)
+    viewer_procs = getattr(args, "viewer_processes", None)  # a preset's own Namespace may not have it
+    if viewer_procs is None:
+        viewer_procs = auto_viewer_processes(args.viewers, os.cpu_count())
+    elif viewer_procs > args.viewers:
+        problems.append(f"--viewer-processes {viewer_procs} is more than the {args.viewers} viewers")
+    if viewer_procs and args.shards is not None:
+        problems.append("--viewer-processes does not go with --shards (a cluster's viewers follow their cameras "
+                        "between shards)")
+    if viewer_procs and getattr(args, "mobility", "ours") == "sumo":
+        problems.append("--viewer-processes steps our world model for the truth: not with --mobility sumo")
     if problems:
         raise CommandError("; ".join(problems))
 
@@ -179,13 +195,31 @@ def run(args: argparse.Namespace) -> int:
                        say=say)
     except (RuntimeError, ValueError) as exc:
         raise CommandError(str(exc)) from None
+    vp = None
     try:
-        return _run_sim(args, sim, config, path, topo, regions, child_server, child_why, say)
+        if viewer_procs:  # forked here, before any event loop runs, with the map and schedule loaded
+            from sims.viewers.procs import ViewerProcesses
+
+            vp = ViewerProcesses(viewer_procs, topo, schedule, config)
+        return _run_sim(args, sim, config, path, topo, regions, child_server, child_why, say, vp)
     finally:
+        if vp is not None:
+            vp.close()
         close_sim(sim)
 
 
-def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, child_why: str, say) -> int:
+def auto_viewer_processes(viewers: int, cores: int | None) -> int:
+    """The default of `--viewer-processes`: 0 (the viewers in this process) on 4 cores or fewer, where the
+    viewers, the server and the simulation share the same cores whatever the split (docs/simulation.md, "The
+    coordinator's part"), else one process per 250 viewers, at most cores - 2."""
+    cores = cores or 1
+    if cores <= 4 or viewers < 250:
+        return 0
+    return min(viewers // 250, cores - 2)
+
+
+def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, child_why: str, say,
+             viewer_procs=None) -> int:
     """The run itself, once the simulation is built (its workers, if any, are ended by the caller)."""
     import trio
 
@@ -194,8 +228,13 @@ def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, c
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
         f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")
+    if viewer_procs is not None:
+        sim.viewers = []  # they live in the viewer processes
+        say(f"viewers in {viewer_procs.n} processes of their own (pids "
+            f"{', '.join(map(str, viewer_procs.pids))}), each measuring its share against the truth")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
-                                   server=args.server, token=args.token, artifact=path), say)
+                                   server=args.server, token=args.token, artifact=path,
+                                   viewer_processes=viewer_procs), say)
     shell.server_info = {"process": child_server, "why": child_why}
     if child_server:
         report = _on_child_server(shell, path, child_why, say)

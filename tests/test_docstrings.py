@@ -38,6 +38,7 @@ DOCUMENTED = (
     "sims/mobility",
     "sims/sumo",
     "sims/workers",
+    "sims/viewers",
     "sims/demo.py",
     "proxies",
 )
