@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
+from struct import Struct
 
 from entitynet.client.entities import EntityType
 from entitynet.client.filters import Kinematic1D, RowKinematic
@@ -20,7 +21,13 @@ from entitynet.client.path import Path, follow
 from entitynet.client.placement import Fix, Placer
 from entitynet.client.route import Route
 from entitynet.client.row_fields import _RS, TrackerState
-from entitynet.client.state import PATH_W, Record
+from entitynet.client.state import F_COL, I_COL, PATH_W, Record
+
+_KS, _LF_OFF, _DIST_EMA = F_COL["ks"], F_COL["lf_off"], F_COL["dist_ema"]
+_READ_SVA_T = Struct("=10d")  # ks, kv, ka, p00 .. p22, kt: adjacent columns (filters.py checks the order)
+_PEND_E, _LF_KIND = I_COL["pend_e"], I_COL["lf_kind"]
+assert (I_COL["pend_n"], I_COL["lf_e"]) == (_PEND_E + 1, _LF_KIND + 1)
+assert [F_COL[n] - _LF_OFF for n in ("lf_x", "lf_y", "lf_d")] == [1, 2, 3]
 
 MAX_PATH_EDGES = PATH_W
 DOPPLER_MOVING = 1.0  # m/s: a Doppler velocity at least this fast has a direction worth checking
@@ -196,11 +203,11 @@ class NetworkTracker(TrackerState):
                 return None
             self._init_at(fix, t, r)
             return "path"
-        # on an edge
-        path, kf = self.path, self.kf
-        kt = kf.t
+        # on an edge (the filter's s, v, a, t read from the row at once)
+        path = self.path
+        ks, kv, ka, *_p, kt = _READ_SVA_T.unpack_from(self._st.f, 8 * (self._fb + _KS))
         dt = t - kt if t > kt else 0.0
-        s_pred = kf.s + kf.v * dt + 0.5 * kf.a * dt * dt
+        s_pred = ks + kv * dt + 0.5 * ka * dt * dt
         edges = path.edges
         k_cur = bisect_right(path.cum, s_pred) - 1  # `path.index` written out
         if k_cur < 0:
@@ -304,11 +311,17 @@ class NetworkTracker(TrackerState):
         on the quick datasets (Helsinki, 6 HSL vehicles, 6 pedestrians), with and without it, alternating, 3
         rounds each, medians: vehicles 24.0k against 20.3k fixes/s (+18 %), pedestrians 13.9k against 12.7k
         (+10 %). test_fast_paths.py checks it against the general code (`written_out=False`) bit for bit."""
-        self.pending = (-1, 0)
-        self.last_fix = fix
+        # pending = (-1, 0), last_fix = fix, and the moving mean of the distance: written to the row by index
+        st, fb = self._st, self._fb
+        i, ib = st.i, self._ib
+        i[ib + _PEND_E], i[ib + _PEND_E + 1] = -1, 0
+        i[ib + _LF_KIND], i[ib + _LF_KIND + 1] = 1, fix[1]  # (an edge fix)
+        f = st.f
+        c = fb + _LF_OFF
+        f[c], f[c + 1], f[c + 2], f[c + 3] = fix[2], fix[3], fix[4], fix[5]
         # the consistency check of `track` cannot jump here: it needs g.distance + margin < fix.distance, and
         # this fix is within the margin (so the placement index is not asked)
-        self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
+        f[fb + _DIST_EMA] = 0.7 * f[fb + _DIST_EMA] + 0.3 * fix[5]
         path = self.path
         # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs within 3 edges
         if path.edge_ids()[k_cur - 3 if k_cur > 3 else 0 : k_cur + 4].count(e_cur) == 1:
