@@ -23,11 +23,11 @@ from entitynet.client.route import Route
 from entitynet.client.row_fields import _RS, TrackerState
 from entitynet.client.state import F_COL, I_COL, PATH_W, Record
 
-_KS, _LF_OFF, _DIST_EMA = F_COL["ks"], F_COL["lf_off"], F_COL["dist_ema"]
-_READ_SVA_T = Struct("=10d")  # ks, kv, ka, p00 .. p22, kt: adjacent columns (filters.py checks the order)
+_KS, _LF_OFF, _DIST_EMA, _REACH, _VPEAK = (F_COL[n] for n in ("ks", "lf_off", "dist_ema", "reach", "vpeak"))
+_READ_SVA_T = Struct("=3d48xd")  # ks, kv, ka, (p00 .. p22,) kt: adjacent columns (filters.py checks the order)
 _PEND_E, _LF_KIND = I_COL["pend_e"], I_COL["lf_kind"]
 assert (I_COL["pend_n"], I_COL["lf_e"]) == (_PEND_E + 1, _LF_KIND + 1)
-assert [F_COL[n] - _LF_OFF for n in ("lf_x", "lf_y", "lf_d")] == [1, 2, 3]
+assert [F_COL[n] - _LF_OFF for n in ("lf_x", "lf_y", "lf_d")] == [1, 2, 3] and F_COL["vpeak_t"] == _VPEAK + 1
 
 MAX_PATH_EDGES = PATH_W
 DOPPLER_MOVING = 1.0  # m/s: a Doppler velocity at least this fast has a direction worth checking
@@ -205,7 +205,7 @@ class NetworkTracker(TrackerState):
             return "path"
         # on an edge (the filter's s, v, a, t read from the row at once)
         path = self.path
-        ks, kv, ka, *_p, kt = _READ_SVA_T.unpack_from(self._st.f, 8 * (self._fb + _KS))
+        ks, kv, ka, kt = _READ_SVA_T.unpack_from(self._st.f, 8 * (self._fb + _KS))
         dt = t - kt if t > kt else 0.0
         s_pred = ks + kv * dt + 0.5 * ka * dt * dt
         edges = path.edges
@@ -223,7 +223,7 @@ class NetworkTracker(TrackerState):
         if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
                 and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
             if cur.distance <= placer.reacquire and self.written_out:
-                return self._track_on(cur, e_cur, k_cur, s_pred, t, r)
+                return self._track_on(cur, e_cur, k_cur, s_pred, t, r, path)
             fix, best_pref = cur, cur.distance
             preferred = None
         else:
@@ -303,7 +303,8 @@ class NetworkTracker(TrackerState):
         self._maintain_path()
         return reason
 
-    def _track_on(self, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float, r: float) -> str | None:
+    def _track_on(self, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float, r: float,
+                  path: Path) -> str | None:
         """The rest of `track` for the usual fix (on the predicted edge, inside the switch margin, within
         `reacquire`): the same steps with `_s_of`'s first case and the bookkeeping written out.
 
@@ -322,21 +323,20 @@ class NetworkTracker(TrackerState):
         # the consistency check of `track` cannot jump here: it needs g.distance + margin < fix.distance, and
         # this fix is within the margin (so the placement index is not asked)
         f[fb + _DIST_EMA] = 0.7 * f[fb + _DIST_EMA] + 0.3 * fix[5]
-        path = self.path
         # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs within 3 edges
         if path.edge_ids()[k_cur - 3 if k_cur > 3 else 0 : k_cur + 4].count(e_cur) == 1:
-            off = fix.offset
+            off = fix[2]
             s_meas = path.cum[k_cur] + (off if path.edges[k_cur][1] > 0 else self.net.edge_len[e_cur] - off)
         else:
             s_meas = self._s_of(fix, s_pred, k_cur)
-        if abs(s_meas - s_pred) > self.reach:
+        if abs(s_meas - s_pred) > f[fb + _REACH]:
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
             return "jump"
         _RS.push(self, s_meas)
         kf = self._kf
         s, v = kf.update_sv(s_meas, t, r)
-        if v > self.vpeak or t - self.vpeak_t > 120.0:
-            self.vpeak, self.vpeak_t = v, t
+        if v > f[fb + _VPEAK] or t - f[fb + _VPEAK + 1] > 120.0:  # vpeak, vpeak_t
+            f[fb + _VPEAK], f[fb + _VPEAK + 1] = v, t
         reason = None
         if self.has_route:
             self.reverse_count = 0
