@@ -291,11 +291,11 @@ class NetworkTracker(TrackerState):
         if reason is not None:
             _RS.clear(self)
         _RS.push(self, s_meas)
-        self.kf.update(s_meas, t, r)
-        kf = self.kf
-        if kf.v > self.vpeak or t - self.vpeak_t > 120.0:
-            self.vpeak, self.vpeak_t = kf.v, t
-        backwards = not self.has_route and kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0
+        kf = self._kf  # (on an edge: the row's filter is on)
+        _s, v = kf.update_sv(s_meas, t, r)
+        if v > self.vpeak or t - self.vpeak_t > 120.0:
+            self.vpeak, self.vpeak_t = v, t
+        backwards = not self.has_route and v < -self.etype.v_start and v + kf.speed_sigma() < 0.0
         self.reverse_count = self.reverse_count + 1 if backwards else 0
         if self.reverse_count >= 3:
             self._reverse()
