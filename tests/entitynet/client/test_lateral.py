@@ -119,3 +119,34 @@ def test_within_ring_of_a_large_ring_equals_ring_distance():
             d = ring_distance(placer.ring(0), x, y)
             for r in (d, math.nextafter(d, 0.0), math.nextafter(d, math.inf), 0.0, 10.0):
                 assert idx.within_ring(0, x, y, r) == (d <= r), (n, x, y, r)
+
+
+@pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0),
+                                  area_square()])
+def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
+    """`_lateral.way_cells` and `wide_candidates` (compiled where pip built them) give what the pure loop
+    `_way_cells_py` and the box test give, for every candidate of every edge, at random points, vertices and
+    cell boundaries, with and without `skip` / `only`, and a direction or none."""
+    from entitynet.client import lateral
+
+    if lateral._COMPILED is None:
+        pytest.skip("the compiled candidate loop is not built here (the pure one is in use)")
+    net = netview(topo)
+    rng = random.Random(7)
+    for networks in (PEDESTRIAN, VEHICLE):
+        idx = near_index(Placer(net, networks))
+        every = list(idx._ways.values())
+        for x, y in _points(net, rng):
+            for r in (0.0, 6.0, 12.5, 80.0):
+                ang = rng.uniform(0.0, 2.0 * math.pi)
+                dx, dy = rng.choice([(math.cos(ang), math.sin(ang)), (0.0, 0.0)])
+                back, ahead = rng.choice([(5.0, 30.0), (0.0, 0.0)])
+                skip = set(rng.sample(range(net.n_edges), rng.randint(0, 2)))
+                only = rng.choice([None, frozenset({0, 2})])
+                args = (x, y, dx, dy, r, back, ahead, skip, only)
+                assert lateral._COMPILED.way_cells(every, *args) == lateral._way_cells_py(every, *args)
+                rows = idx.wide.get((math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE)), ())
+                box = (x - r, y - r, x + r, y + r)
+                assert lateral._COMPILED.wide_candidates(rows, *box) == [
+                    w for _e, bx0, by0, bx1, by1, w in rows
+                    if not (bx0 > box[2] or bx1 < box[0] or by0 > box[3] or by1 < box[1])]
