@@ -150,3 +150,33 @@ def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
                 assert lateral._COMPILED.wide_candidates(rows, *box) == [
                     w for _e, bx0, by0, bx1, by1, w in rows
                     if not (bx0 > box[2] or bx1 < box[0] or by0 > box[3] or by1 < box[1])]
+
+
+@pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0)])
+def test_the_compiled_path_point_equals_the_pure_one(topo):
+    """`Path.xy` (compiled `_geom.path_xy` where pip built it) gives the pure method's point, bit for bit, on
+    every edge both ways and on paths of several edges: at random coordinates, at every vertex and cell boundary,
+    at the path's ends and beyond them, and at NaN and infinities."""
+    from entitynet.client import path as path_mod
+
+    if path_mod._COMPILED is None:
+        pytest.skip("the compiled path point is not built here (the pure one is in use)")
+    net = netview(topo)
+    rng = random.Random(5)
+    paths = [Path(net, [(e, d)]) for e in range(net.n_edges) for d in (1, -1)]
+    for p in list(paths):  # and every path of two or three edges the junction rule follows
+        for _ in range(2):
+            from entitynet.client.path import follow
+            more = follow(net, p.edges[-1], ALL, rng.uniform(0.0, 150.0), max_edges=2)
+            if more:
+                paths.append(p.extended(more))
+    for p in paths:
+        coords = [rng.uniform(-5.0, p.length + 5.0) for _ in range(40)] + list(p.cum)
+        coords += [0.0, p.length, -0.0, math.nextafter(p.length, math.inf), math.inf, -math.inf, math.nan]
+        for k, (e, d) in enumerate(p.edges):
+            for a0, _b0, _c in net.pieces(e, d):
+                coords.append(p.cum[k] + a0)
+        for s in coords:
+            got, want = p.xy(s), path_mod.xy_reference(p, s)
+            assert [v if v == v else "nan" for v in got] == [v if v == v else "nan" for v in want], (p, s)
+            assert all(type(v) is float for v in got)
