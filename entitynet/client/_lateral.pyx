@@ -1,11 +1,12 @@
 # cython: language_level=3, boundscheck=False, wraparound=False
 # distutils: extra_compile_args = -ffp-contract=off
-"""`NearIndex.way_cells`'s candidate loop compiled (entitynet/client/lateral.py, the pure reference used where
+"""`NearIndex.way_cells`'s candidate loop and `within_ring`'s nearest segment compiled (entitynet/client/lateral.py, the pure reference used where
 pip did not build this module): the box test of the position's widened bucket, each candidate's projection
 (`Placer.project_on`, term for term), its direction and its cell pieces. The same IEEE operations in the same
 order (no multiply-add contraction: `-ffp-contract=off`), and the distance through Python's own `math.hypot`,
 whose rounding the reference has. tests/entitynet/client/test_lateral.py holds both equal."""
 
+from libc.math cimport sqrt  # (correctly rounded, as Python's math.sqrt, which calls it)
 from math import hypot as _hypot  # (Python's, not the C library's: the same rounding as the reference)
 
 
@@ -82,3 +83,19 @@ def way_cells(list cand, double x, double y, double dx, double dy, double r, dou
                 if c not in out:
                     out.append(c)
     return out
+
+
+def ring_nearest(tuple segs, double x, double y):
+    """The distance from (x, y) to the nearest of an area ring's segments (x0, y0, dx, dy, l2): the loop of
+    `NearIndex.within_ring` (the square root of the least squared distance; inf for no segment)."""
+    cdef double best = float("inf"), p0x, p0y, dx, dy, l2, t, ex, ey, d2
+    for seg in segs:
+        p0x, p0y, dx, dy, l2 = seg
+        t = ((x - p0x) * dx + (y - p0y) * dy) / l2
+        t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+        ex = p0x + t * dx - x
+        ey = p0y + t * dy - y
+        d2 = ex * ex + ey * ey
+        if d2 < best:
+            best = d2
+    return sqrt(best)

@@ -124,16 +124,7 @@ class NearIndex:
             segs = self._rings[area] = self._ring_segs(area)
         if not segs:
             return ring_distance(self.placer.ring(area), x, y) <= r
-        best = math.inf
-        for p0x, p0y, dx, dy, l2 in segs:  # ring_distance's projection, term for term
-            t = ((x - p0x) * dx + (y - p0y) * dy) / l2
-            t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
-            ex = p0x + t * dx - x
-            ey = p0y + t * dy - y
-            d2 = ex * ex + ey * ey
-            if d2 < best:
-                best = d2
-        d = math.sqrt(best)
+        d = (_ring_nearest_py if _COMPILED is None else _COMPILED.ring_nearest)(segs, x, y)
         if d < r * (1.0 - BAND):
             return True
         if d > r * (1.0 + BAND) and math.isfinite(d):
@@ -230,6 +221,21 @@ def _way_cells_py(cand: list, x: float, y: float, dx: float, dy: float, r: float
             if b0 >= lo and a0 <= hi and c not in out:
                 out.append(c)
     return out
+
+
+def _ring_nearest_py(segs: tuple, x: float, y: float) -> float:
+    """The distance to the nearest of a ring's segments (`NearIndex._ring_segs` rows): `ring_distance`'s
+    projection, term for term (the pure reference of the compiled `_lateral.ring_nearest`)."""
+    best = math.inf
+    for p0x, p0y, dx, dy, l2 in segs:
+        t = ((x - p0x) * dx + (y - p0y) * dy) / l2
+        t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+        ex = p0x + t * dx - x
+        ey = p0y + t * dy - y
+        d2 = ex * ex + ey * ey
+        if d2 < best:
+            best = d2
+    return math.sqrt(best)
 
 
 def near_index(placer: Placer) -> NearIndex:

@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from entitynet.client import netview
+from entitynet.client import lateral, netview
 from entitynet.client.coverage import _edges_between
 from entitynet.client.lateral import near_index
 from entitynet.client.path import Path
@@ -115,10 +115,13 @@ def test_within_ring_of_a_large_ring_equals_ring_distance():
         idx = near_index(placer)
         rng = random.Random(n)
         pts = [(rng.uniform(-70.0, 70.0), rng.uniform(-60.0, 60.0)) for _ in range(400)] + ring + [(0.0, 0.0)]
+        segs = idx._ring_segs(0)
         for x, y in pts:
             d = ring_distance(placer.ring(0), x, y)
             for r in (d, math.nextafter(d, 0.0), math.nextafter(d, math.inf), 0.0, 10.0):
                 assert idx.within_ring(0, x, y, r) == (d <= r), (n, x, y, r)
+            if lateral._COMPILED is not None:  # the compiled nearest segment is the pure one, bit for bit
+                assert lateral._COMPILED.ring_nearest(segs, x, y) == lateral._ring_nearest_py(segs, x, y)
 
 
 @pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0),
