@@ -6,7 +6,7 @@ pip did not build this module): the box test of the position's widened bucket, e
 order (no multiply-add contraction: `-ffp-contract=off`), and the distance through Python's own `math.hypot`,
 whose rounding the reference has. tests/entitynet/client/test_lateral.py holds both equal."""
 
-from libc.math cimport sqrt  # (correctly rounded, as Python's math.sqrt, which calls it)
+from libc.math cimport INFINITY, sqrt  # (sqrt correctly rounded, as Python's math.sqrt, which calls it)
 from math import hypot as _hypot  # (Python's, not the C library's: the same rounding as the reference)
 
 
@@ -49,7 +49,7 @@ def way_cells(list cand, double x, double y, double dx, double dy, double r, dou
         e = w.edge
         if e in skip or (only is not None and e not in only):
             continue
-        best_d = float("inf")
+        best_d = INFINITY
         found = False
         bu = bc0 = bsl = 0.0
         for seg in w.segs:
@@ -88,7 +88,7 @@ def way_cells(list cand, double x, double y, double dx, double dy, double r, dou
 def ring_nearest(tuple segs, double x, double y):
     """The distance from (x, y) to the nearest of an area ring's segments (x0, y0, dx, dy, l2): the loop of
     `NearIndex.within_ring` (the square root of the least squared distance; inf for no segment)."""
-    cdef double best = float("inf"), p0x, p0y, dx, dy, l2, t, ex, ey, d2
+    cdef double best = INFINITY, p0x, p0y, dx, dy, l2, t, ex, ey, d2
     for seg in segs:
         p0x, p0y, dx, dy, l2 = seg
         t = ((x - p0x) * dx + (y - p0y) * dy) / l2
