@@ -184,14 +184,14 @@ class NetworkTracker(TrackerState):
         """One fix (r: its variance). Returns "off" (too far from the network), "first" or "jump" (placed
         afresh; "first" while nothing is published), "path" (another way: an area entered or left, a turn,
         a reversal) or None (continued on the path or in the area)."""
-        placer = self.placer
-        if self.place is None:
+        placer, place = self.placer, self.place
+        if place is None:
             fix = self._first(x, y)
             if fix is None or fix.distance > self.off_network:
                 return "off"
             self._init_at(fix, t, r)
             return "first" if not published else "jump"
-        if self.place is AREA:
+        if place is AREA:
             if placer.inside_area(self.area, x, y):
                 self._area_update(x, y, t, r)
                 return None
@@ -220,9 +220,10 @@ class NetworkTracker(TrackerState):
         # by another edge (they all start `switch_margin` behind), so the neighbourhood search is skipped
         cur = placer.project_on(x, y, e_cur)
         margin = placer.switch_margin if self.switch_margin is None else self.switch_margin
-        if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
+        dist = cur[5]  # (cur.distance, cur.offset: the Fix's fields by index on the hot path)
+        if (dist <= margin and 0.0 < cur[2] < net.edge_len[e_cur]
                 and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
-            if cur.distance <= placer.reacquire and self.written_out:
+            if dist <= placer.reacquire and self.written_out:
                 return self._track_on(cur, e_cur, k_cur, s_pred, t, r, path)
             fix, best_pref = cur, cur.distance
             preferred = None
