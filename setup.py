@@ -1,6 +1,7 @@
 """Builds the optional compiled hot loops with Cython: the fan-out (entitynet/switchboard/_fanout.pyx), the
 flush loop (entitynet/server/_flushloop.pyx) and the client state's field accessors (entitynet/client/
-_columns.pyx); everything else is in pyproject.toml. Optional on purpose: without
+_columns.pyx), the lateral cover's candidate loop (entitynet/client/_lateral.pyx) and `Path.xy` (entitynet/
+client/_geom.pyx); everything else is in pyproject.toml. Optional on purpose: without
 a C compiler the build goes on and the pure-Python paths (the references, `entitynet.switchboard.outbox` and
 `entitynet.server.flushloop`, `entitynet.client.state.column`) are used."""
 
@@ -14,7 +15,9 @@ else:
     ext_modules = cythonize(
         [Extension("entitynet.switchboard._fanout", ["entitynet/switchboard/_fanout.pyx"], optional=True),
          Extension("entitynet.server._flushloop", ["entitynet/server/_flushloop.pyx"], optional=True),
-         Extension("entitynet.client._columns", ["entitynet/client/_columns.pyx"], optional=True)],
+         Extension("entitynet.client._columns", ["entitynet/client/_columns.pyx"], optional=True),
+         Extension("entitynet.client._lateral", ["entitynet/client/_lateral.pyx"], optional=True),
+         Extension("entitynet.client._geom", ["entitynet/client/_geom.pyx"], optional=True)],
         language_level=3,
         quiet=True,
     )

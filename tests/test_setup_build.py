@@ -20,5 +20,6 @@ def test_every_compiled_extension_is_optional(monkeypatch):
     runpy.run_path("setup.py")
     exts = seen["ext_modules"]
     assert {e.name for e in exts} == {"entitynet.switchboard._fanout", "entitynet.server._flushloop",
-                                      "entitynet.client._columns"}
+                                      "entitynet.client._columns", "entitynet.client._lateral",
+                                      "entitynet.client._geom"}
     assert all(e.optional for e in exts)

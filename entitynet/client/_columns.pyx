@@ -1,8 +1,11 @@
 # cython: language_level=3, boundscheck=False, wraparound=False
+# distutils: extra_compile_args = -ffp-contract=off
 """Compiled accessors of a client-state row's fields (entitynet/client/state.py), where pip built them: the same
 reads and writes as `state.column`'s compiled-from-a-template Python properties (the reference, used where this
 module is absent), a C descriptor instead of a Python function call (about half the cost a read, a third a
-write). tests/entitynet/client/test_state.py checks both kinds field for field."""
+write). tests/entitynet/client/test_state.py checks both kinds field for field. And the along-path filter's
+update on a row (`kalman_row`), the one arithmetic of the usual fix worth compiling (no multiply-add
+contraction: `-ffp-contract=off`, so that the C operations round as Python's do)."""
 
 from cpython.array cimport array
 from cpython.number cimport PyNumber_Index
@@ -171,3 +174,57 @@ cdef class PathRef:
         st.paths[obj._row] = path
         cdef array i = st.i
         i.data.as_longlongs[<Py_ssize_t>obj._ib + self.j] = 0 if path is None else -1
+
+
+def kalman_row(array f, Py_ssize_t b, bint accel, double z, double t, double r):
+    """`filters.kalman_update` on the filter fields of a row in place (ks, kv, ka, p00 .. p22, kt, kq from
+    float column b, `accel` the row's kacc): the same IEEE operations in the same order, written out in C
+    (x86-64 without FMA: no contraction). Returns the new (s, v). The pure `RowKinematic.update_sv` is the
+    reference; tests/entitynet/client/test_state.py holds them equal bit for bit."""
+    if b < 0 or b + 11 > len(f):
+        raise IndexError("the filter's fields are outside the block")
+    cdef double* p = f.data.as_doubles + b
+    cdef double s = p[0], v = p[1], a = p[2], p00 = p[3], p01 = p[4], p02 = p[5]
+    cdef double p11 = p[6], p12 = p[7], p22 = p[8], t0 = p[9], q = p[10]
+    cdef double dt = t - t0, h, r00, r01, r02, r11, r12, dt2, dt3, y, sden, k0, k1, k2
+    if dt > 0.0:
+        h = 0.5 * dt * dt
+        if accel:
+            s += v * dt + a * h
+            v += a * dt
+            r00 = p00 + dt * p01 + h * p02
+            r01 = p01 + dt * p11 + h * p12
+            r02 = p02 + dt * p12 + h * p22
+            r11 = p11 + dt * p12
+            r12 = p12 + dt * p22
+            dt2 = dt * dt
+            dt3 = dt2 * dt
+            p00 = r00 + dt * r01 + h * r02 + q * dt3 * dt2 / 20.0
+            p01 = r01 + dt * r02 + q * dt2 * dt2 / 8.0
+            p02 = r02 + q * dt3 / 6.0
+            p11 = r11 + dt * r12 + q * dt3 / 3.0
+            p12 = r12 + q * dt2 / 2.0
+            p22 = p22 + q * dt
+        else:
+            s += v * dt
+            p00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt * dt * dt / 3.0
+            p01 = p01 + dt * p11 + q * dt * dt / 2.0
+            p11 = p11 + q * dt
+        t0 = t
+    y = z - s
+    sden = p00 + r
+    if not sden > 0.0:
+        p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9] = s, v, a, p00, p01, p02, p11, p12, p22, t0
+        return s, v
+    k0, k1, k2 = p00 / sden, p01 / sden, p02 / sden
+    p[0] = s + k0 * y
+    p[1] = v + k1 * y
+    p[2] = a + k2 * y
+    p[3] = p00 - k0 * p00
+    p[4] = p01 - k0 * p01
+    p[5] = p02 - k0 * p02
+    p[6] = p11 - k1 * p01
+    p[7] = p12 - k1 * p02
+    p[8] = p22 - k2 * p02
+    p[9] = t0
+    return p[0], p[1]

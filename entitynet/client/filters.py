@@ -10,7 +10,9 @@ from __future__ import annotations
 import math
 from struct import Struct
 
-from entitynet.client.state import F_COL, I_COL, Bound, column
+from entitynet.client.state import _COMPILED, F_COL, I_COL, Bound, column
+
+_KALMAN_ROW = getattr(_COMPILED, "kalman_row", None)  # the compiled row update, where pip built it
 
 _READ, _WRITE = Struct("=11d"), Struct("=10d")  # the row's filter fields read and written at once (C speed)
 _KS, _KACC = F_COL["ks"], I_COL["kacc"]  # (ks, kv, ka, p00 .. p22, kt, kq: adjacent columns, in this order)
@@ -182,3 +184,11 @@ class RowKinematic(KinematicMath, Bound):
 
     def _set_state(self, new: tuple) -> None:
         _WRITE.pack_into(self._st.f, 8 * (self._fb + _KS), *new)
+
+    def update_sv(self, z: float, t: float, r: float) -> tuple[float, float]:
+        """`KinematicMath.update_sv` (the reference) compiled where pip built `_columns.kalman_row`: the same
+        operations in C on the row in place, once per usual fix."""
+        if _KALMAN_ROW is None:
+            return KinematicMath.update_sv(self, z, t, r)
+        st = self._st
+        return _KALMAN_ROW(st.f, self._fb + _KS, st.i[self._ib + _KACC], z, t, r)

@@ -25,6 +25,11 @@ from collections.abc import Container
 
 from entitynet.client.placement import Placer, ring_distance
 
+try:  # the compiled candidate loop, where pip built it (setup.py; optional)
+    from entitynet.client import _lateral as _COMPILED  # type: ignore[attr-defined]
+except ImportError:  # the pure reference
+    _COMPILED = None
+
 #: the largest query radius (m) that `edges_near` and `way_cells` answer from the one bucket holding the
 #: position (each bucket also lists the edges whose boxes reach within WIDE + 1 m of it): about two thirds of the
 #: lateral cover's boxes (20 m wide, 50 m buckets) straddle a bucket boundary, and those took the walk over
@@ -100,50 +105,16 @@ class NearIndex:
         `skip`: edges that are no candidates; `only`: the edges that may be (None: any)."""
         x0, y0, x1, y1 = x - r, y - r, x + r, y + r
         if r <= WIDE:  # the widened bucket of the position (`edges_near`)
-            key = (math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE))
-            cand = [w for e, bx0, by0, bx1, by1, w in self.wide.get(key, ())
-                    if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
+            rows = self.wide.get((math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE)), ())
+            if _COMPILED is not None:
+                return _COMPILED.way_cells(_COMPILED.wide_candidates(rows, x0, y0, x1, y1), x, y, dx, dy, r,
+                                           back, ahead, skip, only)
+            cand = [w for e, bx0, by0, bx1, by1, w in rows if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
         else:
             ways = self._ways
             cand = [ways[e] for e in self.edges_near(x, y, r)]
-        out: list[int] = []
-        hypot = math.hypot
-        for w in cand:
-            e = w.edge
-            if e in skip or (only is not None and e not in only):
-                continue
-            # Placer.project_on, term for term
-            best_d = math.inf
-            found = False
-            bu = bc0 = bsl = 0.0
-            for ax, ay, sdx, sdy, l2, c0, sl in w.segs:
-                if l2 <= 0.0:
-                    u = 0.0
-                else:
-                    u = ((x - ax) * sdx + (y - ay) * sdy) / l2
-                    u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
-                dd = hypot(x - (ax + u * sdx), y - (ay + u * sdy))
-                if dd < best_d:
-                    best_d, found, bu, bc0, bsl = dd, True, u, c0, sl
-            offset = bc0 + bu * bsl if found else 0.0
-            if best_d > r:
-                continue
-            length = w.length
-            h = offset + 1.0
-            b = offset - 1.0
-            # min(h, length) and max(b, 0.0), as the builtins choose
-            hx0, hy0 = w.point(length if length < h else h)
-            bx0, by0 = w.point(0.0 if 0.0 > b else b)
-            if ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0:
-                lo, hi = offset - back, offset + ahead
-            else:
-                lo, hi = offset - ahead, offset + back
-            lo = 0.0 if 0.0 > lo else lo
-            hi = length if length < hi else hi
-            for a0, b0, c in w.pieces:
-                if b0 >= lo and a0 <= hi and c not in out:
-                    out.append(c)
-        return out
+        return (_way_cells_py if _COMPILED is None else _COMPILED.way_cells)(cand, x, y, dx, dy, r, back, ahead,
+                                                                             skip, only)
 
     def within_ring(self, area: int, x: float, y: float, r: float) -> bool:
         """`ring_distance(placer.ring(area), x, y) <= r`, decided from squared distances where rounding
@@ -153,16 +124,7 @@ class NearIndex:
             segs = self._rings[area] = self._ring_segs(area)
         if not segs:
             return ring_distance(self.placer.ring(area), x, y) <= r
-        best = math.inf
-        for p0x, p0y, dx, dy, l2 in segs:  # ring_distance's projection, term for term
-            t = ((x - p0x) * dx + (y - p0y) * dy) / l2
-            t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
-            ex = p0x + t * dx - x
-            ey = p0y + t * dy - y
-            d2 = ex * ex + ey * ey
-            if d2 < best:
-                best = d2
-        d = math.sqrt(best)
+        d = (_ring_nearest_py if _COMPILED is None else _COMPILED.ring_nearest)(segs, x, y)
         if d < r * (1.0 - BAND):
             return True
         if d > r * (1.0 + BAND) and math.isfinite(d):
@@ -215,6 +177,65 @@ class _Way:
             return x1, y1
         t = 0.0 if seg <= 0.0 else (offset - c0) / seg
         return x0 + t * ddx, y0 + t * ddy
+
+
+def _way_cells_py(cand: list, x: float, y: float, dx: float, dy: float, r: float, back: float, ahead: float,
+                  skip: Container[int], only: Container[int] | None) -> list[int]:
+    """The candidate loop of `NearIndex.way_cells` over the `_Way`s `cand`: the pure reference of the compiled
+    `_lateral.way_cells` (used where pip did not build it)."""
+    out: list[int] = []
+    hypot = math.hypot
+    for w in cand:
+        e = w.edge
+        if e in skip or (only is not None and e not in only):
+            continue
+        # Placer.project_on, term for term
+        best_d = math.inf
+        found = False
+        bu = bc0 = bsl = 0.0
+        for ax, ay, sdx, sdy, l2, c0, sl in w.segs:
+            if l2 <= 0.0:
+                u = 0.0
+            else:
+                u = ((x - ax) * sdx + (y - ay) * sdy) / l2
+                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
+            dd = hypot(x - (ax + u * sdx), y - (ay + u * sdy))
+            if dd < best_d:
+                best_d, found, bu, bc0, bsl = dd, True, u, c0, sl
+        offset = bc0 + bu * bsl if found else 0.0
+        if best_d > r:
+            continue
+        length = w.length
+        h = offset + 1.0
+        b = offset - 1.0
+        # min(h, length) and max(b, 0.0), as the builtins choose
+        hx0, hy0 = w.point(length if length < h else h)
+        bx0, by0 = w.point(0.0 if 0.0 > b else b)
+        if ((hx0 - bx0) * dx + (hy0 - by0) * dy) >= 0.0:
+            lo, hi = offset - back, offset + ahead
+        else:
+            lo, hi = offset - ahead, offset + back
+        lo = 0.0 if 0.0 > lo else lo
+        hi = length if length < hi else hi
+        for a0, b0, c in w.pieces:
+            if b0 >= lo and a0 <= hi and c not in out:
+                out.append(c)
+    return out
+
+
+def _ring_nearest_py(segs: tuple, x: float, y: float) -> float:
+    """The distance to the nearest of a ring's segments (`NearIndex._ring_segs` rows): `ring_distance`'s
+    projection, term for term (the pure reference of the compiled `_lateral.ring_nearest`)."""
+    best = math.inf
+    for p0x, p0y, dx, dy, l2 in segs:
+        t = ((x - p0x) * dx + (y - p0y) * dy) / l2
+        t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+        ex = p0x + t * dx - x
+        ey = p0y + t * dy - y
+        d2 = ex * ex + ey * ey
+        if d2 < best:
+            best = d2
+    return math.sqrt(best)
 
 
 def near_index(placer: Placer) -> NearIndex:

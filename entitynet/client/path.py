@@ -12,6 +12,11 @@ from collections.abc import Sequence
 
 from entitynet.client.network import DirEdge, NetView
 
+try:  # `Path.xy` compiled, where pip built it (setup.py; optional)
+    from entitynet.client import _geom as _COMPILED  # type: ignore[attr-defined]
+except ImportError:  # the pure method below
+    _COMPILED = None
+
 
 class Path:
     """Consecutive directed edges with one coordinate s, so that long bodies, hairpins and short edges
@@ -241,6 +246,11 @@ class Path:
 
     def __repr__(self) -> str:
         return f"Path({self.edges!r})"
+
+
+xy_reference = Path.xy  # the pure `Path.xy` (tests hold the compiled one equal to it)
+if _COMPILED is not None:
+    Path.xy = _COMPILED.path_xy  # type: ignore[method-assign]
 
 
 def follow(net: NetView, start: DirEdge, networks: int, distance: float,

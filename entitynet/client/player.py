@@ -34,7 +34,7 @@ from entitynet.client.occupation import LOOKAHEAD, Occupation
 from entitynet.client.path import Path
 from entitynet.client.payload import encode_network, encode_quantized
 from entitynet.client.route import Route
-from entitynet.client.row_fields import PlayerState
+from entitynet.client.row_fields import _HALTED, _KV, _LAST_T, _MX, _OFF_SINCE, _PUB_T, PlayerState
 from entitynet.client.rules import OWN_ESTIMATE, Estimate, UpdateRules
 from entitynet.client.tracker import NetworkTracker, placer_for
 from entitynet.protocol import Publish, Unpublish
@@ -166,38 +166,38 @@ class Player(PlayerState):
         velocity when it reports one (phones and vehicle locators do), `speed_accuracy` its RMS per axis (m/s).
         Optional: without them the speed comes from differences of positions, about ten times noisier at 5 m, 1 Hz."""
         acc = self.accuracy if accuracy is None else float(accuracy)
-        last_t = self.last_t
+        # the row's fields read and written by index (the hot path: a block read, not one descriptor a field)
+        f, b = self._st.f, self._fb
+        last_t = None if f[b + _LAST_T] != f[b + _LAST_T] else f[b + _LAST_T]  # (NaN: no fix yet)
         check_fix(x, y, t, acc, last_t)
         vel = velocity(speed, heading, speed_accuracy)
-        if last_t is not None and self.rules.note_interval(t - last_t) and self.tracker is not None:
-            self.tracker.follow_cadence(self.rules.interval)
-        self.rules.halted = False
-        self.measured = (x, y, t)  # (and last_t = t)
+        rules, trk = self.rules, self.tracker
+        # (`note_interval` is True only when the usual interval changed: `reach` follows it)
+        if last_t is not None and rules.note_interval(t - last_t) and trk is not None:
+            trk.follow_cadence(rules.interval)
+        self._st.i[self._ib + _HALTED] = 0  # rules.halted = False
+        f[b + _MX], f[b + _MX + 1], f[b + _LAST_T] = x, y, t  # measured = (x, y, t), last_t = t
         r = acc * acc
         reason = None
-        if self.world is not None:  # the baselines' state, and the only state without a topology
-            self.world.update(x, y, t, r, vel)
-        trk = self.tracker
+        world = self.world
+        if world is not None:  # the baselines' state, and the only state without a topology
+            world.update(x, y, t, r, vel)
         if trk is not None:
             reason = trk.track(x, y, t, r, self.published)
             if reason == "off":
                 return self._off_network(t)
-            if vel is not None and self.world is None:
+            if vel is not None and world is None:
                 trk.fuse_velocity(vel)
-        lf = trk.last_fix if trk is not None else None
-        on_way = lf is not None and self.world is None and trk.place is EDGE
-        self.rules.note_fix((lf.x, lf.y) if on_way else (x, y))
-        self.off_since = None
+        on_edge = world is None and trk.place is EDGE
+        lf_xy = trk.last_fix_xy() if on_edge else None  # (lf.x, lf.y) of `last_fix`, without the Fix
+        rules.note_fix(*(lf_xy or (x, y)))
+        f[b + _OFF_SINCE] = math.nan  # off_since = None
         if reason is None:
             if not self.published or self.ghost is None:
                 reason = "first"
-            else:
-                if self.world is None and trk.place is EDGE:
-                    v_est = trk.kf.v
-                else:
-                    kx, ky = self._plane()
-                    v_est = math.hypot(kx.v, ky.v)
-                reason = self.rules.decide(t, self.ghost, self.pub_t, self.occupation, v_est, self, self.estimate)
+            else:  # the estimated speed: trk.kf.v on an edge, else the plane filters'
+                v_est = f[b + _KV] if on_edge else math.hypot(*(k.v for k in self._plane()))
+                reason = rules.decide(t, self.ghost, f[b + _PUB_T], self.occupation, v_est, self, self.estimate)
         if reason is None:
             return []
         return [self._publish(t, reason)]

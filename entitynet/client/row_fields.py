@@ -20,6 +20,10 @@ _LF_OFF = F_COL["lf_off"]
 _KF_ON, _PN, _PEND_N, _DEAD_D, _LF_E = I_COL["kf_on"], I_COL["pn"], I_COL["pend_n"], I_COL["dead_d"], I_COL["lf_e"]
 _KINDS = (None, "edge", "area")
 _MX = F_COL["mx"]  # (mx, my: adjacent columns)
+# the Player's per-fix fields, read and written by index in `Player.feed` (its hot path)
+_LAST_T, _OFF_SINCE, _PUB_T, _KV = F_COL["last_t"], F_COL["off_since"], F_COL["pub_t"], F_COL["kv"]
+_HALTED = I_COL["halted"]
+assert F_COL["my"] == _MX + 1
 
 
 class PlayerState(Bound):
@@ -159,6 +163,13 @@ class TrackerState(Bound):
             return None
         f, c = self._st.f, self._fb + _LF_OFF
         return _new_fix(Fix, (kind, i[b], f[c], f[c + 1], f[c + 2], f[c + 3]))
+
+    def last_fix_xy(self) -> tuple[float, float] | None:
+        """(x, y) of `last_fix`, or None (the Player's per-fix read, without building the Fix)."""
+        if not self._st.i[self._ib + _LF_E - 1]:
+            return None
+        f, c = self._st.f, self._fb + _LF_OFF
+        return f[c + 1], f[c + 2]
 
     @last_fix.setter
     def last_fix(self, fix: Fix | None) -> None:

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Protocol
 from entitynet.client.entities import EntityType
 from entitynet.client.motion import Model, NetworkModel
 from entitynet.client.occupation import Occupation
-from entitynet.client.state import RECENT, Bound, Record, column, ring
+from entitynet.client.state import F_COL, RECENT, Bound, Record, column, ring
 
 #: an entity that stops within this share of the drift threshold of where its published model halts (a stop on
 #: its route, known a priori, or its path's end) publishes no "stop": the ghost halts there by itself. Measured (`bench
@@ -88,6 +88,7 @@ def gap_limit(max_gap: float, lost_after: float, interval: float) -> float:
 
 
 _RX, _RY, _IV = ring("rx", "rr_n"), ring("ry", "rr_n"), ring("iv", "iv_n")
+_INTERVAL = F_COL["interval"]
 
 
 class UpdateRules(Bound):
@@ -133,21 +134,26 @@ class UpdateRules(Bound):
         """The last fix intervals (s), oldest first (a new list)."""
         return _IV.get(self)
 
-    def note_fix(self, xy: tuple[float, float]) -> None:
+    def note_fix(self, x: float, y: float) -> None:
         """Remember a fix's position (the last five) for the standing test."""
-        _RX.push(self, xy[0])
-        _RY.push(self, xy[1], counted=False)
+        _RX.push(self, x)
+        _RY.push(self, y, counted=False)
 
     def note_interval(self, dt: float) -> bool:
         """A fix came `dt` seconds after the previous one: the gap limit follows the feed's usual interval
         (an interval of `lost_after` or more is a loss, not the feed's cadence, and is not kept). Whether
-        the interval was kept (and `interval` may have changed)."""
+        `interval` changed (and `gap_limit` with it; usually not, with a steady feed: then nothing is
+        written but the interval kept)."""
         if not 0.0 < dt < self.lost_after:
             return False
         _IV.push(self, dt)
         kept = _IV.get(self)
-        self.interval = usual_interval(kept) if len(kept) >= MIN_INTERVALS else 0.0
-        self.gap_limit = gap_limit(self.max_gap, self.lost_after, self.interval)
+        interval = usual_interval(kept) if len(kept) >= MIN_INTERVALS else 0.0
+        f, b = self._st.f, self._fb + _INTERVAL
+        if interval == f[b]:  # (`gap_limit` is a function of it and of constants: unchanged too)
+            return False
+        f[b] = interval
+        self.gap_limit = gap_limit(self.max_gap, self.lost_after, interval)
         return True
 
     def forget(self) -> None:
@@ -197,14 +203,15 @@ class UpdateRules(Bound):
             # the published model stands still: judge by the mean of the last fixes, not by the filter,
             # whose speed wanders with the noise of a standing GPS (a start is speed *and* displacement)
             moved = False
-            recent = self.recent
+            xs, ys = _RX.get(self), _RY.get(self)  # `recent`, as two lists
             for n, limit in ((5, self.threshold), (2, 1.6 * self.threshold)):
-                pts = recent[-n:]
+                tx, ty = xs[-n:], ys[-n:]
                 mx = my = 0.0
-                for px, py in pts:
+                for px in tx:  # (the same additions in the same order as over the (x, y) pairs)
                     mx += px
+                for py in ty:
                     my += py
-                m = len(pts)
+                m = len(tx)
                 moved = moved or math.hypot(mx / m - gx, my / m - gy) > limit
             if moved:
                 if v_est > et.v_start:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
+from struct import Struct
 
 from entitynet.client.entities import EntityType
 from entitynet.client.filters import Kinematic1D, RowKinematic
@@ -20,7 +21,13 @@ from entitynet.client.path import Path, follow
 from entitynet.client.placement import Fix, Placer
 from entitynet.client.route import Route
 from entitynet.client.row_fields import _RS, TrackerState
-from entitynet.client.state import PATH_W, Record
+from entitynet.client.state import F_COL, I_COL, PATH_W, Record
+
+_KS, _LF_OFF, _DIST_EMA, _REACH, _VPEAK = (F_COL[n] for n in ("ks", "lf_off", "dist_ema", "reach", "vpeak"))
+_READ_SVA_T = Struct("=3d48xd")  # ks, kv, ka, (p00 .. p22,) kt: adjacent columns (filters.py checks the order)
+_PEND_E, _LF_KIND = I_COL["pend_e"], I_COL["lf_kind"]
+assert (I_COL["pend_n"], I_COL["lf_e"]) == (_PEND_E + 1, _LF_KIND + 1)
+assert [F_COL[n] - _LF_OFF for n in ("lf_x", "lf_y", "lf_d")] == [1, 2, 3] and F_COL["vpeak_t"] == _VPEAK + 1
 
 MAX_PATH_EDGES = PATH_W
 DOPPLER_MOVING = 1.0  # m/s: a Doppler velocity at least this fast has a direction worth checking
@@ -177,14 +184,14 @@ class NetworkTracker(TrackerState):
         """One fix (r: its variance). Returns "off" (too far from the network), "first" or "jump" (placed
         afresh; "first" while nothing is published), "path" (another way: an area entered or left, a turn,
         a reversal) or None (continued on the path or in the area)."""
-        placer = self.placer
-        if self.place is None:
+        placer, place = self.placer, self.place
+        if place is None:
             fix = self._first(x, y)
             if fix is None or fix.distance > self.off_network:
                 return "off"
             self._init_at(fix, t, r)
             return "first" if not published else "jump"
-        if self.place is AREA:
+        if place is AREA:
             if placer.inside_area(self.area, x, y):
                 self._area_update(x, y, t, r)
                 return None
@@ -196,11 +203,11 @@ class NetworkTracker(TrackerState):
                 return None
             self._init_at(fix, t, r)
             return "path"
-        # on an edge
-        path, kf = self.path, self.kf
-        kt = kf.t
+        # on an edge (the filter's s, v, a, t read from the row at once)
+        path = self.path
+        ks, kv, ka, kt = _READ_SVA_T.unpack_from(self._st.f, 8 * (self._fb + _KS))
         dt = t - kt if t > kt else 0.0
-        s_pred = kf.s + kf.v * dt + 0.5 * kf.a * dt * dt
+        s_pred = ks + kv * dt + 0.5 * ka * dt * dt
         edges = path.edges
         k_cur = bisect_right(path.cum, s_pred) - 1  # `path.index` written out
         if k_cur < 0:
@@ -213,10 +220,11 @@ class NetworkTracker(TrackerState):
         # by another edge (they all start `switch_margin` behind), so the neighbourhood search is skipped
         cur = placer.project_on(x, y, e_cur)
         margin = placer.switch_margin if self.switch_margin is None else self.switch_margin
-        if (cur.distance <= margin and 0.0 < cur.offset < net.edge_len[e_cur]
+        dist = cur[5]  # (cur.distance, cur.offset: the Fix's fields by index on the hot path)
+        if (dist <= margin and 0.0 < cur[2] < net.edge_len[e_cur]
                 and net.node_area[net.edge_from[e_cur]] < 0 and net.node_area[net.edge_to[e_cur]] < 0):
-            if cur.distance <= placer.reacquire and self.written_out:
-                return self._track_on(cur, e_cur, k_cur, s_pred, t, r)
+            if dist <= placer.reacquire and self.written_out:
+                return self._track_on(cur, e_cur, k_cur, s_pred, t, r, path)
             fix, best_pref = cur, cur.distance
             preferred = None
         else:
@@ -284,11 +292,11 @@ class NetworkTracker(TrackerState):
         if reason is not None:
             _RS.clear(self)
         _RS.push(self, s_meas)
-        self.kf.update(s_meas, t, r)
-        kf = self.kf
-        if kf.v > self.vpeak or t - self.vpeak_t > 120.0:
-            self.vpeak, self.vpeak_t = kf.v, t
-        backwards = not self.has_route and kf.v < -self.etype.v_start and kf.v + kf.speed_sigma() < 0.0
+        kf = self._kf  # (on an edge: the row's filter is on)
+        _s, v = kf.update_sv(s_meas, t, r)
+        if v > self.vpeak or t - self.vpeak_t > 120.0:
+            self.vpeak, self.vpeak_t = v, t
+        backwards = not self.has_route and v < -self.etype.v_start and v + kf.speed_sigma() < 0.0
         self.reverse_count = self.reverse_count + 1 if backwards else 0
         if self.reverse_count >= 3:
             self._reverse()
@@ -296,7 +304,8 @@ class NetworkTracker(TrackerState):
         self._maintain_path()
         return reason
 
-    def _track_on(self, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float, r: float) -> str | None:
+    def _track_on(self, fix: Fix, e_cur: int, k_cur: int, s_pred: float, t: float, r: float,
+                  path: Path) -> str | None:
         """The rest of `track` for the usual fix (on the predicted edge, inside the switch margin, within
         `reacquire`): the same steps with `_s_of`'s first case and the bookkeeping written out.
 
@@ -304,26 +313,31 @@ class NetworkTracker(TrackerState):
         on the quick datasets (Helsinki, 6 HSL vehicles, 6 pedestrians), with and without it, alternating, 3
         rounds each, medians: vehicles 24.0k against 20.3k fixes/s (+18 %), pedestrians 13.9k against 12.7k
         (+10 %). test_fast_paths.py checks it against the general code (`written_out=False`) bit for bit."""
-        self.pending = (-1, 0)
-        self.last_fix = fix
+        # pending = (-1, 0), last_fix = fix, and the moving mean of the distance: written to the row by index
+        st, fb = self._st, self._fb
+        i, ib = st.i, self._ib
+        i[ib + _PEND_E], i[ib + _PEND_E + 1] = -1, 0
+        i[ib + _LF_KIND], i[ib + _LF_KIND + 1] = 1, fix[1]  # (an edge fix)
+        f = st.f
+        c = fb + _LF_OFF
+        f[c], f[c + 1], f[c + 2], f[c + 3] = fix[2], fix[3], fix[4], fix[5]
         # the consistency check of `track` cannot jump here: it needs g.distance + margin < fix.distance, and
         # this fix is within the margin (so the placement index is not asked)
-        self.dist_ema = 0.7 * self.dist_ema + 0.3 * fix.distance
-        path = self.path
+        f[fb + _DIST_EMA] = 0.7 * f[fb + _DIST_EMA] + 0.3 * fix[5]
         # `_s_of(fix, s_pred, k_cur)`: the fix is on edges[k_cur]; unless the edge recurs within 3 edges
         if path.edge_ids()[k_cur - 3 if k_cur > 3 else 0 : k_cur + 4].count(e_cur) == 1:
-            off = fix.offset
+            off = fix[2]
             s_meas = path.cum[k_cur] + (off if path.edges[k_cur][1] > 0 else self.net.edge_len[e_cur] - off)
         else:
             s_meas = self._s_of(fix, s_pred, k_cur)
-        if abs(s_meas - s_pred) > self.reach:
+        if abs(s_meas - s_pred) > f[fb + _REACH]:
             self._init_at(fix, t, r)  # the measurement maps far along the path: start afresh there
             return "jump"
         _RS.push(self, s_meas)
         kf = self._kf
         s, v = kf.update_sv(s_meas, t, r)
-        if v > self.vpeak or t - self.vpeak_t > 120.0:
-            self.vpeak, self.vpeak_t = v, t
+        if v > f[fb + _VPEAK] or t - f[fb + _VPEAK + 1] > 120.0:  # vpeak, vpeak_t
+            f[fb + _VPEAK], f[fb + _VPEAK + 1] = v, t
         reason = None
         if self.has_route:
             self.reverse_count = 0

@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from entitynet.client import netview
+from entitynet.client import lateral, netview
 from entitynet.client.coverage import _edges_between
 from entitynet.client.lateral import near_index
 from entitynet.client.path import Path
@@ -115,7 +115,71 @@ def test_within_ring_of_a_large_ring_equals_ring_distance():
         idx = near_index(placer)
         rng = random.Random(n)
         pts = [(rng.uniform(-70.0, 70.0), rng.uniform(-60.0, 60.0)) for _ in range(400)] + ring + [(0.0, 0.0)]
+        segs = idx._ring_segs(0)
         for x, y in pts:
             d = ring_distance(placer.ring(0), x, y)
             for r in (d, math.nextafter(d, 0.0), math.nextafter(d, math.inf), 0.0, 10.0):
                 assert idx.within_ring(0, x, y, r) == (d <= r), (n, x, y, r)
+            if lateral._COMPILED is not None:  # the compiled nearest segment is the pure one, bit for bit
+                assert lateral._COMPILED.ring_nearest(segs, x, y) == lateral._ring_nearest_py(segs, x, y)
+
+
+@pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0),
+                                  area_square()])
+def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
+    """`_lateral.way_cells` and `wide_candidates` (compiled where pip built them) give what the pure loop
+    `_way_cells_py` and the box test give, for every candidate of every edge, at random points, vertices and
+    cell boundaries, with and without `skip` / `only`, and a direction or none."""
+    from entitynet.client import lateral
+
+    if lateral._COMPILED is None:
+        pytest.skip("the compiled candidate loop is not built here (the pure one is in use)")
+    net = netview(topo)
+    rng = random.Random(7)
+    for networks in (PEDESTRIAN, VEHICLE):
+        idx = near_index(Placer(net, networks))
+        every = list(idx._ways.values())
+        for x, y in _points(net, rng):
+            for r in (0.0, 6.0, 12.5, 80.0):
+                ang = rng.uniform(0.0, 2.0 * math.pi)
+                dx, dy = rng.choice([(math.cos(ang), math.sin(ang)), (0.0, 0.0)])
+                back, ahead = rng.choice([(5.0, 30.0), (0.0, 0.0)])
+                skip = set(rng.sample(range(net.n_edges), rng.randint(0, 2)))
+                only = rng.choice([None, frozenset({0, 2})])
+                args = (x, y, dx, dy, r, back, ahead, skip, only)
+                assert lateral._COMPILED.way_cells(every, *args) == lateral._way_cells_py(every, *args)
+                rows = idx.wide.get((math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE)), ())
+                box = (x - r, y - r, x + r, y + r)
+                assert lateral._COMPILED.wide_candidates(rows, *box) == [
+                    w for _e, bx0, by0, bx1, by1, w in rows
+                    if not (bx0 > box[2] or bx1 < box[0] or by0 > box[3] or by1 < box[1])]
+
+
+@pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0)])
+def test_the_compiled_path_point_equals_the_pure_one(topo):
+    """`Path.xy` (compiled `_geom.path_xy` where pip built it) gives the pure method's point, bit for bit, on
+    every edge both ways and on paths of several edges: at random coordinates, at every vertex and cell boundary,
+    at the path's ends and beyond them, and at NaN and infinities."""
+    from entitynet.client import path as path_mod
+
+    if path_mod._COMPILED is None:
+        pytest.skip("the compiled path point is not built here (the pure one is in use)")
+    net = netview(topo)
+    rng = random.Random(5)
+    paths = [Path(net, [(e, d)]) for e in range(net.n_edges) for d in (1, -1)]
+    for p in list(paths):  # and every path of two or three edges the junction rule follows
+        for _ in range(2):
+            from entitynet.client.path import follow
+            more = follow(net, p.edges[-1], ALL, rng.uniform(0.0, 150.0), max_edges=2)
+            if more:
+                paths.append(p.extended(more))
+    for p in paths:
+        coords = [rng.uniform(-5.0, p.length + 5.0) for _ in range(40)] + list(p.cum)
+        coords += [0.0, p.length, -0.0, math.nextafter(p.length, math.inf), math.inf, -math.inf, math.nan]
+        for k, (e, d) in enumerate(p.edges):
+            for a0, _b0, _c in net.pieces(e, d):
+                coords.append(p.cum[k] + a0)
+        for s in coords:
+            got, want = p.xy(s), path_mod.xy_reference(p, s)
+            assert [v if v == v else "nan" for v in got] == [v if v == v else "nan" for v in want], (p, s)
+            assert all(type(v) is float for v in got)

@@ -197,12 +197,14 @@ def test_the_compiled_accessors_refuse_what_the_reference_refuses():
 
 
 def test_without_the_compiled_module_the_reference_gives_the_pinned_messages():
-    """Where pip built no `_columns` (no C compiler: setup.py goes on without it), the Python accessors are the
-    only ones, and no other test runs them where the module is built. In a child with the module hidden: the
-    pinned replay digests, and a fleet core's messages and paths (rebuilt from the row's arrays) equal to its
-    twin Players'."""
+    """Where pip built no `_columns`, `_lateral` nor `_geom` (no C compiler: setup.py goes on without them), the
+    Python accessors, filter update, lateral loop and path point are the only ones, and no other test runs them
+    where the modules are built. In a child with the modules hidden: the pinned replay digests, and a fleet
+    core's messages and paths (rebuilt from the row's arrays) equal to its twin Players'."""
     code = ("import sys\nsys.modules['entitynet.client._columns'] = None\n"
-            "from entitynet.client import state\nassert state._COMPILED is None\n"
+            "sys.modules['entitynet.client._lateral'] = sys.modules['entitynet.client._geom'] = None\n"
+            "from entitynet.client import lateral, path, state\n"
+            "assert state._COMPILED is lateral._COMPILED is path._COMPILED is None\n"
             "from tests.entitynet.client import test_fleet_state as f, test_player_replay as r\n"
             "from tests.entitynet.client_fixtures import cross\n"
             "r.test_every_walk_gives_the_recorded_messages()\n"
@@ -230,3 +232,35 @@ def test_a_row_outside_the_record_is_refused_not_read_as_stray_memory():
     p.bind(rec, 0)
     assert p.last_t is None and rec.rows == 1 and len(rec.f) == 4 * NF
     assert rec.take(one, 0, at=0) == 0 and rec.take(one, 0) == 1 and rec.rows == 2
+
+
+def test_the_compiled_filter_update_is_the_reference_bit_for_bit():
+    """`RowKinematic.update_sv` (compiled `_columns.kalman_row` where built) leaves the row and returns the
+    (s, v) that the reference `KinematicMath.update_sv` does, bit for bit, over random states, both models
+    (with and without acceleration), time standing still and a covariance that is no longer positive."""
+    from entitynet.client import state
+    from entitynet.client.filters import KinematicMath
+
+    if state._COMPILED is None:
+        pytest.skip("the compiled accessors are not built here (the reference is in use)")
+    rng = np.random.default_rng(22)
+    rec = Record(2)
+    fast, ref = RowKinematic(), RowKinematic()
+    fast.bind(rec, rec.new_row())
+    ref.bind(rec, rec.new_row())
+    for k in range(3000):
+        accel = bool(k % 2)
+        s0, t0 = float(rng.normal(0.0, 500.0)), float(rng.uniform(0.0, 1e5))
+        r0, q = (float(rng.uniform(0.1, 100.0)) if k % 50 else -1e9), float(rng.uniform(0.01, 3.0))
+        for f in (fast, ref):
+            f.reset(s0, t0, r0, q=q, accel=accel)
+        rng2 = np.random.default_rng(k)
+        t = t0
+        for _ in range(6):
+            t += float(rng2.choice([0.0, rng2.uniform(0.01, 40.0)]))
+            z, r = float(s0 + rng2.normal(0.0, 30.0)), float(rng2.uniform(0.5, 400.0))
+            got, want = fast.update_sv(z, t, r), KinematicMath.update_sv(ref, z, t, r)
+            assert got == want
+            assert fast._state() == ref._state()
+    with pytest.raises(IndexError):
+        state._COMPILED.kalman_row(rec.f, len(rec.f) - 3, True, 0.0, 1.0, 1.0)
