@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import signal
 import socket
 import ssl
@@ -98,7 +99,11 @@ def _ssl_context(config: ServerConfig) -> ssl.SSLContext | None:
 
 STALL_TICK_S = 0.1  # housekeeping's tick while a write is blocked (stall accounting)
 IDLE_TICK_S = 1.0  # ... and while none is (the counters on /metrics then lag by up to this)
-GAUGES_EVERY_S = 1.0  # the table-size gauges on /metrics are refreshed at most this often
+GAUGES_EVERY_S = 1.0
+#: a client frame fed in slices yields to the others once its slices since the last yield took this long: a
+#: checkpoint is a pass through trio's scheduler (tens of microseconds), more than a small SUBSCRIBE costs, so
+#: a frame of a few cheap slices (a viewer's SUBSCRIBE difference and its PING) goes through without one
+FEED_YIELD_S = 0.0005  # the table-size gauges on /metrics are refreshed at most this often
 
 
 class Server(WritingMixin):
@@ -237,7 +242,7 @@ class Server(WritingMixin):
                 # a small kernel queue keeps the backlog of a slow reader in the outbox, where a newer state
                 # replaces an older one, instead of megabytes of stale states in the socket buffer
                 stream.socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.config.sndbuf)
-        await self._serve(conn, self._read_tcp)
+        await self._serve(conn, self._read_fd if conn.fd is not None else self._read_tcp)
 
     async def _handle_ws(self, request) -> None:
         if self._stopping:
@@ -288,7 +293,8 @@ class Server(WritingMixin):
 
     async def _feed(self, conn: _Conn, msgs: list[P.Message]) -> None:
         """Feed one frame to the core in slices, serving the other clients between slices: a slice ends after
-        `feed_slice` messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells).
+        `feed_slice` messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells),
+        and the others are served once the slices since the last yield took `FEED_YIELD_S`.
         A HELLO whose token the core will check is looked up first, off the loop (entitynet.server.tokens), and
         the answer handed over for the first slice, which the core handles without a task switch."""
         sb = self.sb
@@ -300,6 +306,7 @@ class Server(WritingMixin):
                 return  # it went away (or its handshake timed out) while the store was read
         step = self.config.feed_slice
         start, n = 0, len(msgs)
+        began = time.perf_counter()
         while start < n:
             end = start
             limit = min(n, start + step)
@@ -318,21 +325,58 @@ class Server(WritingMixin):
             if sb.stats["updates_in"] != before:  # a PING or SUBSCRIBE frame costs no Prometheus call
                 self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
             self._rearm()
-            self._note_news()
             ob = sb.outbox(conn.cid)
             if ob is not None and (ob.has_control or ob.close_after):
                 self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
+                if not conn.busy:
+                    sb.written_out(conn.cid)  # all of it went: no flusher wake-up for this client
+            self._note_news()
             if ob is None or ob.close_after:
                 return
             start = end
-            if start < n:
+            if start < n and time.perf_counter() - began >= FEED_YIELD_S:
                 await trio.lowlevel.checkpoint()  # the others' frames and the flusher run here
+                began = time.perf_counter()
 
     def _reject(self, conn: _Conn, err: P.ProtocolError) -> None:
         logs.event("protocol error", logging.INFO, cid=conn.cid, peer=conn.peer, code=int(err.code),
                    reason=err.text)
         self.sb.protocol_error(conn.cid, err)
         self._try_write(conn)
+
+    async def _read_fd(self, conn: _Conn) -> None:
+        """The plain-TCP reader: wait until the socket is readable, then one `os.read` on its descriptor.
+
+        Why not `receive_some`: trio's socket wrapper first tries the read (an EAGAIN system call and a raised
+        exception whenever the client has nothing more to say, as after every PING of a lock step) and, after a
+        read that succeeds, passes through the scheduler once more (a checkpoint); per small frame that was most
+        of an idle server's CPU (`docs/e2e.md`). Waiting first costs nothing when bytes are already queued (the
+        poll reports them at once), and it is the checkpoint that lets the other clients run between reads."""
+        dec = P.FrameDecoder(self.sb.config.codec)
+        fd, size = conn.fd, self.config.read_size
+        wait = trio.lowlevel.wait_readable
+        while True:
+            try:
+                await wait(fd)
+                data = os.read(fd, size)
+            except BlockingIOError:
+                continue  # readable was reported but the bytes went elsewhere: wait again
+            except (trio.ClosedResourceError, OSError):
+                data = b""  # closed under us (a revoked token, shutdown) or reset by the peer
+            if not data:
+                if dec.mid_frame:
+                    logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid, buffered=dec.buffered)
+                return
+            dec.receive_data(data)
+            try:
+                while (msgs := dec.next_messages()) is not None:
+                    await self._feed(conn, msgs)
+            except P.ProtocolError as err:
+                self._reject(conn, err)
+                return
+            ob = self.sb.outbox(conn.cid)
+            if ob is None or ob.close_after:
+                return
 
     async def _read_tcp(self, conn: _Conn) -> None:
         dec = P.FrameDecoder(self.sb.config.codec)

@@ -35,6 +35,14 @@ class OutboundMixin:
         (messages queued per waiting client)."""
         return len(self._dirty)
 
+    def written_out(self, cid: int) -> None:
+        """The shell has just written everything queued for `cid` itself (a reader answering its client's PING
+        at once): it has no news left, so the flusher is not woken for it. A lock step's PINGs otherwise each
+        cost a flusher wake-up that finds nothing to write."""
+        c = self.clients.get(cid)
+        if c is not None and not len(c.outbox) and not c.outbox.close_after:
+            self._dirty.discard(cid)
+
     def take_dirty(self, check: bool = True) -> set[int]:
         """Clients with something new to write since the last call. With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
