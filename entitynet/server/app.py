@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import trio
 import trio_websocket
 
-from entitynet import protocol as P
 from entitynet.server import compiled, fdlimit, logs
 from entitynet.server.config import ConfigError, ServerConfig, check_flush_policy, check_ports
 from entitynet.server.http import HttpLimits, HttpServer, Router
@@ -41,6 +40,7 @@ from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
 from entitynet.server.pacing import Pacer
 from entitynet.server.peers import peer_address, throttle_key
+from entitynet.server.reading import ReadingMixin
 from entitynet.server.stall import StallClock
 from entitynet.server.tokens import TokenWatch
 from entitynet.server.writing import WritingMixin
@@ -101,7 +101,7 @@ IDLE_TICK_S = 1.0  # ... and while none is (the counters on /metrics then lag by
 GAUGES_EVERY_S = 1.0  # the table-size gauges on /metrics are refreshed at most this often
 
 
-class Server(WritingMixin):
+class Server(ReadingMixin, WritingMixin):
     """One shard server. Start it with `await nursery.start(serve, config)` or `entitynet serve`."""
 
     def __init__(self, config: ServerConfig):
@@ -237,7 +237,7 @@ class Server(WritingMixin):
                 # a small kernel queue keeps the backlog of a slow reader in the outbox, where a newer state
                 # replaces an older one, instead of megabytes of stale states in the socket buffer
                 stream.socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.config.sndbuf)
-        await self._serve(conn, self._read_tcp)
+        await self._serve(conn, self._read_fd if conn.fd is not None else self._read_tcp)
 
     async def _handle_ws(self, request) -> None:
         if self._stopping:
@@ -285,98 +285,6 @@ class Server(WritingMixin):
                     trio_websocket.ConnectionClosed):
                 pass
         logs.event("disconnect", logging.DEBUG, cid=conn.cid, kind=conn.kind)
-
-    async def _feed(self, conn: _Conn, msgs: list[P.Message]) -> None:
-        """Feed one frame to the core in slices, serving the other clients between slices: a slice ends after
-        `feed_slice` messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells).
-        A HELLO whose token the core will check is looked up first, off the loop (entitynet.server.tokens), and
-        the answer handed over for the first slice, which the core handles without a task switch."""
-        sb = self.sb
-        tokens, first = self.tokens, msgs[0] if msgs else None
-        looked_up, answer = False, None
-        if tokens is not None and type(first) is P.Hello and sb.asks_token(conn.cid, first, self.clock()):
-            looked_up, answer = True, await tokens.lookup(first.token)
-            if sb.outbox(conn.cid) is None:
-                return  # it went away (or its handshake timed out) while the store was read
-        step = self.config.feed_slice
-        start, n = 0, len(msgs)
-        while start < n:
-            end = start
-            limit = min(n, start + step)
-            while end < limit:
-                t = type(msgs[end])
-                end += 1
-                if t is P.Subscribe or t is P.Query:
-                    break
-            before = sb.stats["updates_in"]
-            part = msgs[start:end] if start or end < n else msgs
-            if start == 0 and looked_up:
-                with tokens.answering(first.token, answer):
-                    sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
-            else:
-                sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
-            if sb.stats["updates_in"] != before:  # a PING or SUBSCRIBE frame costs no Prometheus call
-                self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
-            self._rearm()
-            self._note_news()
-            ob = sb.outbox(conn.cid)
-            if ob is not None and (ob.has_control or ob.close_after):
-                self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
-            if ob is None or ob.close_after:
-                return
-            start = end
-            if start < n:
-                await trio.lowlevel.checkpoint()  # the others' frames and the flusher run here
-
-    def _reject(self, conn: _Conn, err: P.ProtocolError) -> None:
-        logs.event("protocol error", logging.INFO, cid=conn.cid, peer=conn.peer, code=int(err.code),
-                   reason=err.text)
-        self.sb.protocol_error(conn.cid, err)
-        self._try_write(conn)
-
-    async def _read_tcp(self, conn: _Conn) -> None:
-        dec = P.FrameDecoder(self.sb.config.codec)
-        stream = conn.stream
-        size = self.config.read_size
-        while True:
-            try:
-                data = await stream.receive_some(size)
-            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
-                data = b""
-            if not data:
-                if dec.mid_frame:
-                    logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid, buffered=dec.buffered)
-                return
-            dec.receive_data(data)
-            try:
-                while (msgs := dec.next_messages()) is not None:
-                    await self._feed(conn, msgs)
-            except P.ProtocolError as err:
-                self._reject(conn, err)
-                return
-            ob = self.sb.outbox(conn.cid)
-            if ob is None or ob.close_after:
-                return
-
-    async def _read_ws(self, conn: _Conn) -> None:
-        ws = conn.stream
-        limits = self.sb.config.codec
-        while True:
-            try:
-                data = await ws.get_message()
-            except trio_websocket.ConnectionClosed:
-                return
-            if not isinstance(data, bytes):
-                self._reject(conn, P.ProtocolError(P.ErrorCode.MALFORMED, "send binary WebSocket messages"))
-                return
-            try:
-                await self._feed(conn, P.decode_payload(data, limits))
-            except P.ProtocolError as err:
-                self._reject(conn, err)
-                return
-            ob = self.sb.outbox(conn.cid)
-            if ob is None or ob.close_after:
-                return
 
     def _check_stalls(self) -> bool:
         """Credit every blocked write with the time since the last tick and drop those stalled beyond

@@ -75,7 +75,8 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         self._rng = random.Random(config.seed)
         self.auth_throttle = access.throttle_for(config)
         self._shut = False
-        self.stats: Counter[str] = Counter()
+        # the counters the shell reads per frame start at zero: a missing key costs a Python-level __missing__
+        self.stats: Counter[str] = Counter(updates_in=0, deliveries=0, leaves=0, slow_consumers=0)
         self.errors: Counter[int] = Counter()
         self._start = now
         # the cluster hook (entitynet.cluster.core.ClusterCore) when sharded: told of every state and LEAVE of a

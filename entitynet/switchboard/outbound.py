@@ -35,6 +35,27 @@ class OutboundMixin:
         (messages queued per waiting client)."""
         return len(self._dirty)
 
+    def quick_pong(self, cid: int, ping: P.Ping, now: float) -> bytes | None:
+        """The encoded PONG for a client frame that is one PING, for the shell to write at once, past the
+        outbox; None when the frame must be fed as usual (`receive`): the client is not past its handshake or is
+        closing, or something is queued for it (then the usual path writes the PONG and that in one frame, replies
+        first). One PING is within any frame's
+        reply bound (`max_replies_per_frame` >= 1), so nothing is counted or refused. Why: a lock step's
+        barrier PINGs every client once per tick, and through `receive` and the outbox each cost more than
+        the write itself."""
+        c = self.clients.get(cid)
+        if c is None or not c.ready or c.closing or c.outbox.close_after or len(c.outbox):
+            return None
+        return P.encode_message(P.Pong(ping.client_ms, P.now_ms(max(now, 0.0))))
+
+    def written_out(self, cid: int) -> None:
+        """The shell has just written everything queued for `cid` itself (a reader answering its client's PING
+        at once): it has no news left, so the flusher is not woken for it. A lock step's PINGs otherwise each
+        cost a flusher wake-up that finds nothing to write."""
+        c = self.clients.get(cid)
+        if c is not None and not len(c.outbox) and not c.outbox.close_after:
+            self._dirty.discard(cid)
+
     def take_dirty(self, check: bool = True) -> set[int]:
         """Clients with something new to write since the last call. With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""

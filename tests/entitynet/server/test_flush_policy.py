@@ -61,12 +61,11 @@ async def test_flush_min_interval_spaces_flushes_even_when_idle(flush_path):
     async with running(flush_interval=LONG, flush_min_interval=LONG, latency_budget=0.0) as server:
         view = await Raw.connect(server)
         await view.send(P.Subscribe((3,), ()))
-        pub = await Raw.connect(server)  # its WELCOME made news: the first flush has happened once all is idle
-        await pub.send(P.Ping(1))
-        await pub.expect(P.Pong)
+        pub = await Raw.connect(server)  # (its WELCOME went out from the reader: no flush for it)
+        await pub.send(P.Publish(7, 1, (3,), 10_000, b"a"))
+        await view.expect(P.Update)  # the first flush: nothing was flushed before it, so nothing held it
         await trio.testing.wait_all_tasks_blocked()
-        await trio.testing.wait_all_tasks_blocked()
-        await pub.send(P.Publish(7, 1, (3,), 10_000, b"a"), P.Publish(7, 2, (3,), 10_000, b"b"), P.Ping(2))
+        await pub.send(P.Publish(7, 2, (3,), 10_000, b"b"), P.Publish(7, 3, (3,), 10_000, b"c"), P.Ping(2))
         await pub.expect(P.Pong)  # both states are in the core, and the reply went out at once
         with trio.move_on_after(0.5) as waited:
             await view.expect(P.Update)
