@@ -21,6 +21,7 @@ from entitynet.client.network import DirEdge
 from sims.engine.agents import Agent, AreaWalk, Stop
 from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead, timetable_speed
 from sims.engine.crossings import Crossings, Movement
+from sims.engine.free_flow import FreeFlow
 from sims.engine.params import TypeParams, params
 from sims.engine.routes import Route
 from topology.raw import TRAM, VEHICLE
@@ -34,7 +35,9 @@ JUNCTION_RADIUS = 8.0
 class World:
     """The simulation's truth. `add` spawns, `step` moves, `agents` is every live entity by id."""
 
-    def __init__(self, topo, seed: int = 1, *, start: float = 0.0):
+    def __init__(self, topo, seed: int = 1, *, start: float = 0.0, vectorised: bool = True):
+        """`vectorised`: the free walkers (pedestrians without stops) step over arrays (`FreeFlow`), the same
+        truth bit for bit; False steps every entity in the scalar loop (the baseline the tests compare with)."""
         self.topo = topo
         self.net = netview(topo)
         self.rng = random.Random(seed)
@@ -45,6 +48,8 @@ class World:
         self.removed: list[tuple[int, str]] = []  # (id, why) since the last `take_removed`
         self.stop_lateness: list[float] = []  # s after the timetable's arrival, per stop served on a timetable
         self._next_id = 1
+        self.free: FreeFlow | None = FreeFlow() if vectorised else None
+        self._scalar: set[int] = set()  # the entities the scalar step visits (all, without `free`)
         net = self.net
         self._junction = [sum(1 for e in net.node_edges[n] if net.edge_net[e] & (VEHICLE | TRAM)) >= 3
                           for n in range(len(net.node_edges))]
@@ -89,6 +94,10 @@ class World:
         a._clock = self.now
         self._next_id += 1
         self.agents[a.id] = a
+        if self.free is not None and FreeFlow.takes(a):
+            self.free.add(a)
+        else:
+            self._scalar.add(a.id)
         self.counters["spawned"] += 1
         self.counters[f"spawned:{p.name}"] += 1
         return a
@@ -96,6 +105,13 @@ class World:
     def stall(self, agent: int, seconds: float) -> None:
         """A breakdown: the entity stands still for `seconds` (what it blocks, it blocks)."""
         self.agents[agent].stalled_until = self.now + seconds
+        self._to_scalar(agent)
+
+    def _to_scalar(self, agent: int) -> None:
+        """An entity that leaves the free walkers' columns (stalled, at its route's end) for the scalar step."""
+        if self.free is not None and agent in self.free:
+            self.free.drop(agent)
+            self._scalar.add(agent)
 
     def remove(self, agent: int, why: str) -> None:
         """Take an entity out (arrived, deleted), freeing its junction reservations so waiting vehicles are not
@@ -103,6 +119,9 @@ class World:
         a = self.agents.pop(agent, None)
         if a is None:
             return
+        self._scalar.discard(agent)
+        if self.free is not None:
+            self.free.drop(agent)
         self.crossings.forget(agent, [n for _s, n, _k in a.crossings] + list(a.held))
         self.removed.append((agent, why))
         self.counters[why] += 1
@@ -120,11 +139,17 @@ class World:
         now = self.now + dt
         index = self._body_index()
         moves: list[tuple[Agent, float, float, Obstacle | None]] = []
-        for aid in sorted(self.agents):
+        for aid in sorted(self._scalar):
             a = self.agents[aid]
             moves.append(self._decide(a, index, now, dt))
+        ended = self.free.step(dt, now) if self.free is not None else []
+        if ended:  # free walkers at their route's end: their `_after_move` in id order among the others'
+            for a in ended:
+                self._to_scalar(a.id)
+            moves.extend((a, a.s, a.v, None) for a in ended)
+            moves.sort(key=lambda m: m[0].id)
         for a, new_s, new_v, limit in moves:
-            a.distance += max(new_s - a.s, 0.0)
+            a.distance += max(new_s - a.s, 0.0)  # 0.0 for a free walker (moved already)
             a.s, a.v = new_s, new_v
             a._clock = now
             self._after_move(a, limit, now)
