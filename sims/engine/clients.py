@@ -28,7 +28,9 @@ import numpy as np
 from entitynet import protocol as P
 from entitynet.client import Player
 from entitynet.client.fleet import FleetCore
+from sims.engine.positions import positions
 from sims.engine.source import Body, Truth
+from sims.engine.truth_arrays import EdgeArrays
 from sims.mobility.gps import GPS_SIGMA, entity_gps
 
 
@@ -67,6 +69,7 @@ class Fleet:
         self._slot: dict[int, int] = {}  # entity -> its slot in the fleet core
         self._aid: list[int] = []  # slot -> entity
         self._due = np.zeros(0)  # next fix time per slot (inf: removed)
+        self._edges: EdgeArrays | None = None  # the map's edge geometry as arrays, for `positions` (built once)
 
     def conn_of(self, entity: int) -> int:
         """The publisher connection carrying `entity`: id modulo the connection count (as a proxy splits a
@@ -119,14 +122,14 @@ class Fleet:
         slots = np.flatnonzero(due <= now)
         slots = slots[np.argsort(core.order[slots], kind="stable")]  # in the order the entities came (the messages')
         agents = self.world.agents
-        have, idle, xy = [], [], []
+        have, idle, bodies = [], [], []
         for s in slots.tolist():
             a = agents.get(self._aid[s])
             if a is None:
                 idle.append(s)  # as `step`: no fix and no timers for an entity whose truth is gone
             else:
                 have.append(s)
-                xy.append(a.xy())
+                bodies.append(a)
         fix_slots = np.array(have, dtype=np.int64)
         if len(fix_slots):
             d = due[fix_slots]
@@ -135,7 +138,10 @@ class Fleet:
             for s in have:
                 self.next_fix[self._aid[s]] = float(due[s])
             ids = np.array([self._aid[s] for s in have], dtype=np.int64)
-            fixes = entity_gps(np.array(xy), self.seed, ids, np.full(len(have), now), self.gps_sigma)
+            if self._edges is None:
+                self._edges = EdgeArrays(self.world.net)
+            xy = positions(bodies, self._edges)  # each one's `xy()`, over arrays
+            fixes = entity_gps(xy, self.seed, ids, np.full(len(have), now), self.gps_sigma)
         else:
             fixes = np.zeros((0, 2))
         self.counters["fixes"] += len(have)
