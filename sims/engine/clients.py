@@ -140,7 +140,7 @@ class Fleet:
             ids = np.array([self._aid[s] for s in have], dtype=np.int64)
             if self._edges is None:
                 self._edges = EdgeArrays(self.world.net)
-            xy = positions(bodies, self._edges)  # each one's `xy()`, over arrays
+            xy = positions(bodies, self._edges, getattr(self.world, "routes", None))  # each `xy()`, over arrays
             fixes = entity_gps(xy, self.seed, ids, np.full(len(have), now), self.gps_sigma)
         else:
             fixes = np.zeros((0, 2))

@@ -23,6 +23,7 @@ from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead,
 from sims.engine.crossings import Crossings, Movement
 from sims.engine.free_flow import FreeFlow
 from sims.engine.params import TypeParams, params
+from sims.engine.route_table import RouteTable
 from sims.engine.routes import Route
 from topology.raw import TRAM, VEHICLE
 
@@ -50,6 +51,7 @@ class World:
         self._next_id = 1
         self.free: FreeFlow | None = FreeFlow() if vectorised else None
         self._scalar: set[int] = set()  # the entities the scalar step visits (all, without `free`)
+        self.routes = RouteTable(self.net.edge_len)  # every live entity's route as arrays (`positions`)
         net = self.net
         self._junction = [sum(1 for e in net.node_edges[n] if net.edge_net[e] & (VEHICLE | TRAM)) >= 3
                           for n in range(len(net.node_edges))]
@@ -94,6 +96,7 @@ class World:
         a._clock = self.now
         self._next_id += 1
         self.agents[a.id] = a
+        self.routes.add(a)
         if self.free is not None and FreeFlow.takes(a):
             self.free.add(a)
         else:
@@ -120,6 +123,7 @@ class World:
         if a is None:
             return
         self._scalar.discard(agent)
+        self.routes.forget(a)
         if self.free is not None:
             self.free.drop(agent)
         self.crossings.forget(agent, [n for _s, n, _k in a.crossings] + list(a.held))
@@ -154,6 +158,7 @@ class World:
             a._clock = now
             self._after_move(a, limit, now)
         self.now = now
+        self.routes.compact(self.agents.values())
 
     def _decide(self, a: Agent, index, now: float, dt: float) -> tuple[Agent, float, float, Obstacle | None]:
         if a.in_area_since is not None:  # walking inside its area: the walk's samples are the truth

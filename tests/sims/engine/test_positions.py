@@ -12,8 +12,10 @@ from tests.sims.engine.test_routes import grid
 
 def exact(w: World) -> None:
     bodies = list(w.agents.values())
-    got = positions(bodies, EdgeArrays(w.net))
-    assert [tuple(p) for p in got.tolist()] == [a.xy() for a in bodies]
+    want = [a.xy() for a in bodies]
+    for table in (None, w.routes):  # route lookups one by one, and over the world's route table
+        got = positions(bodies, EdgeArrays(w.net), table)
+        assert [tuple(p) for p in got.tolist()] == want
 
 
 def test_positions_are_xy_on_a_grid_over_a_run():
@@ -47,3 +49,19 @@ def test_ends_of_a_route_and_no_bodies():
     w.add("car", [(0, -1)], s=0.3)
     exact(w)
     assert positions([], EdgeArrays(w.net)).shape == (0, 2)
+
+
+def test_the_route_table_drops_removed_routes_and_keeps_the_live_ones_exact():
+    w = World(grid(), 5)
+    w.routes.slack = 0
+    pop = Population(w, PopulationConfig(40, 0.4, transit=False))
+    pop.start()
+    sizes = []
+    for _ in range(320):
+        w.step(0.5)
+        pop.step()
+        sizes.append(w.routes.size)
+        exact(w)
+    assert w.counters["arrived"] > 50  # more trips ended than there are live ones
+    assert any(b < a for a, b in zip(sizes, sizes[1:], strict=False))  # compacted at least once
+    assert w.routes.size <= 2 * w.routes.live + len(w.agents) * 10
