@@ -69,23 +69,33 @@ class RouteTable:
         for a in live:
             self.add(a)
 
-    def edge_offsets(self, first: np.ndarray, count: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(edge, offset along the undirected edge) at route distances `s` of the routes at rows
-        `first`..`first + count`: `Route.edge_offset` for each."""
+    def rows_at(self, first: np.ndarray, count: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """The row of the edge holding route distance `s` on the routes at rows `first`..`first + count`:
+        `Route.index` for each (bisect_right on the route's start distances, clamped to the route)."""
         lo, hi = first, first + count
+        return np.clip(self.first_row(lo, hi, s, strict=False) - 1, lo, hi - 1)
+
+    def first_row(self, lo: np.ndarray, hi: np.ndarray, q: np.ndarray, *, strict: bool) -> np.ndarray:
+        """For each query, the first row in [lo, hi) whose start distance is > q (strict=False: bisect_right) or
+        >= q (strict=True: bisect_left); hi when there is none. A binary search over all queries at once."""
         left, right = lo.copy(), hi.copy()
         cum = self.cum
         top = max(len(cum) - 1, 0)
-        while True:  # bisect_right on each route's start distances: the first row whose start is > s
+        while True:
             active = left < right
             if not active.any():
-                break
+                return left
             mid = (left + right) // 2
-            go = cum[np.minimum(mid, top)] <= s
+            c = cum[np.minimum(mid, top)]
+            go = (c < q) if strict else (c <= q)
             left = np.where(active & go, mid + 1, left)
             right = np.where(active & ~go, mid, right)
-        k = np.clip(left - 1, lo, hi - 1)  # Route.index: clamped to the route
-        along = s - cum[k]
+
+    def edge_offsets(self, first: np.ndarray, count: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(edge, offset along the undirected edge) at route distances `s` of the routes at rows
+        `first`..`first + count`: `Route.edge_offset` for each."""
+        k = self.rows_at(first, count, s)
+        along = s - self.cum[k]
         along = np.where(0.0 > along, 0.0, along)  # max(along, 0.0)
         elen = self.elen[k]
         along = np.where(elen < along, elen, along)  # min(along, edge length)

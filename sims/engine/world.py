@@ -22,6 +22,7 @@ from sims.engine.agents import Agent, AreaWalk, Stop
 from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead, timetable_speed
 from sims.engine.crossings import Crossings, Movement
 from sims.engine.free_flow import FreeFlow
+from sims.engine.leaders import leaders
 from sims.engine.params import TypeParams, params
 from sims.engine.route_table import RouteTable
 from sims.engine.routes import Route
@@ -52,6 +53,7 @@ class World:
         self.free: FreeFlow | None = FreeFlow() if vectorised else None
         self._scalar: set[int] = set()  # the entities the scalar step visits (all, without `free`)
         self.routes = RouteTable(self.net.edge_len)  # every live entity's route as arrays (`positions`)
+        self._avoiders: dict[int, Agent] = {}  # the entities with a body length, in id order (the leaders')
         net = self.net
         self._junction = [sum(1 for e in net.node_edges[n] if net.edge_net[e] & (VEHICLE | TRAM)) >= 3
                           for n in range(len(net.node_edges))]
@@ -97,6 +99,8 @@ class World:
         self._next_id += 1
         self.agents[a.id] = a
         self.routes.add(a)
+        if p.avoids:
+            self._avoiders[a.id] = a
         if self.free is not None and FreeFlow.takes(a):
             self.free.add(a)
         else:
@@ -124,6 +128,7 @@ class World:
             return
         self._scalar.discard(agent)
         self.routes.forget(a)
+        self._avoiders.pop(agent, None)
         if self.free is not None:
             self.free.drop(agent)
         self.crossings.forget(agent, [n for _s, n, _k in a.crossings] + list(a.held))
@@ -141,11 +146,14 @@ class World:
         if not dt > 0.0:
             raise ValueError(f"a step must move time forward, got dt={dt!r}")
         now = self.now + dt
-        index = self._body_index()
         moves: list[tuple[Agent, float, float, Obstacle | None]] = []
-        for aid in sorted(self._scalar):
-            a = self.agents[aid]
-            moves.append(self._decide(a, index, now, dt))
+        if self.free is None:  # the scalar step: the body index, then each entity's decision in id order
+            index = self._body_index()
+            for aid in sorted(self._scalar):
+                a = self.agents[aid]
+                moves.append(self._decide(a, index, now, dt))
+        else:
+            moves = self._decide_all(now, dt)
         ended = self.free.step(dt, now) if self.free is not None else []
         if ended:  # free walkers at their route's end: their `_after_move` in id order among the others'
             for a in ended:
@@ -160,15 +168,51 @@ class World:
         self.now = now
         self.routes.compact(self.agents.values())
 
+    def _decide_all(self, now: float, dt: float) -> list[tuple[Agent, float, float, Obstacle | None]]:
+        """`_decide` for every entity of the scalar step, in id order, with the leaders found for all vehicles
+        at once (`leaders`): first each one's state up to its obstacles (`_prepare`: the same for all, none
+        reads another's), then the leaders over arrays, then each one's decision with its leader (`_finish`:
+        the crossing requests in id order, as before)."""
+        prepared = []
+        movers: list[Agent] = []
+        ahead: list[float] = []
+        for aid in sorted(self._scalar):
+            a = self.agents[aid]
+            prep = self._prepare(a, now)
+            prepared.append((a, prep))
+            if prep is not None and a.params.avoids and a.accept_until <= now:
+                movers.append(a)
+                ahead.append(a.s + lookahead(a))
+        bodies = [b for b in self._avoiders.values()]
+        found = dict(zip([m.id for m in movers], leaders(self.routes, bodies, movers, ahead), strict=True))
+        out = []
+        for a, prep in prepared:
+            if prep is None:
+                out.append((a, a.s, 0.0, None))
+            else:
+                out.append(self._finish(a, prep, found.get(a.id), now, dt))
+        return out
+
     def _decide(self, a: Agent, index, now: float, dt: float) -> tuple[Agent, float, float, Obstacle | None]:
-        if a.in_area_since is not None:  # walking inside its area: the walk's samples are the truth
+        obstacles = self._prepare(a, now)
+        if obstacles is None:
             return a, a.s, 0.0, None
+        leader = None
+        if a.params.avoids and a.accept_until <= now:
+            leader = self._leader(a, index, a.s + lookahead(a))
+        return self._finish(a, obstacles, leader, now, dt)
+
+    def _prepare(self, a: Agent, now: float) -> list[Obstacle] | None:
+        """The entity's state before its obstacles (None: it stands this step: in its area walk, stalled,
+        dwelling), its desired speed for now, and the stop ahead as its first obstacle."""
+        if a.in_area_since is not None:  # walking inside its area: the walk's samples are the truth
+            return None
         if a.stalled_until > now:
             a.cause = "stall"
-            return a, a.s, 0.0, None
+            return None
         if a.dwell_until is not None:
             if now < a.dwell_until:
-                return a, a.s, 0.0, None
+                return None
             a.dwell_until = None
             a.next_stop += 1
         obstacles: list[Obstacle] = []
@@ -180,9 +224,14 @@ class World:
                 a.v0 = timetable_speed(st.s - a.s, a.t0 + st.arrive - self.now, a.v, p.accel, p.decel, p.vmax)
             # a stop is no leader: no time headway to it (with one, vehicles braked early and crept up to it)
             obstacles.append(Obstacle(st.s + 1.0, 0.0, "stop", a.next_stop, s0=1.0, headway=0.0))
+        return obstacles
+
+    def _finish(self, a: Agent, obstacles: list[Obstacle], leader: Obstacle | None, now: float,
+                dt: float) -> tuple[Agent, float, float, Obstacle | None]:
+        """The entity's decision given its leader (None: none, or it accepts collisions now): the crossing
+        ahead, the strongest IDM constraint, the move, a stop served."""
         if a.params.avoids:
             ahead = a.s + lookahead(a)
-            leader = self._leader(a, index, ahead) if a.accept_until <= now else None
             if leader is not None:
                 obstacles.append(leader)
             # only the first of a lane asks for a junction: one queued behind a leader would hold it for nothing

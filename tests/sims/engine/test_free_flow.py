@@ -1,4 +1,5 @@
-"""The free walkers' step over arrays (`sims.engine.free_flow`) gives the scalar step's truth, bit for bit."""
+"""The world's step over arrays (the free walkers, `sims.engine.free_flow`; the vehicles' leaders,
+`sims.engine.leaders`) gives the scalar step's truth, bit for bit."""
 
 from __future__ import annotations
 
@@ -17,10 +18,10 @@ def state(w: World) -> list:
             for a in w.agents.values()]
 
 
-def twin_runs(topo, seconds: float, entities: int, dt: float = 0.5, seed: int = 4):
+def twin_runs(topo, seconds: float, entities: int, dt: float = 0.5, seed: int = 4, cars: float = 0.4):
     """The same seeded world and population stepped vectorised and scalar, compared after every step."""
     worlds = [World(topo, seed, vectorised=v) for v in (True, False)]
-    pops = [Population(w, PopulationConfig(entities, 0.4, transit=False)) for w in worlds]
+    pops = [Population(w, PopulationConfig(entities, cars, transit=False)) for w in worlds]
     for p in pops:
         p.start()
     steps = 0
@@ -39,6 +40,12 @@ def test_vectorised_and_scalar_worlds_agree_on_a_grid():
     w, _ = twin_runs(grid(), 120.0, 60)
     assert w.counters["arrived"] > 10  # trips ended (and were replaced) during the comparison
     assert len(w.free) > 0 and w.counters["spawned:car"] > 0
+
+
+def test_dense_traffic_leaders_and_deadlocks_agree():
+    """Cars only, packed on a small grid: queues, junction waits, accepted collisions, deletions."""
+    w, _ = twin_runs(grid(), 200.0, 90, cars=1.0, seed=2)
+    assert w.counters["avoided"] > 50 and w.counters["accepted"] + w.counters["deleted"] > 0
 
 
 def test_vectorised_and_scalar_worlds_agree_on_the_city_map(helsinki):
