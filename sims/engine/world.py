@@ -22,6 +22,7 @@ from sims.engine.agents import Agent, AreaWalk, Stop
 from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead, timetable_speed
 from sims.engine.crossings import Crossings, Movement
 from sims.engine.free_flow import FreeFlow
+from sims.engine.idm_arrays import moves as idm_moves
 from sims.engine.leaders import leaders
 from sims.engine.params import TypeParams, params
 from sims.engine.route_table import RouteTable
@@ -185,12 +186,25 @@ class World:
                 ahead.append(a.s + lookahead(a))
         bodies = [b for b in self._avoiders.values()]
         found = dict(zip([m.id for m in movers], leaders(self.routes, bodies, movers, ahead), strict=True))
-        out = []
-        for a, prep in prepared:
-            if prep is None:
+        out: list = []
+        going: list[Agent] = []
+        their: list[list[Obstacle]] = []
+        slots: list[int] = []
+        for a, obstacles in prepared:
+            if obstacles is None:
                 out.append((a, a.s, 0.0, None))
-            else:
-                out.append(self._finish(a, prep, found.get(a.id), now, dt))
+                continue
+            if a.params.avoids:
+                self._add_crossing(a, obstacles, found.get(a.id), now)
+            slots.append(len(out))
+            out.append(None)
+            going.append(a)
+            their.append(obstacles)
+        new_s, new_v, limits = idm_moves(going, their, dt)
+        for k, a, si, vi, limit in zip(slots, going, new_s, new_v, limits, strict=True):
+            if limit is not None and limit.kind == "stop":
+                si, vi = self._serve_stop(a, si, vi, now)
+            out[k] = (a, si, vi, limit)
         return out
 
     def _decide(self, a: Agent, index, now: float, dt: float) -> tuple[Agent, float, float, Obstacle | None]:
@@ -231,13 +245,7 @@ class World:
         """The entity's decision given its leader (None: none, or it accepts collisions now): the crossing
         ahead, the strongest IDM constraint, the move, a stop served."""
         if a.params.avoids:
-            ahead = a.s + lookahead(a)
-            if leader is not None:
-                obstacles.append(leader)
-            # only the first of a lane asks for a junction: one queued behind a leader would hold it for nothing
-            ob = self._crossing(a, ahead if leader is None else min(ahead, leader.at), now)
-            if ob is not None:
-                obstacles.append(ob)
+            self._add_crossing(a, obstacles, leader, now)
         acc, limit = accel_for(a, obstacles)
         new_v = max(0.0, a.v + acc * dt)
         if acc < 0 and a.v > 0 and new_v == 0.0:
@@ -249,14 +257,30 @@ class World:
             hard = max(limit.at - 0.3, a.s)
             if new_s > hard:
                 new_s, new_v = hard, 0.0
-        if limit is not None and limit.kind == "stop" and a.stops[a.next_stop].s - new_s < 1.5 and new_v < 2.0:
-            st = a.stops[a.next_stop]
-            new_s, new_v = max(a.s, st.s), 0.0
-            a.dwell_until = now + st.dwell
-            self.counters["stops_served"] += 1
-            if a.t0 is not None and st.arrive is not None:
-                self.stop_lateness.append(now - (a.t0 + st.arrive))
+        if limit is not None and limit.kind == "stop":
+            new_s, new_v = self._serve_stop(a, new_s, new_v, now)
         return a, new_s, new_v, limit
+
+    def _add_crossing(self, a: Agent, obstacles: list[Obstacle], leader: Obstacle | None, now: float) -> None:
+        """Append the leader and the first junction ahead not granted yet (asked for now: in id order)."""
+        ahead = a.s + lookahead(a)
+        if leader is not None:
+            obstacles.append(leader)
+        # only the first of a lane asks for a junction: one queued behind a leader would hold it for nothing
+        ob = self._crossing(a, ahead if leader is None else min(ahead, leader.at), now)
+        if ob is not None:
+            obstacles.append(ob)
+
+    def _serve_stop(self, a: Agent, new_s: float, new_v: float, now: float) -> tuple[float, float]:
+        """Limited by its stop: close to it and slow, it halts there and dwells (the stop counted served)."""
+        st = a.stops[a.next_stop]
+        if not (st.s - new_s < 1.5 and new_v < 2.0):
+            return new_s, new_v
+        a.dwell_until = now + st.dwell
+        self.counters["stops_served"] += 1
+        if a.t0 is not None and st.arrive is not None:
+            self.stop_lateness.append(now - (a.t0 + st.arrive))
+        return max(a.s, st.s), 0.0
 
     def _after_move(self, a: Agent, limit: Obstacle | None, now: float) -> None:
         if a.in_area_since is not None:

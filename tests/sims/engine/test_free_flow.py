@@ -85,3 +85,43 @@ def test_a_stalled_or_removed_walker_leaves_the_columns():
     assert c.id not in w.agents and len(w.free) == 0  # at the route's end: arrived, out of the columns
     assert a.s > 10.0  # the stall ended: it walks on in the scalar step
     assert w.take_removed() == [(b.id, "deleted"), (c.id, "arrived")]
+
+
+def _street_with_stops(w: World) -> None:
+    """Buses and a tram on timetables with stops, cars queued behind them, a bus that stands (v0 = 0), a stall,
+    a stop-serving pedestrian and walkers on one long street."""
+    from sims.engine.agents import Stop
+
+    t0 = w.now
+    w.add("bus", [(0, 1)], s=0.0, v=0.0, stops=[Stop(80.0, 6.0, "a", 15.0), Stop(260.0, 4.0, "b", 40.0)],
+          timetable=t0)
+    w.add("tram", [(0, 1)], s=5.0, v=7.3, stops=[Stop(150.0, 8.0, "c", 20.0), Stop(420.0, 5.0, "d", 60.0)],
+          timetable=t0)
+    w.add("bus", [(0, 1)], s=30.0, v=3.1, stops=[Stop(120.0, 10.0, "e"), Stop(300.0, 3.0, "f")])
+    for k in range(6):
+        w.add("car", [(0, 1)], s=40.0 + 12.0 * k, v=float(k) * 1.7)
+    w.add("car", [(0, -1)], s=10.0, v=13.9)  # oncoming
+    w.add("bus", [(0, 1)], s=200.0, v=4.0, v0=0.0)  # wants to stand: brakes at decel
+    w.add("pedestrian", [(0, 1)], s=3.0, stops=[Stop(50.0, 5.0, "p")])
+    for k in range(5):
+        w.add("pedestrian", [(0, 1)], s=20.0 * k)
+
+
+def test_vehicles_with_stops_timetables_and_stalls_agree():
+    """The vehicles' IDM over arrays (`sims.engine.idm_arrays`): timetabled stops served, dwells, queues behind
+    a standing bus, a stall, entering vehicles: the same truth as the scalar step after every step."""
+    topo = make_topology({"A": (0.0, 0.0), "B": (600.0, 0.0)}, [("A", "B")])
+    ws = [World(topo, 3, start=8 * 3600.0, vectorised=vec) for vec in (True, False)]
+    for w in ws:
+        _street_with_stops(w)
+    for i in range(240):
+        for w in ws:
+            if i == 30:
+                w.stall(5, 12.0)
+            if i == 90:
+                w.add("car", [(0, 1)], s=0.0, v=11.0)
+            w.step(0.25 if i % 3 else 0.5)
+        assert state(ws[0]) == state(ws[1])
+        assert ws[0].stop_lateness == ws[1].stop_lateness
+    assert ws[0].counters == ws[1].counters
+    assert ws[0].counters["stops_served"] >= 4 and ws[0].counters["avoided"] > 0
