@@ -177,13 +177,16 @@ class World:
         prepared = []
         movers: list[Agent] = []
         ahead: list[float] = []
+        sight: dict[int, float] = {}  # each vehicle's a.s + lookahead(a), computed once for both uses
         for aid in sorted(self._scalar):
             a = self.agents[aid]
             prep = self._prepare(a, now)
             prepared.append((a, prep))
-            if prep is not None and a.params.avoids and a.accept_until <= now:
-                movers.append(a)
-                ahead.append(a.s + lookahead(a))
+            if prep is not None and a.params.avoids:
+                sight[aid] = far = a.s + lookahead(a)
+                if a.accept_until <= now:
+                    movers.append(a)
+                    ahead.append(far)
         bodies = [b for b in self._avoiders.values()]
         found = dict(zip([m.id for m in movers], leaders(self.routes, bodies, movers, ahead), strict=True))
         out: list = []
@@ -195,7 +198,7 @@ class World:
                 out.append((a, a.s, 0.0, None))
                 continue
             if a.params.avoids:
-                self._add_crossing(a, obstacles, found.get(a.id), now)
+                self._add_crossing(a, obstacles, found.get(a.id), now, sight[a.id])
             slots.append(len(out))
             out.append(None)
             going.append(a)
@@ -245,7 +248,7 @@ class World:
         """The entity's decision given its leader (None: none, or it accepts collisions now): the crossing
         ahead, the strongest IDM constraint, the move, a stop served."""
         if a.params.avoids:
-            self._add_crossing(a, obstacles, leader, now)
+            self._add_crossing(a, obstacles, leader, now, a.s + lookahead(a))
         acc, limit = accel_for(a, obstacles)
         new_v = max(0.0, a.v + acc * dt)
         if acc < 0 and a.v > 0 and new_v == 0.0:
@@ -261,9 +264,10 @@ class World:
             new_s, new_v = self._serve_stop(a, new_s, new_v, now)
         return a, new_s, new_v, limit
 
-    def _add_crossing(self, a: Agent, obstacles: list[Obstacle], leader: Obstacle | None, now: float) -> None:
-        """Append the leader and the first junction ahead not granted yet (asked for now: in id order)."""
-        ahead = a.s + lookahead(a)
+    def _add_crossing(self, a: Agent, obstacles: list[Obstacle], leader: Obstacle | None, now: float,
+                      ahead: float) -> None:
+        """Append the leader and the first junction ahead (before `ahead`, the agent's sight) not granted yet
+        (asked for now: in id order)."""
         if leader is not None:
             obstacles.append(leader)
         # only the first of a lane asks for a junction: one queued behind a leader would hold it for nothing
