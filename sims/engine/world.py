@@ -39,8 +39,9 @@ class World:
     """The simulation's truth. `add` spawns, `step` moves, `agents` is every live entity by id."""
 
     def __init__(self, topo, seed: int = 1, *, start: float = 0.0, vectorised: bool = True):
-        """`vectorised`: the free walkers (pedestrians without stops) step over arrays (`FreeFlow`), the same
-        truth bit for bit; False steps every entity in the scalar loop (the baseline the tests compare with)."""
+        """`vectorised`: the free walkers (pedestrians without stops) step over arrays (`FreeFlow`), the leaders
+        are found and the others' moves computed for all at once (`leaders`, `idm_arrays`), the same truth bit
+        for bit; False steps every entity in the scalar loop (the baseline the tests compare with)."""
         self.topo = topo
         self.net = netview(topo)
         self.rng = random.Random(seed)
@@ -172,8 +173,9 @@ class World:
     def _decide_all(self, now: float, dt: float) -> list[tuple[Agent, float, float, Obstacle | None]]:
         """`_decide` for every entity of the scalar step, in id order, with the leaders found for all vehicles
         at once (`leaders`): first each one's state up to its obstacles (`_prepare`: the same for all, none
-        reads another's), then the leaders over arrays, then each one's decision with its leader (`_finish`:
-        the crossing requests in id order, as before)."""
+        reads another's), then the leaders over arrays, then each one's junction request in id order (as
+        before: a grant changes the next asker's answer), then every move at once (`idm_arrays.moves`: what
+        `_finish` computes) and the stops served, in id order."""
         prepared = []
         movers: list[Agent] = []
         ahead: list[float] = []
