@@ -16,7 +16,7 @@ from __future__ import annotations
 import gc
 
 #: the first generation's threshold for a simulation process (Python's default is 700 allocations)
-SIM_GEN0 = 10_000
+SIM_GEN0 = 50_000
 
 
 def settle_after_start(gen0: int | None = SIM_GEN0) -> int:
