@@ -86,6 +86,7 @@ class Agent:
     in_area_since: float | None = None
     _episode: tuple[str, int | None] = ("", None)
     _clock: float = 0.0  # the world's time at the last step (for the area walk)
+    _rt: tuple[int, int] = (-1, 0)  # its route's rows in the world's `RouteTable` (first, edge count)
 
     @property
     def name(self) -> str:

@@ -11,8 +11,12 @@ Every entity's client core is stepped through the one fleet core, `entitynet.cli
 `core="fleet"` (the default) lets it take the usual fix and the timers over arrays, the entity's own `Player`
 only where something happens; `core="player"` turns the arrays off (`vectorised=False`: one `Player.feed` /
 `tick` per entity and tick, the per-entity baseline `bench sim` compares with). The messages are the same,
-message for message (tests/sims/engine/test_fleet_core.py). The GPS noise of a tick's due fixes is drawn in
-one call, which gives the same numbers in the same order as one draw per fix.
+message for message (tests/sims/engine/test_fleet_core.py).
+
+GPS noise per entity: a fix's noise is a function of (the run's seed, the entity's id, the fix's time) only
+(`sims.mobility.gps.entity_gps`, counter-based, drawn for a whole tick's due fixes at once), not of a generator
+shared by the fleet. So a worker that runs a share of the entities (`sims.workers`) takes the same fixes as the
+run in one process, and a run over N workers gives the one-process report.
 """
 
 from __future__ import annotations
@@ -24,8 +28,11 @@ import numpy as np
 from entitynet import protocol as P
 from entitynet.client import Player
 from entitynet.client.fleet import FleetCore
+from sims.engine.positions import positions
+from sims.engine.route_table import RouteTable
 from sims.engine.source import Body, Truth
-from sims.mobility.gps import GPS_SIGMA, gps
+from sims.engine.truth_arrays import EdgeArrays
+from sims.mobility.gps import GPS_SIGMA, entity_gps
 
 
 class Fleet:
@@ -54,7 +61,7 @@ class Fleet:
         self.gps_sigma = gps_sigma
         self.threshold = threshold  # the client core's drift threshold (None: its default, the GPS accuracy)
         self.model = model
-        self.rng = np.random.default_rng(seed)
+        self.seed = seed  # with the entity id and the fix's time, the one source of a fix's noise
         self.players: dict[int, Player] = {}
         self.next_fix: dict[int, float] = {}
         self.counters = {"fixes": 0, "rejected_fixes": 0, "published": 0, "unpublished": 0}
@@ -63,6 +70,7 @@ class Fleet:
         self._slot: dict[int, int] = {}  # entity -> its slot in the fleet core
         self._aid: list[int] = []  # slot -> entity
         self._due = np.zeros(0)  # next fix time per slot (inf: removed)
+        self._edges: EdgeArrays | None = None  # the map's edge geometry as arrays, for `positions` (built once)
 
     def conn_of(self, entity: int) -> int:
         """The publisher connection carrying `entity`: id modulo the connection count (as a proxy splits a
@@ -113,16 +121,16 @@ class Fleet:
         n = len(self._aid)
         due = self._due[:n]
         slots = np.flatnonzero(due <= now)
-        slots = slots[np.argsort(core.order[slots], kind="stable")]  # in the order the entities came (the draws')
+        slots = slots[np.argsort(core.order[slots], kind="stable")]  # in the order the entities came (the messages')
         agents = self.world.agents
-        have, idle, xy = [], [], []
+        have, idle, bodies = [], [], []
         for s in slots.tolist():
             a = agents.get(self._aid[s])
             if a is None:
                 idle.append(s)  # as `step`: no fix and no timers for an entity whose truth is gone
             else:
                 have.append(s)
-                xy.append(a.xy())
+                bodies.append(a)
         fix_slots = np.array(have, dtype=np.int64)
         if len(fix_slots):
             d = due[fix_slots]
@@ -130,7 +138,12 @@ class Fleet:
             due[fix_slots] = d + fi * np.maximum(1.0, np.floor((now - d) / fi) + 1.0)
             for s in have:
                 self.next_fix[self._aid[s]] = float(due[s])
-            fixes = gps(np.array(xy), self.rng, self.gps_sigma)
+            ids = np.array([self._aid[s] for s in have], dtype=np.int64)
+            if self._edges is None:
+                self._edges = EdgeArrays(self.world.net)
+            table = getattr(self.world, "routes", None)  # our World's route table; another source has none
+            xy = positions(bodies, self._edges, table if isinstance(table, RouteTable) else None)
+            fixes = entity_gps(xy, self.seed, ids, np.full(len(have), now), self.gps_sigma)
         else:
             fixes = np.zeros((0, 2))
         self.counters["fixes"] += len(have)

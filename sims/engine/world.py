@@ -21,7 +21,11 @@ from entitynet.client.network import DirEdge
 from sims.engine.agents import Agent, AreaWalk, Stop
 from sims.engine.behaviour import Obstacle, accel_for, lanes_overlap, lookahead, timetable_speed
 from sims.engine.crossings import Crossings, Movement
+from sims.engine.free_flow import FreeFlow
+from sims.engine.idm_arrays import moves as idm_moves
+from sims.engine.leaders import leaders
 from sims.engine.params import TypeParams, params
+from sims.engine.route_table import RouteTable
 from sims.engine.routes import Route
 from topology.raw import TRAM, VEHICLE
 
@@ -34,7 +38,10 @@ JUNCTION_RADIUS = 8.0
 class World:
     """The simulation's truth. `add` spawns, `step` moves, `agents` is every live entity by id."""
 
-    def __init__(self, topo, seed: int = 1, *, start: float = 0.0):
+    def __init__(self, topo, seed: int = 1, *, start: float = 0.0, vectorised: bool = True):
+        """`vectorised`: the free walkers (pedestrians without stops) step over arrays (`FreeFlow`), the leaders
+        are found and the others' moves computed for all at once (`leaders`, `idm_arrays`), the same truth bit
+        for bit; False steps every entity in the scalar loop (the baseline the tests compare with)."""
         self.topo = topo
         self.net = netview(topo)
         self.rng = random.Random(seed)
@@ -45,6 +52,10 @@ class World:
         self.removed: list[tuple[int, str]] = []  # (id, why) since the last `take_removed`
         self.stop_lateness: list[float] = []  # s after the timetable's arrival, per stop served on a timetable
         self._next_id = 1
+        self.free: FreeFlow | None = FreeFlow() if vectorised else None
+        self._scalar: set[int] = set()  # the entities the scalar step visits (all, without `free`)
+        self.routes = RouteTable(self.net.edge_len)  # every live entity's route as arrays (`positions`)
+        self._avoiders: dict[int, Agent] = {}  # the entities with a body length, in id order (the leaders')
         net = self.net
         self._junction = [sum(1 for e in net.node_edges[n] if net.edge_net[e] & (VEHICLE | TRAM)) >= 3
                           for n in range(len(net.node_edges))]
@@ -89,6 +100,13 @@ class World:
         a._clock = self.now
         self._next_id += 1
         self.agents[a.id] = a
+        self.routes.add(a)
+        if p.avoids:
+            self._avoiders[a.id] = a
+        if self.free is not None and FreeFlow.takes(a):
+            self.free.add(a)
+        else:
+            self._scalar.add(a.id)
         self.counters["spawned"] += 1
         self.counters[f"spawned:{p.name}"] += 1
         return a
@@ -96,6 +114,13 @@ class World:
     def stall(self, agent: int, seconds: float) -> None:
         """A breakdown: the entity stands still for `seconds` (what it blocks, it blocks)."""
         self.agents[agent].stalled_until = self.now + seconds
+        self._to_scalar(agent)
+
+    def _to_scalar(self, agent: int) -> None:
+        """An entity that leaves the free walkers' columns (stalled, at its route's end) for the scalar step."""
+        if self.free is not None and agent in self.free:
+            self.free.drop(agent)
+            self._scalar.add(agent)
 
     def remove(self, agent: int, why: str) -> None:
         """Take an entity out (arrived, deleted), freeing its junction reservations so waiting vehicles are not
@@ -103,6 +128,11 @@ class World:
         a = self.agents.pop(agent, None)
         if a is None:
             return
+        self._scalar.discard(agent)
+        self.routes.forget(a)
+        self._avoiders.pop(agent, None)
+        if self.free is not None:
+            self.free.drop(agent)
         self.crossings.forget(agent, [n for _s, n, _k in a.crossings] + list(a.held))
         self.removed.append((agent, why))
         self.counters[why] += 1
@@ -118,27 +148,90 @@ class World:
         if not dt > 0.0:
             raise ValueError(f"a step must move time forward, got dt={dt!r}")
         now = self.now + dt
-        index = self._body_index()
         moves: list[tuple[Agent, float, float, Obstacle | None]] = []
-        for aid in sorted(self.agents):
-            a = self.agents[aid]
-            moves.append(self._decide(a, index, now, dt))
+        if self.free is None:  # the scalar step: the body index, then each entity's decision in id order
+            index = self._body_index()
+            for aid in sorted(self._scalar):
+                a = self.agents[aid]
+                moves.append(self._decide(a, index, now, dt))
+        else:
+            moves = self._decide_all(now, dt)
+        ended = self.free.step(dt, now) if self.free is not None else []
+        if ended:  # free walkers at their route's end: their `_after_move` in id order among the others'
+            for a in ended:
+                self._to_scalar(a.id)
+            moves.extend((a, a.s, a.v, None) for a in ended)
+            moves.sort(key=lambda m: m[0].id)
         for a, new_s, new_v, limit in moves:
-            a.distance += max(new_s - a.s, 0.0)
+            a.distance += max(new_s - a.s, 0.0)  # 0.0 for a free walker (moved already)
             a.s, a.v = new_s, new_v
             a._clock = now
             self._after_move(a, limit, now)
         self.now = now
+        self.routes.compact(self.agents.values())
+
+    def _decide_all(self, now: float, dt: float) -> list[tuple[Agent, float, float, Obstacle | None]]:
+        """`_decide` for every entity of the scalar step, in id order, with the leaders found for all vehicles
+        at once (`leaders`): first each one's state up to its obstacles (`_prepare`: the same for all, none
+        reads another's), then the leaders over arrays, then each one's junction request in id order (as
+        before: a grant changes the next asker's answer), then every move at once (`idm_arrays.moves`: what
+        `_finish` computes) and the stops served, in id order."""
+        prepared = []
+        movers: list[Agent] = []
+        ahead: list[float] = []
+        sight: dict[int, float] = {}  # each vehicle's a.s + lookahead(a), computed once for both uses
+        for aid in sorted(self._scalar):
+            a = self.agents[aid]
+            prep = self._prepare(a, now)
+            prepared.append((a, prep))
+            if prep is not None and a.params.avoids:
+                sight[aid] = far = a.s + lookahead(a)
+                if a.accept_until <= now:
+                    movers.append(a)
+                    ahead.append(far)
+        bodies = [b for b in self._avoiders.values()]
+        found = dict(zip([m.id for m in movers], leaders(self.routes, bodies, movers, ahead), strict=True))
+        out: list = []
+        going: list[Agent] = []
+        their: list[list[Obstacle]] = []
+        slots: list[int] = []
+        for a, obstacles in prepared:
+            if obstacles is None:
+                out.append((a, a.s, 0.0, None))
+                continue
+            if a.params.avoids:
+                self._add_crossing(a, obstacles, found.get(a.id), now, sight[a.id])
+            slots.append(len(out))
+            out.append(None)
+            going.append(a)
+            their.append(obstacles)
+        new_s, new_v, limits = idm_moves(going, their, dt)
+        for k, a, si, vi, limit in zip(slots, going, new_s, new_v, limits, strict=True):
+            if limit is not None and limit.kind == "stop":
+                si, vi = self._serve_stop(a, si, vi, now)
+            out[k] = (a, si, vi, limit)
+        return out
 
     def _decide(self, a: Agent, index, now: float, dt: float) -> tuple[Agent, float, float, Obstacle | None]:
-        if a.in_area_since is not None:  # walking inside its area: the walk's samples are the truth
+        obstacles = self._prepare(a, now)
+        if obstacles is None:
             return a, a.s, 0.0, None
+        leader = None
+        if a.params.avoids and a.accept_until <= now:
+            leader = self._leader(a, index, a.s + lookahead(a))
+        return self._finish(a, obstacles, leader, now, dt)
+
+    def _prepare(self, a: Agent, now: float) -> list[Obstacle] | None:
+        """The entity's state before its obstacles (None: it stands this step: in its area walk, stalled,
+        dwelling), its desired speed for now, and the stop ahead as its first obstacle."""
+        if a.in_area_since is not None:  # walking inside its area: the walk's samples are the truth
+            return None
         if a.stalled_until > now:
             a.cause = "stall"
-            return a, a.s, 0.0, None
+            return None
         if a.dwell_until is not None:
             if now < a.dwell_until:
-                return a, a.s, 0.0, None
+                return None
             a.dwell_until = None
             a.next_stop += 1
         obstacles: list[Obstacle] = []
@@ -150,15 +243,14 @@ class World:
                 a.v0 = timetable_speed(st.s - a.s, a.t0 + st.arrive - self.now, a.v, p.accel, p.decel, p.vmax)
             # a stop is no leader: no time headway to it (with one, vehicles braked early and crept up to it)
             obstacles.append(Obstacle(st.s + 1.0, 0.0, "stop", a.next_stop, s0=1.0, headway=0.0))
+        return obstacles
+
+    def _finish(self, a: Agent, obstacles: list[Obstacle], leader: Obstacle | None, now: float,
+                dt: float) -> tuple[Agent, float, float, Obstacle | None]:
+        """The entity's decision given its leader (None: none, or it accepts collisions now): the crossing
+        ahead, the strongest IDM constraint, the move, a stop served."""
         if a.params.avoids:
-            ahead = a.s + lookahead(a)
-            leader = self._leader(a, index, ahead) if a.accept_until <= now else None
-            if leader is not None:
-                obstacles.append(leader)
-            # only the first of a lane asks for a junction: one queued behind a leader would hold it for nothing
-            ob = self._crossing(a, ahead if leader is None else min(ahead, leader.at), now)
-            if ob is not None:
-                obstacles.append(ob)
+            self._add_crossing(a, obstacles, leader, now, a.s + lookahead(a))
         acc, limit = accel_for(a, obstacles)
         new_v = max(0.0, a.v + acc * dt)
         if acc < 0 and a.v > 0 and new_v == 0.0:
@@ -170,14 +262,31 @@ class World:
             hard = max(limit.at - 0.3, a.s)
             if new_s > hard:
                 new_s, new_v = hard, 0.0
-        if limit is not None and limit.kind == "stop" and a.stops[a.next_stop].s - new_s < 1.5 and new_v < 2.0:
-            st = a.stops[a.next_stop]
-            new_s, new_v = max(a.s, st.s), 0.0
-            a.dwell_until = now + st.dwell
-            self.counters["stops_served"] += 1
-            if a.t0 is not None and st.arrive is not None:
-                self.stop_lateness.append(now - (a.t0 + st.arrive))
+        if limit is not None and limit.kind == "stop":
+            new_s, new_v = self._serve_stop(a, new_s, new_v, now)
         return a, new_s, new_v, limit
+
+    def _add_crossing(self, a: Agent, obstacles: list[Obstacle], leader: Obstacle | None, now: float,
+                      ahead: float) -> None:
+        """Append the leader and the first junction ahead (before `ahead`, the agent's sight) not granted yet
+        (asked for now: in id order)."""
+        if leader is not None:
+            obstacles.append(leader)
+        # only the first of a lane asks for a junction: one queued behind a leader would hold it for nothing
+        ob = self._crossing(a, ahead if leader is None else min(ahead, leader.at), now)
+        if ob is not None:
+            obstacles.append(ob)
+
+    def _serve_stop(self, a: Agent, new_s: float, new_v: float, now: float) -> tuple[float, float]:
+        """Limited by its stop: close to it and slow, it halts there and dwells (the stop counted served)."""
+        st = a.stops[a.next_stop]
+        if not (st.s - new_s < 1.5 and new_v < 2.0):
+            return new_s, new_v
+        a.dwell_until = now + st.dwell
+        self.counters["stops_served"] += 1
+        if a.t0 is not None and st.arrive is not None:
+            self.stop_lateness.append(now - (a.t0 + st.arrive))
+        return max(a.s, st.s), 0.0
 
     def _after_move(self, a: Agent, limit: Obstacle | None, now: float) -> None:
         if a.in_area_since is not None:

@@ -17,6 +17,7 @@ import socket
 import time
 from multiprocessing.connection import Connection, wait
 
+from sims.engine.collector import settle_after_start
 from sims.engine.schedule import Schedule
 from sims.workers.run import RefusedRun, WorkerShare, config_from_wire, run_digests
 from sims.workers.worker import WorkerCore
@@ -38,11 +39,15 @@ def _child(conn: Connection, topo, schedule: Schedule | None, index: int) -> Non
         return WorkerShare(topo, schedule, config_from_wire(config), i, n)
 
     core = WorkerCore(f"local-{index}", socket.gethostname(), os.getpid(), build)
+    settled = False
     try:
         while True:
             data = conn.recv_bytes()
             for frame in core.receive(data, time.monotonic()):
                 conn.send_bytes(frame)
+            if not settled and core.share is not None and core.share.k >= 0:  # its start done: freeze it
+                settle_after_start()
+                settled = True
             if core.runs_done:
                 return
     except (EOFError, OSError, BrokenPipeError):

@@ -26,6 +26,7 @@ from collections.abc import Callable
 import trio
 
 from entitynet.cluster.nats_client import NatsClient, parse_servers
+from sims.engine.collector import settle_after_start
 from sims.workers import wire
 from sims.workers.worker import WorkerCore
 
@@ -209,9 +210,11 @@ class NatsWorkers:
 
 
 async def serve_worker(url: str, build, say: Callable[[str], None], *, once: bool = False,
-                       token: str | None = None, connect_timeout: float = 1.0) -> int:
+                       token: str | None = None, connect_timeout: float = 1.0, settle: bool = True) -> int:
     """`entitynet sim worker`: announce this worker on NATS, take part in runs (`build` makes the share of a
-    run from its assign frame), until Ctrl-C / SIGTERM, or after one run with `once`; the number of runs."""
+    run from its assign frame), until Ctrl-C / SIGTERM, or after one run with `once`; the number of runs.
+    `settle`: the process is the worker's own, so once its first run has started, what it holds is frozen out
+    of garbage collection (`sims.engine.collector`)."""
     import signal
 
     worker = f"{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(3)}".replace(".", "_")
@@ -267,6 +270,9 @@ async def serve_worker(url: str, build, say: Callable[[str], None], *, once: boo
                             nc.publish(core.answer_to, frame)
                     if was_idle and not core.idle:
                         say(f"worker {worker} joined run {core.run} as worker {core.index}")
+                    if settle and core.share is not None and core.share.k >= 0:  # its start done: freeze it
+                        settle_after_start()
+                        settle = False
                 core.expire(now)
                 if not was_idle and core.idle and core.ended is not None:
                     say(f"worker {worker}: run ended ({core.ended})")

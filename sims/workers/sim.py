@@ -34,10 +34,10 @@ _LIMITS = P.CodecLimits(max_frame=1 << 30, max_messages=10_000_000)
 SPLIT_NOTE = ("entities split over workers by id (id mod N; a dead worker's entities go to the survivors); every "
               "worker steps the whole world from the seed, so car following, crossings and collisions are never "
               "split over a worker boundary (interactions_missed_across_workers is 0 by construction)")
-NOISE_NOTE = ("with one worker the report is the same as the run in one process; with N > 1 the truth is the "
-              "same (the world, spawns, schedule, collisions, the number of GPS fixes) but each worker draws its "
-              "entities' GPS noise from its own generator, so the fixes' noise, and with it the published "
-              "updates and the viewer figures, differ within the noise")
+SAME_NOTE = ("nothing for a run without a worker death: every worker steps the same truth from the seed, and an "
+             "entity's GPS noise is a function of (seed, entity id, fix time) only, so the fixes, messages and "
+             "report are those of the run in one process whatever N is; a worker's death UNPUBLISHes its "
+             "entities and restarts their client cores (see deaths)")
 
 
 class Link(Protocol):
@@ -251,7 +251,7 @@ class WorkerSim(Sim):
                         "step_p99_ms": float(np.percentile(steps, 99) * 1000), "clients": dict(s.counters)})
         wait = np.array(self.wait_s) if self.wait_s else np.zeros(1)
         rep["workers"] = {
-            "n": self.core.n, "transport": self.transport, "split": SPLIT_NOTE, "differs": NOISE_NOTE,
+            "n": self.core.n, "transport": self.transport, "split": SPLIT_NOTE, "differs": SAME_NOTE,
             "interactions_missed_across_workers": 0,
             "entities_now": self.assignment.counts(live), "per_worker": per, "deaths": self.deaths,
             "entities_lost": sum(d["lost"] for d in self.deaths),

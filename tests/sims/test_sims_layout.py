@@ -35,7 +35,7 @@ def test_demo_and_benchmarks_use_the_one_model():
     # the demo is a preset of the simulation: its engine, shell and viewers, no mover or viewer of its own
     assert demo.Sim is sims.engine.sim.Sim and not hasattr(demo, "Viewer") and not hasattr(sims.mobility, "Mover")
     # the simulation engine moves and measures with the one model
-    assert viewers.Trajectory is sims.mobility.Trajectory and clients.gps is sims.mobility.gps
+    assert viewers.Trajectory is sims.mobility.Trajectory and clients.entity_gps is sims.mobility.entity_gps
     assert params.kind is sims.mobility.kind
     assert switch_bench.Walkers is sims.mobility.Walkers and switch_replay.Walkers is sims.mobility.Walkers
     assert dr_bench.gps is sims.mobility.gps
