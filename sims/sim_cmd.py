@@ -234,7 +234,7 @@ def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, c
             f"{', '.join(map(str, viewer_procs.pids))}), each measuring its share against the truth")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path,
-                                   viewer_processes=viewer_procs), say)
+                                   viewer_processes=viewer_procs, settle_gc=True), say)
     shell.server_info = {"process": child_server, "why": child_why}
     if child_server:
         report = _on_child_server(shell, path, child_why, say)

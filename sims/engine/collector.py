@@ -30,3 +30,11 @@ def settle_after_start(gen0: int | None = SIM_GEN0) -> int:
         _t0, t1, t2 = gc.get_threshold()
         gc.set_threshold(gen0, t1, t2)
     return gc.get_freeze_count()
+
+
+def unsettle(threshold: tuple[int, int, int]) -> None:
+    """Undo `settle_after_start`: unfreeze and put back `threshold` (what `gc.get_threshold()` gave before).
+    Why: a caller that runs a simulation inside a longer-lived process (a test session, a notebook) gets its
+    collector back as it was once the run ends."""
+    gc.unfreeze()
+    gc.set_threshold(*threshold)

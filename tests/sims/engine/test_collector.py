@@ -20,6 +20,15 @@ cycle = []; cycle.append(cycle); del cycle  # cyclic garbage made after the star
 print(frozen, gc.get_threshold()[0], gc.collect())
 """
 
+UNSETTLE = """
+import gc
+from sims.engine.collector import settle_after_start, unsettle
+before = gc.get_threshold()
+settle_after_start()
+unsettle(before)
+print(gc.get_freeze_count(), gc.get_threshold() == before)
+"""
+
 
 def test_settling_freezes_what_the_start_built_and_raises_the_first_generation():
     out = subprocess.run([sys.executable, "-c", CHILD], capture_output=True, text=True, timeout=60, check=True)
@@ -33,3 +42,9 @@ def test_a_bad_threshold_is_refused_before_anything_changes(gen0):
     with pytest.raises(ValueError, match="first generation"):
         settle_after_start(gen0)
     assert (gc.get_threshold(), gc.get_freeze_count()) == before
+
+
+def test_unsettling_gives_the_process_its_collector_back():
+    """A simulation run inside a longer-lived process (the CLI's shell in a test session) puts it back."""
+    out = subprocess.run([sys.executable, "-c", UNSETTLE], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.split() == ["0", "True"]
