@@ -22,11 +22,11 @@ once and calls an entity's own `Player` only where something happens:
 One home: the entities' state is the fleet's client-state `Record` (entitynet/client/state.py). `add` moves a
 Player's row there (`Player.move_to`); the vectorised fix reads and writes the record's columns through numpy
 views, the Player's parts read and write the same row through their properties, so nothing is copied back and
-forth. What the fleet core keeps besides is derived, never written by a fix: per slot the earliest time a tick
-can speak (`deadline`), whether the next fix may take the arrays (`fast`, or `slow`: why not), and the columns of
-the published ghost and of the entity's options (immutable values, read again when the ghost or the Player
-changes: `_refresh`). `player(slot)` hands the Player out. Doppler velocities are not taken (the fleet feeds
-positions).
+forth. What the fleet core keeps besides is derived from the row (after a scalar call, and for the deadline
+also at the vectorised fix's commit), never state: per slot the earliest time a tick can speak (`deadline`),
+whether the next fix may take the arrays (`fast`, or `slow`: why not), and the columns of the published ghost
+and of the entity's options (immutable values, read again when the ghost or the Player changes: `_refresh`).
+`player(slot)` hands the Player out. Doppler velocities are not taken (the fleet feeds positions).
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ from entitynet.client.state import PATH_W, RECENT
 
 W = PATH_W  # the widest path a row holds in arrays
 
-# why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_load`'s
+# why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_refresh`'s
 # eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
 SCALAR_WHY = ("no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
               "near_consistency", "reacquire", "reach_jump", "filter",

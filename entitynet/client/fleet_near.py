@@ -6,10 +6,11 @@ entity is on, and `NetworkTracker.track` then asks `Placer.near` which edge of t
 the same search in arrays: every segment of the current edge's two-hop table (the placer's own `_SegTable`,
 rows in its order), the cost `d + margin` off the path window, the first minimum winning, the same IEEE
 operations as `Placer._near_np` (which `_near_py` equals bit for bit). A table that holds an area of the placer's
-networks is not taken (`near` would test the fix inside it first): those fixes stay with the scalar code.
+networks is taken too: `near` tests the fix inside each such area first, and so does `near_fixes`.
 
 The rest of `track`'s general branch is here too, over arrays: the tables that hold areas (each area's
-point-in-polygon test is `Placer.inside_area` itself, called per fix: a fix inside one stays scalar), the
+point-in-polygon test is `Placer.inside_area` itself, called per fix: a fix inside one keeps the entity on its
+path's ways through `_best_on` until `track` would enter the area, which the scalar code does), the
 `_best_on` retry when the nearest preferred edge puts the fix far along the path, the hysteresis that keeps an
 entity on its path's edges while another edge wins fewer than `switch_count` fixes in a row (`pending`), and
 `_s_of` in full (the occurrence of an edge nearest the prediction). `near_fixes` returns, per fix, either the

@@ -21,7 +21,7 @@ from entitynet.client.fixes import FixRejected
 from entitynet.client.fleet import FleetCore, _deadline
 from entitynet.client.path import Path
 from tests.entitynet.client.test_player_replay import _walk_path
-from tests.entitynet.client_fixtures import area_square, chain, cross, parallel
+from tests.entitynet.client_fixtures import area_square, chain, cross, make_topology, parallel
 from topology.raw import PEDESTRIAN, VEHICLE
 
 TYPES = ("pedestrian", "car", "bus", "tram", "pedestrian", "car")
@@ -204,3 +204,71 @@ def test_bad_input_is_refused_cleanly():
     core.remove(slot)
     with pytest.raises(KeyError):
         core.player(slot)
+
+
+def test_twins_agree_through_readds_option_changes_repeated_times_and_a_zero_length_edge():
+    """What the twin run above does not do: a Player removed and added again (its slot reused), options changed
+    through `player(slot)`, steps at the same time as the last (a second fix at that time is refused by both),
+    the accuracy changing between steps, fixes exactly on the ways and nodes, on a map with a zero-length edge
+    (two nodes at one point) where paths pass edges twice."""
+    topo = make_topology({"A": (0.0, 0.0), "B": (50.0, 0.0), "C": (50.0, 0.0), "D": (120.0, 0.0),
+                          "E": (50.0, 60.0), "F": (50.0, -40.0)},
+                         [("A", "B"), ("B", "C"), ("C", "D"), ("C", "E"), ("C", "F"), ("F", "B")])
+    net = netview(topo)
+    rng = np.random.default_rng(7)
+    ents = []
+    for i in range(8):
+        etype = TYPES[i % len(TYPES)]
+        path = _walk_path(net, rng, PEDESTRIAN if etype == "pedestrian" else VEHICLE)
+        route = path.edges if i % 3 == 0 else None
+        kw = dict(route=route, accuracy=4.0, max_gap=6.0, lost_after=25.0, heartbeat=20.0 + 10.0 * (i % 3),
+                  threshold=(None, 2.0, 10.0)[i % 3], confirm=1 + i % 2)
+        ents.append([Player(topo, i, etype, **kw), Player(topo, i, etype, **kw), path, float(rng.uniform(1.0, 9.0))])
+    core = FleetCore(capacity=2)
+    slots = [core.add(e[1]) for e in ents]
+    s = [float(rng.uniform(0.0, e[2].length)) for e in ents]
+    t, readds, changes = 0.0, 0, 0
+    for k in range(300):
+        dt = float(rng.choice([0.0, 0.25, 0.5, 1.0, 1.0, 2.0]))
+        t += dt
+        acc = float(rng.choice([2.0, 4.0, 9.0]))
+        due, xs, ys, a_out, b_out = [], [], [], {}, {}
+        for i, e in enumerate(ents):
+            u = rng.random()
+            if u < 0.01:  # removed and added again: its slot may be another now
+                a_out[i] = e[0].leave()
+                b_out[i] = core.remove(slots[i])
+                slots[i] = core.add(e[1])
+                readds += 1
+                continue
+            if u > 0.995:
+                changes += 1
+                for p in (e[0], core.player(slots[i])):
+                    p.tracker.switch_margin = 5.0 if p.tracker.switch_margin is None else None
+                    p.tracker.switch_count = 1 if p.tracker.switch_count is None else None
+            if u < 0.05:
+                e[3] = -e[3] if rng.random() < 0.5 else float(rng.uniform(0.0, 12.0))
+            s[i] = min(max(s[i] + dt * e[3], 0.0), e[2].length)
+            if rng.random() < 0.6:
+                x, y = e[2].xy(s[i])
+                noise = float(rng.choice([0.0, 1.0, 4.0, 8.0]))
+                x, y = x + float(rng.normal(0.0, noise)), y + float(rng.normal(0.0, noise))
+                if rng.random() < 0.1:
+                    x, y = float(round(x)), float(round(y))
+                try:
+                    a_out[i] = e[0].feed(x, y, t, acc) + e[0].tick(t)
+                except FixRejected:
+                    a_out[i] = []
+                due.append(slots[i])
+                xs.append(x)
+                ys.append(y)
+            else:
+                a_out[i] = e[0].tick(t)
+        res, _rej = core.step(t, due, np.array(xs), np.array(ys), acc)
+        b_out.update({core.players[sl].entity: m for sl, m in res})
+        assert {i: m for i, m in a_out.items() if m} == {i: m for i, m in b_out.items() if m}, (k, t)
+    assert readds >= 5 and changes >= 5
+    for i, e in enumerate(ents):
+        assert _state(e[0]) == _state(core.player(slots[i])), i
+    c = core.counters
+    assert c["vector_fixes"] > c["scalar_fixes"] and c["vector_near"] and c["vector_best_on"], c
