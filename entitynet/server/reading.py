@@ -130,6 +130,8 @@ class ReadingMixin:
         pong = self.sb.quick_pong(conn.cid, ping, self.clock())
         if pong is None:
             return False
+        if self.pacer is not None:
+            self.pacer.woke()  # input all the same: paced like any frame (`_note_news` does it for those)
         head = P.frame_prefix(1, len(pong))
         self.written += 1
         self.frames += 1

@@ -105,6 +105,21 @@ async def test_a_client_that_vanishes_during_a_hold_costs_nobody_else(flush_path
         assert (await view.expect(P.Update, pred=lambda m: m.seq == 2, timeout=10)).payload == b"b"
 
 
+async def test_a_lock_steps_pings_answered_by_the_reader_are_paced_too():
+    """A frame that is one PING is answered by the reader past the outbox (`Server._pong_now`); it is input all
+    the same, so back-to-back PINGs wake the pacer and the loop is held between them, as for any other frame.
+    The wait past the pace first makes sure the connect's wake-ups cannot be what gets held."""
+    async with running(pace=0.3, latency_budget=0.0) as server:
+        c = await Raw.connect(server)
+        await trio.sleep(0.45)  # past the pace: the next wake-up is not held on the connect's account
+        holds = server.pacer.holds
+        for k in range(1, 4):
+            await c.send(P.Ping(k))
+            assert (await c.expect(P.Pong, timeout=10)).client_ms == k
+            await trio.sleep(0.05)  # the loop goes idle: the next PING is a wake-up of its own, within the pace
+        assert server.pacer.holds > holds, "the quick PONG's wake-ups bypassed the pacer"
+
+
 @pytest.mark.parametrize("pace", [float("nan"), -0.01, float("inf"), 1.5, "0.01", True])
 def test_a_pace_out_of_range_is_refused(pace):
     with pytest.raises(ConfigError, match="pace"):
