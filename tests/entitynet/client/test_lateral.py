@@ -5,6 +5,7 @@ an edge, edges of several segments, a position exactly on a node or a cell bound
 
 import math
 import random
+import struct
 
 import pytest
 
@@ -183,3 +184,46 @@ def test_the_compiled_path_point_equals_the_pure_one(topo):
             got, want = p.xy(s), path_mod.xy_reference(p, s)
             assert [v if v == v else "nan" for v in got] == [v if v == v else "nan" for v in want], (p, s)
             assert all(type(v) is float for v in got)
+
+
+def _same(fn, *args):
+    """fn's answer with each float as its bit pattern (NaN as "nan"), or the exception's type."""
+    try:
+        out = fn(*args)
+    except (ArithmeticError, ValueError) as exc:
+        return type(exc).__name__
+    if isinstance(out, float):
+        out = [out]
+    return ["nan" if v != v else struct.pack("=d", v) if isinstance(v, float) else v for v in out]
+
+
+def test_the_compiled_kernels_equal_the_pure_ones_on_hard_inputs():
+    """The three lateral / path kernels against their pure references where the random tests do not go: NaN,
+    infinities, -0.0, subnormals and huge values as position, direction, radius, reach and path coordinate, and
+    ring segments of zero, tiny and infinite length; compared by bit pattern (-0.0 is not 0.0 here)."""
+    from entitynet.client import path as path_mod
+
+    if lateral._COMPILED is None or path_mod._COMPILED is None:
+        pytest.skip("the compiled kernels are not built here (the pure ones are in use)")
+    hard = [0.0, -0.0, 5e-324, 1e-300, 1e16, -1e16, 1e308, -1e308, math.inf, -math.inf, math.nan]
+    rng = random.Random(11)
+    net = netview(_degenerate())
+    idx = near_index(Placer(net, ALL))
+    every = list(idx._ways.values())
+    pts = _points(net, rng)
+
+    def pick(normal):
+        return rng.choice(hard) if rng.random() < 0.4 else normal
+
+    for _ in range(1500):
+        x, y = rng.choice(pts) if rng.random() < 0.7 else (rng.choice(hard), rng.choice(hard))
+        args = (x, y, pick(1.0), pick(-0.5), pick(12.5), pick(5.0), pick(30.0), set(), rng.choice([None, {0, 2}]))
+        assert _same(lateral._COMPILED.way_cells, every, *args) == _same(lateral._way_cells_py, every, *args), args
+        segs = tuple((pick(rng.uniform(-50, 50)), pick(rng.uniform(-50, 50)), pick(3.0), pick(-4.0),
+                      rng.choice([25.0, 1e-300, 5e-324, math.inf, 1e308])) for _ in range(rng.randint(0, 3)))
+        assert (_same(lateral._COMPILED.ring_nearest, segs, x, y)
+                == _same(lateral._ring_nearest_py, segs, x, y)), (segs, x, y)
+    paths = [Path(net, [(e, d)]) for e in range(net.n_edges) for d in (1, -1)]
+    for p in paths:
+        for s in hard + [-1e-320, math.nextafter(p.length, 0.0)] + list(p.cum):
+            assert _same(p.xy, s) == _same(path_mod.xy_reference, p, s), (p, s)
