@@ -6,6 +6,9 @@ an edge, edges of several segments, a position exactly on a node or a cell bound
 import math
 import random
 import struct
+import subprocess
+import sys
+from pathlib import Path as FilePath
 
 import pytest
 
@@ -227,3 +230,30 @@ def test_the_compiled_kernels_equal_the_pure_ones_on_hard_inputs():
     for p in paths:
         for s in hard + [-1e-320, math.nextafter(p.length, 0.0)] + list(p.cum):
             assert _same(p.xy, s) == _same(path_mod.xy_reference, p, s), (p, s)
+
+
+def test_the_compiled_path_point_on_malformed_geometry_answers_as_the_pure_one():
+    """An edge of one geometry point or none (a malformed artifact: the builder never makes one) at NaN or beyond
+    the data: the compiled `Path.xy` reads the lists as Python does (the same point, or the same IndexError), never
+    memory outside them. In a child process: an out-of-bounds read could end it."""
+    from entitynet.client import path as path_mod
+
+    if path_mod._COMPILED is None:
+        pytest.skip("the compiled path point is not built here (the pure one is in use)")
+    code = (
+        "import math\nfrom types import SimpleNamespace as N\nfrom entitynet.client import _geom\n"
+        "from entitynet.client.path import xy_reference\n"
+        "def ans(fn, *a):\n    try:\n        return repr(fn(*a))\n    except IndexError as e:\n"
+        "        return 'IndexError'\n"
+        "for off, gx, gcum in (([0, 1], [1.0], [0.0]), ([0, 0], [], []), ([0, 2, 3], [0.0, 9.0, 4.0], [0.0, 9.0, 0.0]),"
+        " ([0, 2, 2], [0.0, 9.0], [0.0, 9.0])):\n"
+        "    for e in range(len(off) - 1):\n"
+        "        net = N(edge_len=[10.0] * 3, geom_off=off, gx=gx, gy=[2.0 * v for v in gx], gcum=gcum)\n"
+        "        for d in (1, -1):\n"
+        "            p = N(cum=[0.0, 10.0], edges=[(e, d)], net=net)\n"
+        "            for s in (math.nan, -1.0, 0.0, 5.0, 10.0, 11.0, math.inf):\n"
+        "                assert ans(_geom.path_xy, p, s) == ans(xy_reference, p, s), (off, e, d, s)\n"
+        "print('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         cwd=str(FilePath(__file__).resolve().parents[3]))
+    assert out.returncode == 0 and out.stdout.strip() == "ok", (out.returncode, out.stderr[-2000:])
