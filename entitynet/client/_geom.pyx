@@ -3,9 +3,15 @@
 """`Path.xy` compiled (entitynet/client/path.py; the pure method is the reference, used where pip did not build
 this module): the point at a path coordinate, asked about twice a fix (the ghost's drift test, the estimate)
 and three times a publish (the lateral cover). The same comparisons, bisections and IEEE operations in the same
-order (no multiply-add contraction). tests/entitynet/client/test_motion.py holds both equal."""
+order (no multiply-add contraction). tests/entitynet/client/test_lateral.py holds both equal. The lists are
+read with bounds checks and negative indices as Python reads them (`boundscheck`, `wraparound`): a malformed
+edge of one geometry point or none gives the pure method's answer or its IndexError, not stray memory."""
+
+cimport cython
 
 
+@cython.boundscheck(True)
+@cython.wraparound(True)
 cdef inline Py_ssize_t _bisect_right(list a, double x, Py_ssize_t lo, Py_ssize_t hi):
     """`bisect.bisect_right(a, x, lo, hi)` over a list of floats (a NaN x compares false: lo ends at hi)."""
     cdef Py_ssize_t mid
@@ -18,6 +24,8 @@ cdef inline Py_ssize_t _bisect_right(list a, double x, Py_ssize_t lo, Py_ssize_t
     return lo
 
 
+@cython.boundscheck(True)
+@cython.wraparound(True)
 def path_xy(path, double s):
     """Local (x, y) at path coordinate s, clamped to the path (`Path.xy`)."""
     cdef list cum = path.cum, edges = path.edges

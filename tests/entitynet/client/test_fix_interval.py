@@ -135,3 +135,25 @@ def test_the_fleet_core_follows_a_cadence_that_slows_down():
     assert a.rules.gap_limit == b.rules.gap_limit
     assert core.counters["vector_fixes"] > 20
     assert got_a == got_b
+
+
+def test_reach_and_the_gap_limit_always_follow_the_usual_interval():
+    """`note_interval` writes the usual interval, the gap limit and the tracker's `reach` only when the interval
+    changes: that is exact only while nothing else moves them. After every fix of an irregular feed (jittered,
+    stepping cadences, long losses that are not kept, ticks into a loss and back) they are what the interval
+    says: `gap_limit(...)` and `follow_cadence`'s max(reacquire, vmax x interval)."""
+    from entitynet.client.rules import gap_limit
+
+    rng = np.random.default_rng(22)
+    for etype in ("bus", "car", "pedestrian"):
+        p = Player(TOPO, 1, etype, accuracy=5.0)
+        trk, rules = p.tracker, p.rules
+        t, x = 0.0, -ARM + 50.0
+        for k in range(300):
+            dt = float((rng.uniform(0.5, 1.5), rng.choice([1.0, 2.0, 5.0, 31.0]), rng.uniform(0.1, 200.0))[k // 100])
+            t += dt
+            x = min(x + SPEED * dt, ARM - 50.0)
+            p.tick(t - 0.5 * dt)
+            p.feed(x + float(rng.normal(0.0, 3.0)), float(rng.normal(0.0, 3.0)), t)
+            assert rules.gap_limit == gap_limit(rules.max_gap, rules.lost_after, rules.interval), (etype, k)
+            assert trk.reach == max(trk.placer.reacquire, trk.etype.vmax * rules.interval), (etype, k)

@@ -5,6 +5,10 @@ an edge, edges of several segments, a position exactly on a node or a cell bound
 
 import math
 import random
+import struct
+import subprocess
+import sys
+from pathlib import Path as FilePath
 
 import pytest
 
@@ -183,3 +187,73 @@ def test_the_compiled_path_point_equals_the_pure_one(topo):
             got, want = p.xy(s), path_mod.xy_reference(p, s)
             assert [v if v == v else "nan" for v in got] == [v if v == v else "nan" for v in want], (p, s)
             assert all(type(v) is float for v in got)
+
+
+def _same(fn, *args):
+    """fn's answer with each float as its bit pattern (NaN as "nan"), or the exception's type."""
+    try:
+        out = fn(*args)
+    except (ArithmeticError, ValueError) as exc:
+        return type(exc).__name__
+    if isinstance(out, float):
+        out = [out]
+    return ["nan" if v != v else struct.pack("=d", v) if isinstance(v, float) else v for v in out]
+
+
+def test_the_compiled_kernels_equal_the_pure_ones_on_hard_inputs():
+    """The three lateral / path kernels against their pure references where the random tests do not go: NaN,
+    infinities, -0.0, subnormals and huge values as position, direction, radius, reach and path coordinate, and
+    ring segments of zero, tiny and infinite length; compared by bit pattern (-0.0 is not 0.0 here)."""
+    from entitynet.client import path as path_mod
+
+    if lateral._COMPILED is None or path_mod._COMPILED is None:
+        pytest.skip("the compiled kernels are not built here (the pure ones are in use)")
+    hard = [0.0, -0.0, 5e-324, 1e-300, 1e16, -1e16, 1e308, -1e308, math.inf, -math.inf, math.nan]
+    rng = random.Random(11)
+    net = netview(_degenerate())
+    idx = near_index(Placer(net, ALL))
+    every = list(idx._ways.values())
+    pts = _points(net, rng)
+
+    def pick(normal):
+        return rng.choice(hard) if rng.random() < 0.4 else normal
+
+    for _ in range(1500):
+        x, y = rng.choice(pts) if rng.random() < 0.7 else (rng.choice(hard), rng.choice(hard))
+        args = (x, y, pick(1.0), pick(-0.5), pick(12.5), pick(5.0), pick(30.0), set(), rng.choice([None, {0, 2}]))
+        assert _same(lateral._COMPILED.way_cells, every, *args) == _same(lateral._way_cells_py, every, *args), args
+        segs = tuple((pick(rng.uniform(-50, 50)), pick(rng.uniform(-50, 50)), pick(3.0), pick(-4.0),
+                      rng.choice([25.0, 1e-300, 5e-324, math.inf, 1e308])) for _ in range(rng.randint(0, 3)))
+        assert (_same(lateral._COMPILED.ring_nearest, segs, x, y)
+                == _same(lateral._ring_nearest_py, segs, x, y)), (segs, x, y)
+    paths = [Path(net, [(e, d)]) for e in range(net.n_edges) for d in (1, -1)]
+    for p in paths:
+        for s in hard + [-1e-320, math.nextafter(p.length, 0.0)] + list(p.cum):
+            assert _same(p.xy, s) == _same(path_mod.xy_reference, p, s), (p, s)
+
+
+def test_the_compiled_path_point_on_malformed_geometry_answers_as_the_pure_one():
+    """An edge of one geometry point or none (a malformed artifact: the builder never makes one) at NaN or beyond
+    the data: the compiled `Path.xy` reads the lists as Python does (the same point, or the same IndexError), never
+    memory outside them. In a child process: an out-of-bounds read could end it."""
+    from entitynet.client import path as path_mod
+
+    if path_mod._COMPILED is None:
+        pytest.skip("the compiled path point is not built here (the pure one is in use)")
+    code = (
+        "import math\nfrom types import SimpleNamespace as N\nfrom entitynet.client import _geom\n"
+        "from entitynet.client.path import xy_reference\n"
+        "def ans(fn, *a):\n    try:\n        return repr(fn(*a))\n    except IndexError as e:\n"
+        "        return 'IndexError'\n"
+        "for off, gx, gcum in (([0, 1], [1.0], [0.0]), ([0, 0], [], []), ([0, 2, 3], [0.0, 9.0, 4.0], [0.0, 9.0, 0.0]),"
+        " ([0, 2, 2], [0.0, 9.0], [0.0, 9.0])):\n"
+        "    for e in range(len(off) - 1):\n"
+        "        net = N(edge_len=[10.0] * 3, geom_off=off, gx=gx, gy=[2.0 * v for v in gx], gcum=gcum)\n"
+        "        for d in (1, -1):\n"
+        "            p = N(cum=[0.0, 10.0], edges=[(e, d)], net=net)\n"
+        "            for s in (math.nan, -1.0, 0.0, 5.0, 10.0, 11.0, math.inf):\n"
+        "                assert ans(_geom.path_xy, p, s) == ans(xy_reference, p, s), (off, e, d, s)\n"
+        "print('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         cwd=str(FilePath(__file__).resolve().parents[3]))
+    assert out.returncode == 0 and out.stdout.strip() == "ok", (out.returncode, out.stderr[-2000:])

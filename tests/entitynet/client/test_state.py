@@ -4,8 +4,10 @@ path rows, growth that keeps the rows, and the clear errors of a wrong use."""
 from __future__ import annotations
 
 import math
+import struct
 import subprocess
 import sys
+from array import array
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +15,7 @@ import pytest
 
 from entitynet.client.filters import Kinematic1D, RowKinematic
 from entitynet.client.player import Player
-from entitynet.client.state import FLOATS, INTS, NF, NI, PATH_W, RECENT, Bound, Record, Ring, column
+from entitynet.client.state import F_COL, FLOATS, INTS, NF, NI, PATH_W, RECENT, Bound, Record, Ring, column
 from tests.entitynet.client_fixtures import cross
 
 
@@ -264,3 +266,44 @@ def test_the_compiled_filter_update_is_the_reference_bit_for_bit():
             assert fast._state() == ref._state()
     with pytest.raises(IndexError):
         state._COMPILED.kalman_row(rec.f, len(rec.f) - 3, True, 0.0, 1.0, 1.0)
+
+
+def _bits(values) -> list:
+    """Each float's IEEE bit pattern ("nan" for any NaN): `==` would take -0.0 for 0.0 and fail on NaN."""
+    return ["nan" if v != v else struct.pack("=d", v) for v in values]
+
+
+def test_the_compiled_filter_update_is_the_reference_on_hard_inputs():
+    """`_columns.kalman_row` against `KinematicMath.update_sv` where the random test above never goes: NaN,
+    infinities, -0.0, subnormals and values near the float range in the row and the arguments, compared by bit
+    pattern (row and result; an exception must be the same exception)."""
+    import random
+
+    from entitynet.client import state
+    from entitynet.client.filters import KinematicMath
+
+    if state._COMPILED is None:
+        pytest.skip("the compiled accessors are not built here (the reference is in use)")
+    hard = [0.0, -0.0, 5e-324, -5e-324, 1e-300, 1e308, -1e308, math.inf, -math.inf, math.nan, 1.0, -3.5]
+    rng = random.Random(22)
+    rec = Record(2)
+    fast, ref = RowKinematic(), RowKinematic()
+    fast.bind(rec, rec.new_row())
+    ref.bind(rec, rec.new_row())
+
+    def call(fn, *args):
+        try:
+            return _bits(fn(*args))
+        except ArithmeticError as exc:
+            return type(exc).__name__
+
+    for _ in range(4000):
+        vals = [rng.choice(hard) if rng.random() < 0.5 else rng.uniform(-1e3, 1e3) for _ in range(11)]
+        accel = rng.random() < 0.5
+        z, t, r = (rng.choice(hard) if rng.random() < 0.5 else rng.uniform(-1e3, 1e3) for _ in range(3))
+        for f in (fast, ref):
+            rec.f[f._fb + F_COL["ks"] : f._fb + F_COL["ks"] + 11] = array("d", vals)
+            f.accel = accel
+        got, want = call(fast.update_sv, z, t, r), call(KinematicMath.update_sv, ref, z, t, r)
+        assert got == want, (vals, accel, z, t, r)
+        assert _bits(fast._state()[:11]) == _bits(ref._state()[:11]), (vals, accel, z, t, r)
