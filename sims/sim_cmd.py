@@ -134,8 +134,9 @@ def run(args: argparse.Namespace) -> int:
 
     problems += check_workers(args)
     viewer_procs = getattr(args, "viewer_processes", None)  # a preset's own Namespace may not have it
-    if viewer_procs is None:
-        viewer_procs = auto_viewer_processes(args.viewers, os.cpu_count())
+    if viewer_procs is None:  # the default never forks where viewer processes cannot run (refused below)
+        unsupported = args.shards is not None or getattr(args, "mobility", "ours") == "sumo"
+        viewer_procs = 0 if unsupported else auto_viewer_processes(args.viewers, os.cpu_count())
     elif viewer_procs > args.viewers:
         problems.append(f"--viewer-processes {viewer_procs} is more than the {args.viewers} viewers")
     if viewer_procs and args.shards is not None:

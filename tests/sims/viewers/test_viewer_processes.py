@@ -177,3 +177,17 @@ def test_a_report_that_does_not_read_is_named_and_the_others_still_count(helsink
     assert "does not read" in rep["viewer_processes"]["deaths"][0]["why"]
     assert rep["viewers"]["deliveries"] == 5 and rep["truth_vs_viewer"]["all"]["visible_entity_samples"] == 4
     assert rep["truth_vs_viewer"]["all"]["missed_visibility"] == 0.25
+
+
+def test_the_default_is_never_refused_where_viewer_processes_cannot_run(monkeypatch, capsys):
+    """On a large machine the default would fork viewer processes for 300 viewers: with --shards or --mobility
+    sumo it must keep them in this process, not refuse an option the user never gave."""
+    from entitynet.cli import main
+    from sims import sim_cmd
+
+    monkeypatch.setattr(sim_cmd.os, "cpu_count", lambda: 16)
+    for args in (["--shards", "2"], ["--mobility", "sumo", "--sumocfg", "/nonexistent.sumocfg"]):
+        main(["sim", "--viewers", "300", *args, "--duration", "1", "--gtfs", "/nonexistent.zip"])
+        err = capsys.readouterr().err
+        assert "cannot read the feed" in err  # the run's own usage error, found before anything loads
+        assert "viewer-processes" not in err
