@@ -28,9 +28,14 @@ def _read_frame(sock: socket.socket, reader: wire.FrameReader) -> dict | None:
         reader.feed(data)
 
 
-def child_main(sock: socket.socket, topo, schedule, config, indices: list[int]) -> None:
-    """The process's body (see the module docstring): its share's figures go back in a `report` frame."""
+def child_main(sock: socket.socket, topo, schedule, config, indices: list[int],
+               inherited: list[socket.socket] = ()) -> None:
+    """The process's body (see the module docstring): its share's figures go back in a `report` frame.
+    `inherited`: the coordinator's socket ends the fork copied into this process, closed first (held here, the
+    coordinator's close of its end would never reach this process, or a sibling, as an end of file)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for s in inherited:
+        s.close()
     from entitynet.cluster.natsd import die_with_parent
 
     tie = die_with_parent()

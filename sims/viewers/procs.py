@@ -39,7 +39,10 @@ class ViewerProcesses:
         self._socks: list[socket.socket] = []
         for i in range(n):
             parent, child = socket.socketpair()
-            p = ctx.Process(target=child_main, args=(child, topo, schedule, config, self.shares[i]),
+            # the child closes its copies of the coordinator's ends (its own and its elder siblings'), so that
+            # the coordinator's close of one is that process's end of file
+            inherited = [*self._socks, parent]
+            p = ctx.Process(target=child_main, args=(child, topo, schedule, config, self.shares[i], inherited),
                             name=f"entitynet-sim-viewers-{i}", daemon=True)
             p.start()
             child.close()

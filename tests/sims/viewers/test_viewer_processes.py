@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 
 import pytest
 import trio
@@ -191,3 +192,18 @@ def test_the_default_is_never_refused_where_viewer_processes_cannot_run(monkeypa
         err = capsys.readouterr().err
         assert "cannot read the feed" in err  # the run's own usage error, found before anything loads
         assert "viewer-processes" not in err
+
+
+def test_a_viewer_process_ends_when_the_coordinator_closes_its_socket(helsinki):
+    """A process the coordinator lets go (declared dead, or the coordinator gone without `close`) sees its
+    socket close and ends by itself: no child may hold another copy of the coordinator's end."""
+    vp = ViewerProcesses(3, helsinki, None, _config())
+    try:
+        for s in vp._socks:
+            s.close()
+        deadline = time.monotonic() + 10.0
+        for p in vp.procs:
+            p.join(max(0.0, deadline - time.monotonic()))
+        assert [p.exitcode for p in vp.procs] == [0, 0, 0]
+    finally:
+        vp.close()
