@@ -72,6 +72,8 @@ class ViewerProcesses:
         code = self.procs[i].exitcode
         self.deaths.append({"index": i, "pid": self.procs[i].pid, "why": why if code is None else
                             f"{why} (exit code {code})", "tick": self.k, "viewers": len(self.shares[i])})
+        if code is None:  # declared dead but running (stopped, stuck, too slow): it ends now, not at `close`,
+            self.procs[i].kill()  # so it holds no server connections and no CPU for the rest of the run
 
     async def _read(self, i: int) -> dict:
         s = self._streams[i]

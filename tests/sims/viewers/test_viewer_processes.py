@@ -53,6 +53,8 @@ def _run(topo, path, config: SimConfig, processes: int, duration: float, kill_at
 
     try:
         rep = trio.run(main)
+        vp.procs[0].join(2.0)
+        vp.first_alive_before_close = vp.procs[0].is_alive()
     finally:
         vp.close()
     assert not any(p.is_alive() for p in vp.procs)  # no process left behind
@@ -90,6 +92,7 @@ def test_a_viewer_process_that_stops_answering_is_named_and_nothing_hangs(helsin
     # no report within the timeout (or, its socket buffer full, no tick read within it)
     assert [d["index"] for d in deaths] == [0] and "within 2 s" in deaths[0]["why"]
     assert rep["viewer_processes"]["measured_viewers"] == 3
+    assert not vp.first_alive_before_close  # declared dead, it is ended then, not left stopped till the end
 
 
 def test_a_share_moves_the_same_cameras_as_one_process(helsinki):
