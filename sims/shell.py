@@ -433,7 +433,7 @@ class Shell:
         reported."""
         vp = self.config.viewer_processes
         if vp is not None:
-            return sum(int(r["viewers"]["deliveries"]) for r in vp.reports if r is not None)
+            return vp.deliveries()
         return sum(v.deliveries for v in self.sim.viewers)
 
     def report(self) -> dict:

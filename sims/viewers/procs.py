@@ -23,6 +23,8 @@ from sims.viewers import wire
 from sims.viewers.child import child_main
 from sims.viewers.share import share_of
 
+VIEWER_COUNTS = ("street", "roof", "deliveries", "leaves", "bytes")  # a report's `viewers` counters, summed
+
 
 class ViewerProcesses:
     """`n` forked viewer processes for the run `config` (see the module docstring). Fork before the event loop
@@ -140,34 +142,47 @@ class ViewerProcesses:
         self.tick_wait_s += time.monotonic() - t0
 
     async def finish(self) -> None:
-        """Stop every live process and gather its report (each waited for up to the timeout)."""
+        """Stop every live process and gather its report (each waited for up to the timeout); a report that
+        does not read is named among the deaths here, before the live output's last lines."""
         stop = wire.encode("stop")
         for i in self.live():
             self.reports[i] = await self._exchange(i, stop, "report")
+        self._readable()
 
-    def merge(self, rep: dict) -> dict:
-        """The run's report with the viewers' counts and the truth-against-viewer figures of every process
-        that reported, and a `viewer_processes` section naming the dead."""
-        measure = Measure()
-        viewers = {"street": 0, "roof": 0, "deliveries": 0, "leaves": 0, "bytes": 0}
-        subscribe_msgs = 0
+    def _readable(self) -> list[tuple[dict, dict[str, Tally], int]]:
+        """Each report that reads, as (viewer counts, tallies per group, SUBSCRIBEs); one that does not is
+        dropped and named dead (once: it is dropped)."""
+        out = []
         for i, r in enumerate(self.reports):
             if r is None:
                 continue
             try:
-                counts = {k: int(r["viewers"].get(k, 0)) for k in viewers}
+                counts = {k: int(r["viewers"].get(k, 0)) for k in VIEWER_COUNTS}
                 tallies = {str(g): Tally([float(x) for x in t["errors"]], int(t["visible"]), int(t["missed"]),
                                          int(t["shown"]), int(t["stale"]), int(t["viewer_samples"]))
                            for g, t in r["tallies"].items()}
+                out.append((counts, tallies, int(r["subscribe_msgs"])))
             except (KeyError, TypeError, ValueError, AttributeError) as exc:
                 self.reports[i] = None
                 self.deaths.append({"index": i, "pid": self.procs[i].pid, "tick": self.k,
                                     "why": f"sent a report that does not read ({exc!r:.80})",
                                     "viewers": len(self.shares[i])})
-                continue
+        return out
+
+    def deliveries(self) -> int:
+        """UPDATEs delivered to the viewers of the processes whose reports read (for the run's last line)."""
+        return sum(counts["deliveries"] for counts, _, _ in self._readable())
+
+    def merge(self, rep: dict) -> dict:
+        """The run's report with the viewers' counts and the truth-against-viewer figures of every process
+        that reported, and a `viewer_processes` section naming the dead."""
+        measure = Measure()
+        viewers = dict.fromkeys(VIEWER_COUNTS, 0)
+        subscribe_msgs = 0
+        for counts, tallies, subs in self._readable():
             for k, n in counts.items():
                 viewers[k] += n
-            subscribe_msgs += r["subscribe_msgs"]
+            subscribe_msgs += subs
             for g, t in tallies.items():
                 acc: Tally = measure.tallies[g]
                 acc.errors += t.errors

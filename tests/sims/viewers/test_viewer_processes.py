@@ -210,3 +210,21 @@ def test_a_viewer_process_ends_when_the_coordinator_closes_its_socket(helsinki):
         assert [p.exitcode for p in vp.procs] == [0, 0, 0]
     finally:
         vp.close()
+
+
+def test_a_report_that_does_not_read_does_not_break_the_last_line(helsinki):
+    """The run's last line counts the deliveries of the reports that read, as the report does; one without its
+    counters is named dead before that line, not a traceback from it."""
+    vp = ViewerProcesses(2, helsinki, None, _config())
+    try:
+        good = {"viewers": {"street": 2, "roof": 1, "deliveries": 5, "leaves": 0, "bytes": 50}, "subscribe_msgs": 3,
+                "tallies": {}, "cpu_s": 0.1, "tick_delay_p99_ms": 1.0}
+        vp.reports = [good, {**good, "viewers": [], "tallies": {"street": None}}]
+        sim = Sim(helsinki, _config())
+        sim.viewers = []
+        shell = Shell(sim, ShellConfig(keys=False, viewer_processes=vp), lambda m: None)
+        assert "5 deliveries" in shell.final_line()
+        assert [d["index"] for d in vp.deaths] == [1]
+        assert shell.report()["viewers"]["deliveries"] == 5 and len(vp.deaths) == 1  # named once
+    finally:
+        vp.close()
