@@ -166,15 +166,20 @@ class Sim:
 
     def measured_viewers(self) -> list[SimViewer]:
         """The viewers the next sample measures: all of them, or with `measure_share` < 1 the next
-        ceil(share x V) in turn (wrapping round), so every viewer is measured equally often."""
+        ceil(share x V) in turn (wrapping round), so every viewer is measured equally often. A viewer process
+        holds a share of the run's V viewers (`sims.viewers`): it measures those of its own that fall in the
+        run's window, so the processes together measure the viewers one process would, equally often."""
         v = self.viewers
         share = self.config.measure_share
         if share >= 1.0 or not v:
             return v
-        k = min(len(v), max(1, math.ceil(share * len(v) - 1e-9)))
+        n = max(len(v), self.config.viewers)
+        k = min(n, max(1, math.ceil(share * n - 1e-9)))
         i = self._measure_from
-        self._measure_from = (i + k) % len(v)
-        return [v[(i + j) % len(v)] for j in range(k)]
+        self._measure_from = (i + k) % n
+        if len(v) == n:
+            return [v[(i + j) % n] for j in range(k)]
+        return [x for x in v if (x.index - i) % n < k]
 
     def counts(self) -> dict:
         """The cheap counters (entities by type, collisions, spawns, client messages), for the live summary line

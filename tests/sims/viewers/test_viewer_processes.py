@@ -228,3 +228,16 @@ def test_a_report_that_does_not_read_does_not_break_the_last_line(helsinki):
         assert shell.report()["viewers"]["deliveries"] == 5 and len(vp.deaths) == 1  # named once
     finally:
         vp.close()
+
+
+def test_the_shares_measure_the_viewers_one_process_would_at_each_sample(helsinki):
+    """With measure share 0.25, one process measures ceil(0.25 x V) viewers per sample in turn; the shares
+    together must measure exactly those (each share rounding its own quarter up measured 3 of 7 per sample,
+    and the viewers of the smaller shares more often than the others: the summed tallies weighted them more)."""
+    config = _config(viewers=7, measure_share=0.25)
+    one = Sim(helsinki, config)
+    shares = [ViewerShare(helsinki, None, config, share_of(7, 3, i)) for i in range(3)]
+    for _ in range(8):
+        want = sorted(v.index for v in one.measured_viewers())
+        got = sorted(v.index for s in shares for v in s.sim.measured_viewers())
+        assert got == want
