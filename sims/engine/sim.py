@@ -160,8 +160,9 @@ class Sim:
         if self.now + 1e-9 < self._next_sample:
             return False
         self._next_sample += self.config.sample_every
-        if eid_to_agent is not None:
-            self.measure.sample(self.now, self.world, self.measured_viewers(), eid_to_agent)
+        viewers = self.measured_viewers() if eid_to_agent is not None else []
+        if viewers:  # none (a viewer processes' coordinator, a share with none in the window): no truth read
+            self.measure.sample(self.now, self.world, viewers, eid_to_agent)
         return True
 
     def measured_viewers(self) -> list[SimViewer]:

@@ -241,3 +241,14 @@ def test_the_shares_measure_the_viewers_one_process_would_at_each_sample(helsink
         want = sorted(v.index for v in one.measured_viewers())
         got = sorted(v.index for s in shares for v in s.sim.measured_viewers())
         assert got == want
+
+
+def test_a_sample_with_no_viewer_to_measure_costs_nothing(helsinki, monkeypatch):
+    """The coordinator of viewer processes holds no viewers, and a share may have none in a sample's window:
+    the truth is not read into arrays for nobody (a cost the processes are meant to take off the coordinator)."""
+    sim = Sim(helsinki, _config(measure_after=0.0))
+    sim.viewers = []
+    calls = []
+    monkeypatch.setattr(sim.measure, "sample", lambda *a: calls.append(a))
+    sim.start()
+    assert sim.maybe_sample({}) and calls == []
