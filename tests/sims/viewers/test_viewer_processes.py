@@ -252,3 +252,18 @@ def test_a_sample_with_no_viewer_to_measure_costs_nothing(helsinki, monkeypatch)
     monkeypatch.setattr(sim.measure, "sample", lambda *a: calls.append(a))
     sim.start()
     assert sim.maybe_sample({}) and calls == []
+
+
+def test_the_live_line_shows_no_viewer_figures_it_does_not_have(helsinki):
+    """With the viewers in their processes the coordinator has no deliveries or measure until the end: its
+    live line must not print 0 deliveries/s and 0.0 % missed as if measured."""
+    from types import SimpleNamespace
+
+    sim = Sim(helsinki, _config())
+    sim.viewers = []
+    vp = SimpleNamespace(n=2, live=lambda: [0, 1])
+    shell = Shell(sim, ShellConfig(keys=False, viewer_processes=vp), lambda m: None)
+    sim.start()
+    line = shell.summary_line(5.0)
+    assert "deliveries" not in line and "missed" not in line and "viewer error" not in line
+    assert "viewers in 2 of 2 processes" in line and "collisions avoided" in line
