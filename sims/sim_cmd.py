@@ -69,7 +69,7 @@ def register(sub) -> None:
                    help="run the viewers in K processes of their own, each with its share of the viewers, their "
                         "server connections and their measure against the truth it steps from the seed (0: in "
                         "this process; default: 0 on 4 cores or fewer, else one per 250 viewers up to cores - 2; "
-                        "docs/simulation.md)")
+                        "not with --shards or --mobility sumo; docs/simulation.md)")
     p.add_argument("--seed", type=SEED, default=1, help="random seed (default 1)")
     p.add_argument("--summary-every", type=positive_seconds(86400),
                    default=5.0, metavar="S", help="summary interval (default 5 s)")
