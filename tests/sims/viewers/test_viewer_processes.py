@@ -267,3 +267,18 @@ def test_the_live_line_shows_no_viewer_figures_it_does_not_have(helsinki):
     line = shell.summary_line(5.0)
     assert "deliveries" not in line and "missed" not in line and "viewer error" not in line
     assert "viewers in 2 of 2 processes" in line and "collisions avoided" in line
+
+
+def test_a_viewer_process_whose_coordinator_goes_mid_start_ends_quietly(helsinki, capfd):
+    """The coordinator gone (Ctrl-C while it waits for `ready`) as the process answers: the process ends with
+    status 0 and says nothing (trio's nursery wraps the broken socket in an exception group, which printed
+    "ExceptionGroup: Exceptions from Trio nursery" and exited 1)."""
+    vp = ViewerProcesses(1, helsinki, None, _config(viewers=0))
+    try:
+        vp._socks[0].sendall(wire.encode("start", host="127.0.0.1", port=9, token=""))
+        vp._socks[0].close()
+        vp.procs[0].join(10.0)
+        assert vp.procs[0].exitcode == 0
+        assert "viewer process" not in capfd.readouterr().err
+    finally:
+        vp.close()
