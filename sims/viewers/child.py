@@ -132,7 +132,8 @@ async def _run(sock: socket.socket, reader: wire.FrameReader, share, address: tu
                             await c.subscribe(m.added, m.removed)
                 elif f["t"] == "stop":
                     share.finish()
-                    await stream.send_all(wire.encode("report", **share.report()))
+                    for frame in wire.report_frames(share.report()):
+                        await stream.send_all(frame)
                     nursery.cancel_scope.cancel()
                     return
         nursery.cancel_scope.cancel()

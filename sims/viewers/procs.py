@@ -14,6 +14,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import socket
 import time
+from collections import deque
 
 import trio
 
@@ -52,6 +53,7 @@ class ViewerProcesses:
             self.procs.append(p)
         self._streams: list[trio.SocketStream | None] = [None] * n
         self._readers = [wire.FrameReader() for _ in range(n)]
+        self._pending: list[deque[dict]] = [deque() for _ in range(n)]  # frames read, not yet taken
         self.reports: list[dict | None] = [None] * n
         self.deaths: list[dict] = []
         self.k = -1
@@ -78,11 +80,11 @@ class ViewerProcesses:
             self.procs[i].kill()  # so it holds no server connections and no CPU for the rest of the run
 
     async def _read(self, i: int) -> dict:
-        s = self._streams[i]
+        s, pending = self._streams[i], self._pending[i]
         while True:
-            got = self._readers[i].frames()
-            if got:
-                return got[0]
+            pending.extend(self._readers[i].frames())  # a read may bring several frames: none is dropped
+            if pending:
+                return pending.popleft()
             data = await s.receive_some(1 << 20)
             if not data:
                 raise EOFError("its socket closed (the process ended)")
@@ -146,7 +148,19 @@ class ViewerProcesses:
         does not read is named among the deaths here, before the live output's last lines."""
         stop = wire.encode("stop")
         for i in self.live():
-            self.reports[i] = await self._exchange(i, stop, "report")
+            report = await self._exchange(i, stop, "report")
+            for _ in range(report["error_frames"] if report is not None else 0):
+                errors = await self._exchange(i, b"", "errors")
+                if errors is None:  # named dead by `_exchange`: its report goes with it
+                    report = None
+                    break
+                try:
+                    wire.add_errors(report, errors)
+                except wire.WireError as exc:
+                    self._lose(i, str(exc))
+                    report = None
+                    break
+            self.reports[i] = report
         self._readable()
 
     def _readable(self) -> list[tuple[dict, dict[str, Tally], int]]:

@@ -29,10 +29,12 @@ def _config(**kw) -> SimConfig:
 
 
 def _run(topo, path, config: SimConfig, processes: int, duration: float, kill_at: float | None = None,
-         sig: int = signal.SIGKILL, timeout: float = 10.0):
+         sig: int = signal.SIGKILL, timeout: float = 10.0, max_frame: int | None = None):
     sim = Sim(topo, config)
     sim.viewers = []
     vp = ViewerProcesses(processes, topo, None, config, timeout=timeout)
+    if max_frame is not None:  # the coordinator reads no frame over this
+        vp._readers = [wire.FrameReader(max_frame) for _ in range(processes)]
     lines: list[str] = []
     shell = Shell(sim, ShellConfig(duration=duration, speed=SPEED, summary_every=100.0, artifact=path, keys=False,
                                    viewer_processes=vp), lines.append)
@@ -282,3 +284,15 @@ def test_a_viewer_process_whose_coordinator_goes_mid_start_ends_quietly(helsinki
         assert "viewer process" not in capfd.readouterr().err
     finally:
         vp.close()
+
+
+def test_a_report_with_more_error_samples_than_a_frame_holds_still_arrives(helsinki, helsinki_path, monkeypatch):
+    """A report's error samples grow with the run (which goes on until Ctrl-C by default): they follow it in
+    frames of their own, so a long run's report is not refused as over the frame limit (the process was named
+    dead and every figure of its viewers lost)."""
+    monkeypatch.setattr(wire, "ERROR_CHUNK", 32)  # 256 bytes of samples per frame (set before the fork)
+    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 4.0, max_frame=1024)
+    assert rep["viewer_processes"]["deaths"] == []
+    tv = rep["truth_vs_viewer"]["all"]
+    assert tv["shown_ghost_samples"] > 2 * 1024 / 8  # more samples than the limit could hold in one frame
+    assert tv["error_p95_m"] is not None and tv["visible_entity_samples"] > 0
