@@ -424,15 +424,18 @@ class Shell:
         tv = sim.measure.summary()["all"]
         err = f"{tv['error_p95_m']:.1f} m p95" if tv["error_p95_m"] is not None else "n/a"
         col = c["collisions"]
+        vp = self.config.viewer_processes  # its viewers' figures come at the end: none on the live line
         line = (f"[{sim.ticks * sim.dt:6.0f}s] entities {sum(c['entities'].values())} ({ents}) | "
-                f"updates {d_pub / wall_dt:6.1f}/s | deliveries {d_del / wall_dt:7.1f}/s | collisions avoided "
-                f"{col['avoided']} accepted {col['accepted']} deleted {col['deleted']} | viewer error {err}, "
-                f"missed {100 * tv['missed_visibility']:.1f}% | {self._lateness_text()}")
+                f"updates {d_pub / wall_dt:6.1f}/s | "
+                + ("" if vp is not None else f"deliveries {d_del / wall_dt:7.1f}/s | ")
+                + f"collisions avoided {col['avoided']} accepted {col['accepted']} deleted {col['deleted']}"
+                + ("" if vp is not None else
+                   f" | viewer error {err}, missed {100 * tv['missed_visibility']:.1f}%")
+                + f" | {self._lateness_text()}")
         if self.config.cluster is not None:
             line += " | " + self.config.cluster.summary()
-        if self.config.viewer_processes is not None:
-            vp = self.config.viewer_processes
-            line += f" | viewers in {len(vp.live())} of {vp.n} processes (figures at the end)"
+        if vp is not None:
+            line += f" | viewers in {len(vp.live())} of {vp.n} processes (their figures at the end)"
         if self.config.duration and self.config.speed > 1.0:
             frac = min(1.0, sim.ticks * sim.dt / self.config.duration)
             line += f" [{'#' * int(20 * frac):<20}] {100 * frac:3.0f}%"
@@ -450,7 +453,7 @@ class Shell:
         reported."""
         vp = self.config.viewer_processes
         if vp is not None:
-            return sum(int(r["viewers"]["deliveries"]) for r in vp.reports if r is not None)
+            return vp.deliveries()
         return sum(v.deliveries for v in self.sim.viewers)
 
     def report(self) -> dict:

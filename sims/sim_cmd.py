@@ -69,7 +69,7 @@ def register(sub) -> None:
                    help="run the viewers in K processes of their own, each with its share of the viewers, their "
                         "server connections and their measure against the truth it steps from the seed (0: in "
                         "this process; default: 0 on 4 cores or fewer, else one per 250 viewers up to cores - 2; "
-                        "docs/simulation.md)")
+                        "not with --shards or --mobility sumo; docs/simulation.md)")
     p.add_argument("--seed", type=SEED, default=1, help="random seed (default 1)")
     p.add_argument("--summary-every", type=positive_seconds(86400),
                    default=5.0, metavar="S", help="summary interval (default 5 s)")
@@ -134,8 +134,9 @@ def run(args: argparse.Namespace) -> int:
 
     problems += check_workers(args)
     viewer_procs = getattr(args, "viewer_processes", None)  # a preset's own Namespace may not have it
-    if viewer_procs is None:
-        viewer_procs = auto_viewer_processes(args.viewers, os.cpu_count())
+    if viewer_procs is None:  # the default never forks where viewer processes cannot run (refused below)
+        unsupported = args.shards is not None or getattr(args, "mobility", "ours") == "sumo"
+        viewer_procs = 0 if unsupported else auto_viewer_processes(args.viewers, os.cpu_count())
     elif viewer_procs > args.viewers:
         problems.append(f"--viewer-processes {viewer_procs} is more than the {args.viewers} viewers")
     if viewer_procs and args.shards is not None:

@@ -160,21 +160,27 @@ class Sim:
         if self.now + 1e-9 < self._next_sample:
             return False
         self._next_sample += self.config.sample_every
-        if eid_to_agent is not None:
-            self.measure.sample(self.now, self.world, self.measured_viewers(), eid_to_agent)
+        viewers = self.measured_viewers() if eid_to_agent is not None else []
+        if viewers:  # none (a viewer processes' coordinator, a share with none in the window): no truth read
+            self.measure.sample(self.now, self.world, viewers, eid_to_agent)
         return True
 
     def measured_viewers(self) -> list[SimViewer]:
         """The viewers the next sample measures: all of them, or with `measure_share` < 1 the next
-        ceil(share x V) in turn (wrapping round), so every viewer is measured equally often."""
+        ceil(share x V) in turn (wrapping round), so every viewer is measured equally often. A viewer process
+        holds a share of the run's V viewers (`sims.viewers`): it measures those of its own that fall in the
+        run's window, so the processes together measure the viewers one process would, equally often."""
         v = self.viewers
         share = self.config.measure_share
         if share >= 1.0 or not v:
             return v
-        k = min(len(v), max(1, math.ceil(share * len(v) - 1e-9)))
+        n = max(len(v), self.config.viewers)
+        k = min(n, max(1, math.ceil(share * n - 1e-9)))
         i = self._measure_from
-        self._measure_from = (i + k) % len(v)
-        return [v[(i + j) % len(v)] for j in range(k)]
+        self._measure_from = (i + k) % n
+        if len(v) == n:
+            return [v[(i + j) % n] for j in range(k)]
+        return [x for x in v if (x.index - i) % n < k]
 
     def counts(self) -> dict:
         """The cheap counters (entities by type, collisions, spawns, client messages), for the live summary line

@@ -28,9 +28,14 @@ def _read_frame(sock: socket.socket, reader: wire.FrameReader) -> dict | None:
         reader.feed(data)
 
 
-def child_main(sock: socket.socket, topo, schedule, config, indices: list[int]) -> None:
-    """The process's body (see the module docstring): its share's figures go back in a `report` frame."""
+def child_main(sock: socket.socket, topo, schedule, config, indices: list[int],
+               inherited: list[socket.socket] = ()) -> None:
+    """The process's body (see the module docstring): its share's figures go back in a `report` frame.
+    `inherited`: the coordinator's socket ends the fork copied into this process, closed first (held here, the
+    coordinator's close of its end would never reach this process, or a sibling, as an end of file)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for s in inherited:
+        s.close()
     from entitynet.cluster.natsd import die_with_parent
 
     tie = die_with_parent()
@@ -51,14 +56,27 @@ def child_main(sock: socket.socket, topo, schedule, config, indices: list[int]) 
         share = ViewerShare(topo, schedule, config, indices)
         share.prepare()  # before the coordinator's first tick, which waits for this process's `ready`
         trio.run(_run, sock, reader, share, (start["host"], start["port"]), start["token"])
-    except (OSError, wire.WireError, trio.BrokenResourceError, trio.ClosedResourceError):
-        return  # the coordinator is gone, or sent what is not a frame: nothing to report to
-    except Exception as exc:  # one line, no traceback: the coordinator names this process as gone
+    except Exception as exc:  # a nursery's task wraps its error in a group: judged by what is inside
+        errors = list(_leaves(exc))
+        gone = (OSError, wire.WireError, trio.BrokenResourceError, trio.ClosedResourceError)
+        if all(isinstance(e, gone) for e in errors):
+            return  # the coordinator is gone, or sent what is not a frame: nothing to report to
         import sys
 
+        first = next(e for e in errors if not isinstance(e, gone))
         which = indices[0] if indices else "?"  # a share starts at its process's index (`share_of`)
-        print(f"entitynet sim: viewer process {which}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        # one line, no traceback: the coordinator names this process as gone
+        print(f"entitynet sim: viewer process {which}: {type(first).__name__}: {first}", file=sys.stderr)
         sys.exit(1)
+
+
+def _leaves(exc: BaseException):
+    """The errors inside `exc`, exception groups opened (trio's nurseries group their tasks' errors)."""
+    if isinstance(exc, BaseExceptionGroup):
+        for e in exc.exceptions:
+            yield from _leaves(e)
+    else:
+        yield exc
 
 
 async def _run(sock: socket.socket, reader: wire.FrameReader, share, address: tuple[str, int], token: str) -> None:
@@ -114,7 +132,8 @@ async def _run(sock: socket.socket, reader: wire.FrameReader, share, address: tu
                             await c.subscribe(m.added, m.removed)
                 elif f["t"] == "stop":
                     share.finish()
-                    await stream.send_all(wire.encode("report", **share.report()))
+                    for frame in wire.report_frames(share.report()):
+                        await stream.send_all(frame)
                     nursery.cancel_scope.cancel()
                     return
         nursery.cancel_scope.cancel()

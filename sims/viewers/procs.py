@@ -14,6 +14,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import socket
 import time
+from collections import deque
 
 import trio
 
@@ -22,6 +23,8 @@ from sims.engine.measure import Measure, Tally
 from sims.viewers import wire
 from sims.viewers.child import child_main
 from sims.viewers.share import share_of
+
+VIEWER_COUNTS = ("street", "roof", "deliveries", "leaves", "bytes")  # a report's `viewers` counters, summed
 
 
 class ViewerProcesses:
@@ -39,7 +42,10 @@ class ViewerProcesses:
         self._socks: list[socket.socket] = []
         for i in range(n):
             parent, child = socket.socketpair()
-            p = ctx.Process(target=child_main, args=(child, topo, schedule, config, self.shares[i]),
+            # the child closes its copies of the coordinator's ends (its own and its elder siblings'), so that
+            # the coordinator's close of one is that process's end of file
+            inherited = [*self._socks, parent]
+            p = ctx.Process(target=child_main, args=(child, topo, schedule, config, self.shares[i], inherited),
                             name=f"entitynet-sim-viewers-{i}", daemon=True)
             p.start()
             child.close()
@@ -47,6 +53,7 @@ class ViewerProcesses:
             self.procs.append(p)
         self._streams: list[trio.SocketStream | None] = [None] * n
         self._readers = [wire.FrameReader() for _ in range(n)]
+        self._pending: list[deque[dict]] = [deque() for _ in range(n)]  # frames read, not yet taken
         self.reports: list[dict | None] = [None] * n
         self.deaths: list[dict] = []
         self.k = -1
@@ -69,13 +76,15 @@ class ViewerProcesses:
         code = self.procs[i].exitcode
         self.deaths.append({"index": i, "pid": self.procs[i].pid, "why": why if code is None else
                             f"{why} (exit code {code})", "tick": self.k, "viewers": len(self.shares[i])})
+        if code is None:  # declared dead but running (stopped, stuck, too slow): it ends now, not at `close`,
+            self.procs[i].kill()  # so it holds no server connections and no CPU for the rest of the run
 
     async def _read(self, i: int) -> dict:
-        s = self._streams[i]
+        s, pending = self._streams[i], self._pending[i]
         while True:
-            got = self._readers[i].frames()
-            if got:
-                return got[0]
+            pending.extend(self._readers[i].frames())  # a read may bring several frames: none is dropped
+            if pending:
+                return pending.popleft()
             data = await s.receive_some(1 << 20)
             if not data:
                 raise EOFError("its socket closed (the process ended)")
@@ -135,34 +144,59 @@ class ViewerProcesses:
         self.tick_wait_s += time.monotonic() - t0
 
     async def finish(self) -> None:
-        """Stop every live process and gather its report (each waited for up to the timeout)."""
+        """Stop every live process and gather its report (each waited for up to the timeout); a report that
+        does not read is named among the deaths here, before the live output's last lines."""
         stop = wire.encode("stop")
         for i in self.live():
-            self.reports[i] = await self._exchange(i, stop, "report")
+            report = await self._exchange(i, stop, "report")
+            for _ in range(report["error_frames"] if report is not None else 0):
+                errors = await self._exchange(i, b"", "errors")
+                if errors is None:  # named dead by `_exchange`: its report goes with it
+                    report = None
+                    break
+                try:
+                    wire.add_errors(report, errors)
+                except wire.WireError as exc:
+                    self._lose(i, str(exc))
+                    report = None
+                    break
+            self.reports[i] = report
+        self._readable()
 
-    def merge(self, rep: dict) -> dict:
-        """The run's report with the viewers' counts and the truth-against-viewer figures of every process
-        that reported, and a `viewer_processes` section naming the dead."""
-        measure = Measure()
-        viewers = {"street": 0, "roof": 0, "deliveries": 0, "leaves": 0, "bytes": 0}
-        subscribe_msgs = 0
+    def _readable(self) -> list[tuple[dict, dict[str, Tally], int]]:
+        """Each report that reads, as (viewer counts, tallies per group, SUBSCRIBEs); one that does not is
+        dropped and named dead (once: it is dropped)."""
+        out = []
         for i, r in enumerate(self.reports):
             if r is None:
                 continue
             try:
-                counts = {k: int(r["viewers"].get(k, 0)) for k in viewers}
+                counts = {k: int(r["viewers"].get(k, 0)) for k in VIEWER_COUNTS}
                 tallies = {str(g): Tally([float(x) for x in t["errors"]], int(t["visible"]), int(t["missed"]),
                                          int(t["shown"]), int(t["stale"]), int(t["viewer_samples"]))
                            for g, t in r["tallies"].items()}
+                out.append((counts, tallies, int(r["subscribe_msgs"])))
             except (KeyError, TypeError, ValueError, AttributeError) as exc:
                 self.reports[i] = None
                 self.deaths.append({"index": i, "pid": self.procs[i].pid, "tick": self.k,
                                     "why": f"sent a report that does not read ({exc!r:.80})",
                                     "viewers": len(self.shares[i])})
-                continue
+        return out
+
+    def deliveries(self) -> int:
+        """UPDATEs delivered to the viewers of the processes whose reports read (for the run's last line)."""
+        return sum(counts["deliveries"] for counts, _, _ in self._readable())
+
+    def merge(self, rep: dict) -> dict:
+        """The run's report with the viewers' counts and the truth-against-viewer figures of every process
+        that reported, and a `viewer_processes` section naming the dead."""
+        measure = Measure()
+        viewers = dict.fromkeys(VIEWER_COUNTS, 0)
+        subscribe_msgs = 0
+        for counts, tallies, subs in self._readable():
             for k, n in counts.items():
                 viewers[k] += n
-            subscribe_msgs += r["subscribe_msgs"]
+            subscribe_msgs += subs
             for g, t in tallies.items():
                 acc: Tally = measure.tallies[g]
                 acc.errors += t.errors
