@@ -1,9 +1,10 @@
 # cython: language_level=3, boundscheck=False, wraparound=False
-"""The codec's per-message loop in C for the one message that dominates a switch's input, PUBLISH (issue 25):
-the field checks in C integers and the `Publish` built by filling its slots, without the frozen dataclass's
-`__init__` (five `object.__setattr__` calls). Every other message, and every PUBLISH that fails any check or
-falls outside what this loop handles (more than 64 cells), goes to the codec's Python `_decode_one`, the
-reference, so an error is raised by the same code with the same code and text. Built by pip where a C compiler
+"""The codec's per-message loop in C for the messages that dominate a switch's input (issue 25): PUBLISH (one
+per entity state) and SUBSCRIBE (a PVS viewer's difference: thousands of cell ids when it subscribes). The field
+checks run on C integers and the message is built by filling its slots, without the frozen dataclass's
+`__init__` (an `object.__setattr__` call per field). Every other message, and every PUBLISH or SUBSCRIBE that
+fails any check or falls outside what this loop handles (a PUBLISH of more than 64 cells), goes to the codec's
+Python `_decode_one`, the reference, so an error is raised by the same code with the same code and text. Built by pip where a C compiler
 is found (setup.py); `entitynet.protocol.codec` uses the Python loop without it or with ENTITYNET_PURE_PYTHON=1."""
 
 from cpython.object cimport PyObject
@@ -36,8 +37,10 @@ cdef long long MAX_CELL = 2 ** 31 - 1
 cdef long long MAX_VALIDITY_MS = 24 * 3600 * 1000
 cdef long long PUBLISH = 4
 
+cdef long long SUBSCRIBE = 6
 cdef object _Publish = None
-cdef Py_ssize_t _off_entity, _off_seq, _off_cells, _off_validity, _off_payload
+cdef object _Subscribe = None
+cdef Py_ssize_t _off_entity, _off_seq, _off_cells, _off_validity, _off_payload, _off_added, _off_removed
 
 
 cdef Py_ssize_t _offset(cls, str name) except -1:
@@ -47,12 +50,20 @@ cdef Py_ssize_t _offset(cls, str name) except -1:
     return (<PyMemberDescrObject*><PyObject*>d).d_member.offset
 
 
-def bind(publish_cls, long long publish_type, long long max_int, long long max_cell, long long max_validity_ms):
-    """Give the loop the `Publish` class and the protocol's bounds (one home: entitynet.protocol.messages)."""
-    global _Publish, _off_entity, _off_seq, _off_cells, _off_validity, _off_payload
-    global PUBLISH, MAX_INT, MAX_CELL, MAX_VALIDITY_MS
+def bind(publish_cls, long long publish_type, subscribe_cls, long long subscribe_type, long long max_int,
+         long long max_cell, long long max_validity_ms):
+    """Give the loop the message classes, their type numbers and the protocol's bounds (one home:
+    entitynet.protocol.messages)."""
+    global _Publish, _Subscribe, _off_entity, _off_seq, _off_cells, _off_validity, _off_payload
+    global _off_added, _off_removed, PUBLISH, SUBSCRIBE, MAX_INT, MAX_CELL, MAX_VALIDITY_MS
     if tuple(publish_cls.__slots__) != ("entity", "seq", "cells", "validity_ms", "payload"):
         raise TypeError("Publish's fields changed: update entitynet/protocol/_decode.pyx")
+    if tuple(subscribe_cls.__slots__) != ("added", "removed"):
+        raise TypeError("Subscribe's fields changed: update entitynet/protocol/_decode.pyx")
+    _off_added = _offset(subscribe_cls, "added")
+    _off_removed = _offset(subscribe_cls, "removed")
+    _Subscribe = subscribe_cls
+    SUBSCRIBE = subscribe_type
     _off_entity = _offset(publish_cls, "entity")
     _off_seq = _offset(publish_cls, "seq")
     _off_cells = _offset(publish_cls, "cells")
@@ -116,17 +127,57 @@ cdef object _publish(tuple m, Py_ssize_t max_cells, Py_ssize_t max_payload):
     return p
 
 
-def decode_messages(tuple obj, lim, Py_ssize_t max_cells, Py_ssize_t max_payload, decode_one):
-    """`[decode_one(m, lim) for m in obj]`, with PUBLISHes that pass every check built here."""
+cdef bint _cells_ok(object v, Py_ssize_t max_n):
+    """What the codec's `_cells` accepts: an array of at most `max_n` integers in [0, MAX_CELL]."""
+    cdef Py_ssize_t i
+    cdef int overflow = 0
+    cdef long long x
+    if type(v) is not tuple or len(<tuple>v) > max_n:
+        return False
+    for i in range(len(<tuple>v)):
+        c = (<tuple>v)[i]
+        if type(c) is not int:
+            return False
+        x = PyLong_AsLongLongAndOverflow(c, &overflow)
+        if overflow != 0 or x < 0 or x > MAX_CELL:
+            return False
+    return True
+
+
+cdef object _subscribe(tuple m, Py_ssize_t max_cells):
+    """The SUBSCRIBE `m` (a 3-tuple starting with SUBSCRIBE) as a `Subscribe`, or None when a check fails."""
+    added = m[1]
+    removed = m[2]
+    if not _cells_ok(added, max_cells) or not _cells_ok(removed, max_cells):
+        return None
+    s = entitynet_alloc(_Subscribe)
+    entitynet_set_slot(s, _off_added, added)
+    entitynet_set_slot(s, _off_removed, removed)
+    return s
+
+
+def decode_messages(tuple obj, lim, Py_ssize_t max_cells, Py_ssize_t max_payload, Py_ssize_t max_subscribe_cells,
+                    decode_one):
+    """`[decode_one(m, lim) for m in obj]`, with PUBLISHes and SUBSCRIBEs that pass every check built here."""
     cdef list out = []
     cdef int overflow = 0
+    cdef long long t
+    cdef Py_ssize_t n
     for m in obj:
-        if type(m) is tuple and len(<tuple>m) == 6:
-            t = (<tuple>m)[0]
-            if type(t) is int and PyLong_AsLongLongAndOverflow(t, &overflow) == PUBLISH and overflow == 0:
-                p = _publish(<tuple>m, max_cells, max_payload)
-                if p is not None:
-                    out.append(p)
-                    continue
+        if type(m) is tuple:
+            n = len(<tuple>m)
+            if n == 6 or n == 3:
+                first = (<tuple>m)[0]
+                if type(first) is int:
+                    t = PyLong_AsLongLongAndOverflow(first, &overflow)
+                    if overflow == 0:
+                        p = None
+                        if n == 6 and t == PUBLISH:
+                            p = _publish(<tuple>m, max_cells, max_payload)
+                        elif n == 3 and t == SUBSCRIBE:
+                            p = _subscribe(<tuple>m, max_subscribe_cells)
+                        if p is not None:
+                            out.append(p)
+                            continue
         out.append(decode_one(m, lim))
     return out

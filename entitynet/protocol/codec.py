@@ -355,7 +355,8 @@ def decode_payload(data: bytes, limits: CodecLimits = DEFAULT_LIMITS) -> list[Me
         raise ProtocolError(ErrorCode.FRAME_TOO_LARGE, f"more than {limits.max_messages} messages")
     try:
         if _decode_messages is not None:
-            return _decode_messages(obj, limits, limits.max_publish_cells, limits.max_payload, _decode_one)
+            return _decode_messages(obj, limits, limits.max_publish_cells, limits.max_payload,
+                                    limits.max_subscribe_cells, _decode_one)
         return [_decode_one(m, limits) for m in obj]
     except ProtocolError:
         raise
@@ -364,10 +365,10 @@ def decode_payload(data: bytes, limits: CodecLimits = DEFAULT_LIMITS) -> list[Me
 
 
 # ------------------------------------------------------------------------------------- the compiled message loop
-# `_decode.decode_messages` (entitynet/protocol/_decode.pyx, built by pip where a C compiler is found) is the loop
-# above with PUBLISHes checked and built in C; anything it does not accept goes to `_decode_one`, so both paths
-# return equal messages and raise the same errors (tests/entitynet/protocol/test_decode_compiled.py).
-# ENTITYNET_PURE_PYTHON=1 forces the Python loop, as it does for the switchboard's compiled loops.
+# `_decode.decode_messages` (entitynet/protocol/_decode.pyx, built by pip where a C compiler is found) is the
+# loop above with PUBLISHes and SUBSCRIBEs checked and built in C; anything it does not accept goes to
+# `_decode_one`, so both paths return equal messages and raise the same errors (tests/entitynet/protocol/
+# test_decode_compiled.py). ENTITYNET_PURE_PYTHON=1 forces the Python loop, as for the switchboard's loops.
 try:
     from entitynet.protocol import _decode as _COMPILED  # type: ignore[attr-defined]
 except ImportError:  # not built: the Python loop, the reference
@@ -380,7 +381,7 @@ def use_compiled_decoder(flag: bool = True) -> bool:
     else the Python reference. Returns whether the compiled one is now in use."""
     global _decode_messages
     if flag and _COMPILED is not None:
-        _COMPILED.bind(Publish, PUBLISH, MAX_INT, MAX_CELL, MAX_VALIDITY_MS)
+        _COMPILED.bind(Publish, PUBLISH, Subscribe, SUBSCRIBE, MAX_INT, MAX_CELL, MAX_VALIDITY_MS)
         _decode_messages = _COMPILED.decode_messages
     else:
         _decode_messages = None

@@ -1,5 +1,5 @@
-"""The compiled PUBLISH loop (`entitynet/protocol/_decode.pyx`, built by pip) decodes exactly what the Python
-reference decodes and raises the same errors, on good and on hostile input.
+"""The compiled message loop (`entitynet/protocol/_decode.pyx`, built by pip: PUBLISH and SUBSCRIBE in C) decodes
+exactly what the Python reference decodes and raises the same errors, on good and on hostile input.
 
 Why: the compiled loop is an optimisation of the server's busiest decoding, never a second behaviour: a client
 that sends a malformed PUBLISH, NaN, an oversized cell list or a cell that does not exist must get the same
@@ -87,6 +87,20 @@ HOSTILE = {
 }
 
 
+SUBSCRIBE_HOSTILE = {
+    "too few fields": [P.SUBSCRIBE, [1]],
+    "too many fields": [P.SUBSCRIBE, [1], [], []],
+    "added not an array": [P.SUBSCRIBE, 5, []],
+    "removed nil": [P.SUBSCRIBE, [1], None],
+    "cell NaN": [P.SUBSCRIBE, [1, math.nan], []],
+    "cell negative": [P.SUBSCRIBE, [], [-1]],
+    "cell past MAX_CELL": [P.SUBSCRIBE, [P.MAX_CELL + 1], []],
+    "cell past 64 bits": [P.SUBSCRIBE, [], [2**64 - 1]],
+    "cell a bool": [P.SUBSCRIBE, [True], []],
+    "oversized cell list": [P.SUBSCRIBE, list(range(65_537)), []],
+}
+
+
 def test_good_publishes_decode_alike():
     got = _same(_raw(GOOD, [P.PUBLISH, 0, 0, [], 0, b""], [P.PUBLISH, P.MAX_INT, P.MAX_INT, [0, P.MAX_CELL],
                                                           P.MAX_VALIDITY_MS, bytes(2048)]))
@@ -98,6 +112,18 @@ def test_good_publishes_decode_alike():
 def test_hostile_publish_gives_the_same_error(name):
     got = _same(_raw(GOOD, HOSTILE[name], GOOD))  # a good message before and after: the bad one decides
     assert got[0] == "error"
+
+
+@pytest.mark.parametrize("name", sorted(SUBSCRIBE_HOSTILE))
+def test_hostile_subscribe_gives_the_same_error(name):
+    got = _same(_raw([P.SUBSCRIBE, [1], [2]], SUBSCRIBE_HOSTILE[name], GOOD))
+    assert got[0] == "error"
+
+
+def test_big_subscribes_decode_alike():
+    got = _same(_raw([P.SUBSCRIBE, list(range(65_536)), [0, P.MAX_CELL, 0]], [P.SUBSCRIBE, [], []]))
+    assert got[1] == [P.Subscribe(tuple(range(65_536)), (0, P.MAX_CELL, 0)), P.Subscribe()]
+    assert _same(_raw([P.SUBSCRIBE, [1, 2, 3], []]), P.CodecLimits(max_subscribe_cells=2))[0] == "error"
 
 
 def test_cell_lists_past_the_compiled_bound_take_the_reference_path():
@@ -126,7 +152,9 @@ def test_any_six_field_publish_decodes_alike(fields):
 
 def test_mutated_frames_decode_alike():
     rng = random.Random(25)
-    base = bytearray(P.encode_payload([P.Publish(e, e + 1, (e, e + 3), 500, bytes(e)) for e in range(20)]))
+    msgs: list[P.Message] = [P.Publish(e, e + 1, (e, e + 3), 500, bytes(e)) for e in range(20)]
+    msgs += [P.Subscribe((1, 2, 300), (4,)), P.Ping(3)]
+    base = bytearray(P.encode_payload(msgs))
     for _ in range(2000):
         data = bytearray(base)
         for _ in range(rng.randrange(1, 4)):
