@@ -17,6 +17,7 @@ dataclasses, so the bytes a switch forwards and the bytes the protocol defines c
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -353,8 +354,38 @@ def decode_payload(data: bytes, limits: CodecLimits = DEFAULT_LIMITS) -> list[Me
     if len(obj) > limits.max_messages:
         raise ProtocolError(ErrorCode.FRAME_TOO_LARGE, f"more than {limits.max_messages} messages")
     try:
+        if _decode_messages is not None:
+            return _decode_messages(obj, limits, limits.max_publish_cells, limits.max_payload,
+                                    limits.max_subscribe_cells, _decode_one)
         return [_decode_one(m, limits) for m in obj]
     except ProtocolError:
         raise
     except Exception as exc:  # defensive: e.g. unhashable map keys inside a message
         raise ProtocolError(ErrorCode.MALFORMED, f"malformed message ({type(exc).__name__})") from None
+
+
+# ------------------------------------------------------------------------------------- the compiled message loop
+# `_decode.decode_messages` (entitynet/protocol/_decode.pyx, built by pip where a C compiler is found) is the
+# loop above with PUBLISHes and SUBSCRIBEs checked and built in C; anything it does not accept goes to
+# `_decode_one`, so both paths return equal messages and raise the same errors (tests/entitynet/protocol/
+# test_decode_compiled.py). ENTITYNET_PURE_PYTHON=1 forces the Python loop, as for the switchboard's loops.
+try:
+    from entitynet.protocol import _decode as _COMPILED  # type: ignore[attr-defined]
+except ImportError:  # not built: the Python loop, the reference
+    _COMPILED = None
+_decode_messages: Any = None
+
+
+def use_compiled_decoder(flag: bool = True) -> bool:
+    """Select `decode_payload`'s message loop for this process: the compiled one when `flag` and it was built,
+    else the Python reference. Returns whether the compiled one is now in use."""
+    global _decode_messages
+    if flag and _COMPILED is not None:
+        _COMPILED.bind(Publish, PUBLISH, Subscribe, SUBSCRIBE, MAX_INT, MAX_CELL, MAX_VALIDITY_MS)
+        _decode_messages = _COMPILED.decode_messages
+    else:
+        _decode_messages = None
+    return _decode_messages is not None
+
+
+use_compiled_decoder(not os.environ.get("ENTITYNET_PURE_PYTHON"))

@@ -15,7 +15,10 @@ from __future__ import annotations
 import hashlib
 import random
 
+import pytest
+
 from entitynet import protocol as P
+from entitynet.protocol import codec
 from entitynet.switchboard import Switchboard, SwitchConfig
 
 N_PUBLISHERS = 6
@@ -35,7 +38,8 @@ PINNED = {
 }
 
 
-def _replay() -> dict[str, object]:
+def _replay(through_codec: bool = False) -> dict[str, object]:
+    """The workload; `through_codec` sends each publisher's batch through the wire (encode, `decode_payload`)."""
     rng = random.Random(SEED)
     sb = Switchboard(SwitchConfig(n_cells=N_CELLS, digest="d", open_mode=True, seed=7, grace_s=0.5,
                                   max_pending=5000))
@@ -96,6 +100,8 @@ def _replay() -> dict[str, object]:
                     payload = rng.randbytes(rng.randrange(4, 40))
                     validity = rng.choice((300, 1000, 5000))
                     batch.append(P.Publish(e, seqs[(p, e)], occ, validity, payload))
+            if through_codec:
+                batch = P.decode_payload(P.encode_payload(batch))
             sb.receive(p, batch, now)
         if tick % 10 == 3:  # follows and a query
             v = viewers[tick % N_VIEWERS]
@@ -134,3 +140,17 @@ def test_replay_matches_the_pinned_digest(fanout_path):
     got = _replay()
     assert got["updates"] > 1000 and got["leaves"] > 100  # the workload exercises what it should
     assert got == PINNED
+
+
+@pytest.mark.parametrize("decoder", ["pure", "compiled"])
+def test_replay_through_either_decoder_matches_the_pinned_digest(decoder, fanout_path):
+    """The PUBLISHes decoded by the Python loop or by the compiled one (entitynet/protocol/_decode.pyx) leave
+    the same deliveries, in the same order, with either fan-out path."""
+    if decoder == "compiled" and codec._COMPILED is None:
+        pytest.skip("the compiled decoder was not built (no Cython or C compiler at install time)")
+    was = codec._decode_messages is not None
+    codec.use_compiled_decoder(decoder == "compiled")
+    try:
+        assert _replay(through_codec=True) == PINNED
+    finally:
+        codec.use_compiled_decoder(was)
