@@ -388,4 +388,9 @@ def use_compiled_decoder(flag: bool = True) -> bool:
     return _decode_messages is not None
 
 
+def compiled_decoder_in_use() -> bool:
+    """Whether `decode_payload` runs the compiled message loop in this process (the server's start-up notice)."""
+    return _decode_messages is not None
+
+
 use_compiled_decoder(not os.environ.get("ENTITYNET_PURE_PYTHON"))

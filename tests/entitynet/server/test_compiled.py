@@ -39,6 +39,7 @@ _NO_COMPILER = textwrap.dedent("""
     import logging, sys
     sys.modules["entitynet.switchboard._fanout"] = None  # import fails: as if never built
     sys.modules["entitynet.server._flushloop"] = None
+    sys.modules["entitynet.protocol._decode"] = None
     import trio
     from entitynet.server.app import serve
     from entitynet.server.config import ServerConfig
@@ -63,5 +64,5 @@ def test_without_the_compiled_modules_the_server_runs_and_says_so_once():
     out = subprocess.run([sys.executable, "-c", _NO_COMPILER], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.count("pure-Python paths in use") == 1, out.stdout
-    assert "not built" in out.stdout and "route_and_fanout,flush_loop" in out.stdout
+    assert "not built" in out.stdout and "route_and_fanout,flush_loop,frame_decoder" in out.stdout
     assert out.stdout.count("listening") == 2 and "Traceback" not in out.stdout + out.stderr
