@@ -46,7 +46,8 @@ def _mix(z: np.ndarray) -> np.ndarray:
 
 
 def _uniform(h: np.ndarray) -> np.ndarray:
-    """The top 53 bits of uint64 hashes as doubles strictly inside (0, 1) (a log of 0 is never taken)."""
+    """The top 53 bits of uint64 hashes as doubles in (0, 1]: never 0, so a log of 0 is never taken (k + 0.5
+    rounds to even above 2**52, so the top hash gives exactly 1.0: a radius of 0, harmless)."""
     return ((h >> np.uint64(11)).astype(np.float64) + 0.5) * (1.0 / (1 << 53))
 
 

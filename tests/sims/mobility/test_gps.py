@@ -66,3 +66,11 @@ def test_the_largest_exact_fix_times_still_differ():
     t = 9.0e12  # about 285,000 years of simulated time: still whole milliseconds
     a, b = entity_noise(1, [1, 1], [t, t + 0.001])
     assert np.isfinite(a).all() and not np.array_equal(a, b)
+
+
+def test_the_uniforms_never_reach_zero_and_the_extremes_give_finite_noise():
+    from sims.mobility.gps import _uniform
+
+    h = np.array([0, 1, (1 << 64) - 1], dtype=np.uint64)
+    u = _uniform(h)
+    assert (u > 0.0).all() and (u <= 1.0).all() and np.isfinite(np.log(u)).all()
