@@ -27,6 +27,9 @@ _GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # splitmix64's increment
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _U64 = (1 << 64) - 1
+#: the largest |fix time| (s) whose milliseconds are whole doubles and fit the int64 key: beyond it times would
+#: no longer count fixes (the cast overflows: every such time gave one and the same noise)
+MAX_FIX_TIME = float(1 << 53) / 1000.0
 
 
 def gps(xy: np.ndarray, rng: np.random.Generator, sigma: float = GPS_SIGMA) -> np.ndarray:
@@ -43,7 +46,8 @@ def _mix(z: np.ndarray) -> np.ndarray:
 
 
 def _uniform(h: np.ndarray) -> np.ndarray:
-    """The top 53 bits of uint64 hashes as doubles strictly inside (0, 1) (a log of 0 is never taken)."""
+    """The top 53 bits of uint64 hashes as doubles in (0, 1]: never 0, so a log of 0 is never taken (k + 0.5
+    rounds to even above 2**52, so the top hash gives exactly 1.0: a radius of 0, harmless)."""
     return ((h >> np.uint64(11)).astype(np.float64) + 0.5) * (1.0 / (1 << 53))
 
 
@@ -57,6 +61,9 @@ def entity_noise(seed: int, ids: np.ndarray, times: np.ndarray, sigma: float = G
         raise ValueError(f"one time per entity: {ids.shape[0]} ids, {t.shape[0]} times")
     if not np.isfinite(t).all():
         raise ValueError("a fix time must be finite")
+    if len(t) and np.abs(t).max() >= MAX_FIX_TIME:
+        raise ValueError(f"a fix time must be within +-{MAX_FIX_TIME:.4g} s (whole milliseconds), "
+                         f"got {np.abs(t).max():.4g}")
     ms = np.rint(t * 1000.0).astype(np.int64)
     with np.errstate(over="ignore"):
         base = _mix(np.full(ids.shape, seed & _U64, dtype=np.uint64) + _GOLDEN)

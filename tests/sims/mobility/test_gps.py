@@ -52,3 +52,25 @@ def test_fixes_are_the_truth_plus_the_noise_and_bad_input_is_refused():
     with pytest.raises(ValueError, match="finite"):
         entity_noise(3, [1], [math.nan])
     assert entity_noise(3, [], []).shape == (0, 2)
+
+
+@pytest.mark.parametrize("t", [1e16, -1e16, 2e16, 9.1e12])
+def test_a_fix_time_beyond_exact_milliseconds_is_refused(t):
+    """Beyond 2**53 ms the time no longer counts fixes (the int64 cast overflowed, every such time gave one
+    and the same noise, with a RuntimeWarning): refused as clearly as NaN."""
+    with pytest.raises(ValueError, match="fix time"):
+        entity_noise(1, [1, 1], [t, t * 1.5])
+
+
+def test_the_largest_exact_fix_times_still_differ():
+    t = 9.0e12  # about 285,000 years of simulated time: still whole milliseconds
+    a, b = entity_noise(1, [1, 1], [t, t + 0.001])
+    assert np.isfinite(a).all() and not np.array_equal(a, b)
+
+
+def test_the_uniforms_never_reach_zero_and_the_extremes_give_finite_noise():
+    from sims.mobility.gps import _uniform
+
+    h = np.array([0, 1, (1 << 64) - 1], dtype=np.uint64)
+    u = _uniform(h)
+    assert (u > 0.0).all() and (u <= 1.0).all() and np.isfinite(np.log(u)).all()
