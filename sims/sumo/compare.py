@@ -138,7 +138,8 @@ def step_cost(topo, folder: Path, cars: int, seconds: float, dt: float = 0.5, sl
 
 def _our_split(ours, dt: float, ticks: int) -> dict:
     """Where our world's step goes, as shares of its time over `ticks` more steps: the body index (every body
-    on its edges), each entity's decision (leader search, junction requests, IDM), the moves and timeouts after
+    on its edges; the array world builds it inside the leader search, so there it counts in `decide_leader`),
+    each entity's decision (leader search, junction requests, IDM), the moves and timeouts after
     it, and the population's replacements (`decide_leader` and `decide_crossing` are parts of `decide`). Instance
     wrappers with a clock each (they add a little to each part)."""
     w = ours.world
@@ -157,19 +158,30 @@ def _our_split(ours, dt: float, ticks: int) -> dict:
 
         setattr(obj, name, timed)
 
+    # the array world decides everyone in `_decide_all` (the leaders found for all vehicles at once by
+    # `world.leaders`, which also indexes the bodies); the scalar one (`World(vectorised=False)`) indexes the
+    # bodies in `_body_index`, then `_decide` per entity with its `_leader`: each part timed where it runs
+    from sims.engine import world as world_module
+
+    original_leaders = world_module.leaders
     wrap(w, "_body_index", "body_index")
     wrap(w, "_decide", "decide")
+    wrap(w, "_decide_all", "decide")  # not nested with `_decide`: one or the other runs
     wrap(w, "_after_move", "after_move")
     wrap(ours.population, "step", "population")
     wrap(w, "_leader", "decide_leader")  # inside `decide`
+    wrap(world_module, "leaders", "decide_leader")  # inside `decide` (`_decide_all`)
     wrap(w, "_crossing", "decide_crossing")  # inside `decide`
     t0 = time.process_time()
-    for _ in range(ticks):
-        ours.step(dt)
-    total = time.process_time() - t0
-    for obj, name in ((w, "_body_index"), (w, "_decide"), (w, "_after_move"), (ours.population, "step"),
-                      (w, "_leader"), (w, "_crossing")):
-        delattr(obj, name)
+    try:
+        for _ in range(ticks):
+            ours.step(dt)
+    finally:
+        total = time.process_time() - t0
+        for obj, name in ((w, "_body_index"), (w, "_decide"), (w, "_decide_all"), (w, "_after_move"),
+                          (ours.population, "step"), (w, "_leader"), (w, "_crossing")):
+            delattr(obj, name)
+        world_module.leaders = original_leaders
     out = {k: v / total for k, v in acc.items()} if total > 0 else dict(acc)
     top = ("body_index", "decide", "after_move", "population")
     out["rest"] = 1.0 - sum(out[k] for k in top) if total > 0 else None
