@@ -13,14 +13,13 @@ not our `Agent`s (another source's), are asked for `xy()`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from sims.engine.agents import Agent
 from sims.engine.route_table import RouteTable
-from sims.engine.truth_arrays import EdgeArrays
+from sims.engine.truth_arrays import EdgeArrays, lateral_points
 
 
 def positions(bodies: Sequence, edges: EdgeArrays, table: RouteTable | None = None) -> np.ndarray:
@@ -65,17 +64,6 @@ def positions(bodies: Sequence, edges: EdgeArrays, table: RouteTable | None = No
         e, o = table.edge_offsets(np.repeat(rt[:, 0], 3), np.repeat(rt[:, 1], 3), q.reshape(-1))
     else:
         e, o = np.array(pe, dtype=np.int64), np.array(po)
-    px, py = edges.points(e, o)
-    x0, y0 = px[0::3], py[0::3]
-    dx, dy = px[2::3] - px[1::3], py[2::3] - py[1::3]
-    norm = np.array([math.hypot(a, b) for a, b in zip(dx.tolist(), dy.tolist(), strict=True)])
-    flat = norm <= 1e-9
-    with np.errstate(divide="ignore", invalid="ignore"):
-        hx = np.where(flat, 1.0, dx / norm)
-        hy = np.where(flat, 0.0, dy / norm)
-    la = np.array(lat)
-    straight = la == 0.0
     idx = np.array(rows)
-    out[idx, 0] = np.where(straight, x0, x0 + la * hy)
-    out[idx, 1] = np.where(straight, y0, y0 - la * hx)
+    out[idx, 0], out[idx, 1] = lateral_points(edges, e, o, lat)
     return out

@@ -27,6 +27,23 @@ from entitynet.client.network import NetView
 from sims.engine.agents import Agent
 
 
+def lateral_points(edges, e: np.ndarray, o: np.ndarray, lat) -> tuple[np.ndarray, np.ndarray]:
+    """Each entity's true position: `(e, o)` holds three (edge, offset) places per entity (its place, 1 m
+    behind, 1 m ahead), and `lat` its sideways offset; the heading is the chord between the two neighbours,
+    normalised with Python's own `hypot` (numpy's differs in the last bit), as `Route.xy` does. The one home of
+    that arithmetic for the truth measure and the fleet's fix positions (sims/engine/positions.py)."""
+    px, py = edges.points(e, o)
+    x0, y0 = px[0::3], py[0::3]
+    dx, dy = px[2::3] - px[1::3], py[2::3] - py[1::3]
+    norm = np.array([math.hypot(a, b) for a, b in zip(dx.tolist(), dy.tolist(), strict=True)])
+    flat = norm <= 1e-9
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hx = np.where(flat, 1.0, dx / norm)
+        hy = np.where(flat, 0.0, dy / norm)
+    la = np.array(lat)
+    straight = la == 0.0
+    return np.where(straight, x0, x0 + la * hy), np.where(straight, y0, y0 - la * hx)
+
 def _floor_index(keys: np.ndarray, vals: np.ndarray, base: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                  q: np.ndarray) -> np.ndarray:
     """For each query, the largest j in [lo, hi) with vals[j] <= q (lo when none): what
@@ -149,18 +166,7 @@ def truth_arrays(agents: Mapping[int, object], edges: EdgeArrays | None) -> Trut
         rows = np.array(fast_rows)
         e = np.array(pe, dtype=np.int64)
         o = np.array(po)
-        px, py = edges.points(e, o)
-        x0, y0 = px[0::3], py[0::3]
-        dx, dy = px[2::3] - px[1::3], py[2::3] - py[1::3]
-        norm = np.array([math.hypot(a, b) for a, b in zip(dx.tolist(), dy.tolist(), strict=True)])
-        flat = norm <= 1e-9
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hx = np.where(flat, 1.0, dx / norm)
-            hy = np.where(flat, 0.0, dy / norm)
-        la = np.array(lat)
-        straight = la == 0.0
-        x[rows] = np.where(straight, x0, x0 + la * hy)
-        y[rows] = np.where(straight, y0, y0 - la * hx)
+        x[rows], y[rows] = lateral_points(edges, e, o, lat)
         # the front's cell: `Route.cell(min(s, length))` (the place above, s already within the route)
         front[rows] = edges.cells(e[0::3], o[0::3])
     for i, cs in own.items():
