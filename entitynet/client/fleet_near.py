@@ -281,11 +281,35 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     # the consistency test: where it asks the placement index (`_first`, the tracker's own call), the fix goes
     # on in arrays unless the answer is an area or a nearer other edge (then `track` places afresh)
     asks = np.flatnonzero((why == 0) & (ema > 1.5 * sig) & (d > swm))
-    for i in asks.tolist():
-        g = players[int(sl[i])].tracker._first(float(x[i]), float(y[i]))
-        if g is not None and (g.kind == "area" or (g.kind == "edge" and g.index != fe[i]
-                                                    and g.distance + swm[i] < d[i])):
-            why[i] = code["near_consistency"]
+    if len(asks):
+        afresh = placed_afresh(players, sl[asks], x[asks], y[asks], fe[asks], d[asks], swm[asks])
+        why[asks[afresh]] = code["near_consistency"]
     retried = np.zeros(m, dtype=bool)
     retried[bo] = True
     return why, fe, off, px, py, d, s_fix, pend_e, pend_n, retried
+
+
+def placed_afresh(players, sl: np.ndarray, x: np.ndarray, y: np.ndarray, fe: np.ndarray, d: np.ndarray,
+                  swm: np.ndarray) -> np.ndarray:
+    """Per fix whether `track`'s consistency query (`NetworkTracker._first`) places the entity afresh: an area,
+    or another edge nearer by more than the switch margin than the fix's edge `fe` at distance `d`. A tracker
+    with an a-priori route asks `_first` itself (it looks at the route first); the others' answer is the
+    placement index's (`Placer.first`), asked for all of a tick's fixes of one network class at once
+    (`PlacementIndex.place_many`, the same answers as `place`: one STRtree query instead of one per fix)."""
+    out = np.zeros(len(sl), dtype=bool)
+    groups: dict[tuple[int, int], tuple[object, list[int]]] = {}
+    for i, s in enumerate(sl.tolist()):
+        trk = players[s].tracker
+        if trk.has_route:
+            g = trk._first(float(x[i]), float(y[i]))
+            out[i] = g is not None and (g.kind == "area" or (g.kind == "edge" and g.index != fe[i]
+                                                                and g.distance + swm[i] < d[i]))
+        else:
+            placer = trk.placer
+            groups.setdefault((id(placer.topo), placer.networks), (placer, []))[1].append(i)
+    for placer, rows in groups.values():
+        w = np.array(rows, dtype=np.int64)
+        kind, index, dist = placer.topo.placement_index().place_many(np.column_stack([x[w], y[w]]),
+                                                                     placer.networks)
+        out[w] = (kind == 2) | ((kind == 1) & (index != fe[w]) & (dist + swm[w] < d[w]))
+    return out
