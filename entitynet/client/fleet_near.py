@@ -292,24 +292,26 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
 def placed_afresh(players, sl: np.ndarray, x: np.ndarray, y: np.ndarray, fe: np.ndarray, d: np.ndarray,
                   swm: np.ndarray) -> np.ndarray:
     """Per fix whether `track`'s consistency query (`NetworkTracker._first`) places the entity afresh: an area,
-    or another edge nearer by more than the switch margin than the fix's edge `fe` at distance `d`. A tracker
-    with an a-priori route asks `_first` itself (it looks at the route first); the others' answer is the
-    placement index's (`Placer.first`), asked for all of a tick's fixes of one network class at once
-    (`PlacementIndex.place_many`, the same answers as `place`: one STRtree query instead of one per fix)."""
-    out = np.zeros(len(sl), dtype=bool)
+    or another edge nearer by more than the switch margin than the fix's edge `fe` at distance `d`. `_first`'s
+    answer over arrays: the placement index's (`Placer.first`, which `_first` asks in every case) for all of a
+    tick's fixes of one network class at once (`PlacementIndex.place_many`, the same answers as `place`: one
+    STRtree query instead of one per fix); where the tracker has an a-priori route, the nearest point of the
+    route (`Placer.on_edges`, per fix) wins instead when it is within `off_network` and not farther than the
+    index's answer plus the route margin, as in `_first`."""
+    m = len(sl)
+    kind, index, dist = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64), np.zeros(m)
     groups: dict[tuple[int, int], tuple[object, list[int]]] = {}
-    for i, s in enumerate(sl.tolist()):
-        trk = players[s].tracker
-        if trk.has_route:
-            g = trk._first(float(x[i]), float(y[i]))
-            out[i] = g is not None and (g.kind == "area" or (g.kind == "edge" and g.index != fe[i]
-                                                                and g.distance + swm[i] < d[i]))
-        else:
-            placer = trk.placer
-            groups.setdefault((id(placer.topo), placer.networks), (placer, []))[1].append(i)
+    trackers = [players[s].tracker for s in sl.tolist()]
+    for i, trk in enumerate(trackers):
+        groups.setdefault((id(trk.placer.topo), trk.placer.networks), (trk.placer, []))[1].append(i)
     for placer, rows in groups.values():
         w = np.array(rows, dtype=np.int64)
-        kind, index, dist = placer.topo.placement_index().place_many(np.column_stack([x[w], y[w]]),
-                                                                     placer.networks)
-        out[w] = (kind == 2) | ((kind == 1) & (index != fe[w]) & (dist + swm[w] < d[w]))
-    return out
+        kind[w], index[w], dist[w] = placer.topo.placement_index().place_many(np.column_stack([x[w], y[w]]),
+                                                                              placer.networks)
+    for i, trk in enumerate(trackers):
+        if trk.has_route:  # (`_first`: the route's nearest point first)
+            f = trk.placer.on_edges(float(x[i]), float(y[i]), [e for e, _d in trk.route.edges])
+            if f.distance <= trk.off_network and (kind[i] == 0 or
+                                                  f.distance <= dist[i] + (trk.switch_margin or 0.0)):
+                kind[i], index[i], dist[i] = 1, f.index, f.distance
+    return (kind == 2) | ((kind == 1) & (index != fe) & (dist + swm < d))
