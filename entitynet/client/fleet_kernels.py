@@ -11,6 +11,7 @@ originals are named in each docstring; tests/entitynet/client/test_fleet.py chec
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
@@ -18,9 +19,35 @@ from entitynet.client.kinematics import A_EPS
 from entitynet.client.limits import HORIZON
 from entitynet.client.network import NetView
 
+try:  # the compiled kernels, where pip built them (setup.py; optional): entitynet/client/_fleet.pyx
+    from entitynet.client import _fleet as COMPILED  # type: ignore[attr-defined]
+except ImportError:  # the numpy references below
+    COMPILED = None
+_K = None  # the compiled kernels in use (`use_compiled`), or None: the numpy references
+
+
+def use_compiled(flag: bool = True) -> bool:
+    """Select the fleet's kernels for this process: the compiled ones (`_fleet.pyx`) when `flag` and they were
+    built, else the numpy references. Returns whether the compiled ones are now in use."""
+    global _K
+    _K = COMPILED if flag and COMPILED is not None else None
+    return _K is not None
+
+
+def compiled_in_use() -> bool:
+    """Whether the compiled kernels are in use (the bench reports it)."""
+    return _K is not None
+
+
+def compiled() -> object | None:
+    """The compiled kernels' module when in use, else None (fleet_near.py asks before its search)."""
+    return _K
+
 
 def hypot_py(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
     """`math.hypot` element-wise (numpy's hypot is not always the same last bit)."""
+    if _K is not None:
+        return _K.hypot_rows(dx, dy)
     return np.fromiter(map(math.hypot, dx.tolist(), dy.tolist()), float, len(dx))
 
 
@@ -61,7 +88,14 @@ class Geometry:
 
     def project(self, x: np.ndarray, y: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, ...]:
         """`Placer.project_on(x[i], y[i], e[i])` for every i (edges with at least one segment): (offset,
-        px, py, distance), the first minimum over each edge's segments winning."""
+        px, py, distance), the first least distance over each edge's segments winning (none finite: offset 0,
+        foot (0, 0), distance inf, as `project_on`). The compiled kernel where in use, else `project_np`."""
+        if _K is not None:
+            return _K.project(self, x, y, e)
+        return self.project_np(x, y, e)
+
+    def project_np(self, x: np.ndarray, y: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, ...]:
+        """`project` in numpy (the reference)."""
         counts = self.nseg[e]
         n = len(e)
         start = np.cumsum(counts) - counts
@@ -75,15 +109,25 @@ class Geometry:
         u = np.where(u < 0.0, 0.0, np.where(u > 1.0, 1.0, u))
         px, py = ax + u * dx, ay + u * dy
         d = hypot_py(xr - px, yr - py)
+        d = np.where(d < math.inf, d, math.inf)  # (NaN: never the least, as `dd < best_d` in `project_on`)
         dmin = np.minimum.reduceat(d, start)
         hit = np.flatnonzero(d == dmin[rep])
         best = hit[np.searchsorted(rep[hit], np.arange(n))]
-        return self.gcum[k[best]] + u[best] * self.slen[k[best]], px[best], py[best], d[best]
+        found = dmin < math.inf
+        return (np.where(found, self.gcum[k[best]] + u[best] * self.slen[k[best]], 0.0),
+                np.where(found, px[best], 0.0), np.where(found, py[best], 0.0), d[best])
 
     def path_xy(self, s: np.ndarray, pe: np.ndarray, pd: np.ndarray, cum: np.ndarray,
                 n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """`Path.xy(s[i])` for rows of padded paths: edges `pe`, directions `pd`, cumulative lengths `cum`
-        (+inf past the path's `n` edges)."""
+        (+inf past the path's `n` edges, n >= 1). The compiled kernel where in use, else `path_xy_np`."""
+        if _K is not None:
+            return _K.path_xy(self, s, pe, pd, cum, n)
+        return self.path_xy_np(s, pe, pd, cum, n)
+
+    def path_xy_np(self, s: np.ndarray, pe: np.ndarray, pd: np.ndarray, cum: np.ndarray,
+                   n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`path_xy` in numpy (the reference)."""
         rows = np.arange(len(s))
         k = (cum <= s[:, None]).sum(axis=1) - 1
         k = np.where(k < 0, 0, np.where(k >= n, n - 1, k))
@@ -243,3 +287,6 @@ def interval_rows(ring: np.ndarray, n: np.ndarray, dt: np.ndarray, max_gap: np.n
     reach = np.where(some, np.maximum(reacquire, vmax * med), reacquire)
     return ring, n, gap, reach, np.where(some, med, 0.0)
 
+
+
+use_compiled(not os.environ.get("ENTITYNET_PURE_PYTHON"))

@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from entitynet.client.fleet_kernels import compiled
 from entitynet.client.placement import segment_rows
 from entitynet.client.tracker import ALONG_SCALE
 
@@ -97,7 +98,17 @@ class NearTables:
              pe: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
         """`Placer.near(x[i], y[i], ., preferred_i, margin[i])` for tables (start[i], count[i]) without areas,
         preferred_i being the edges pe[i, lo[i]..hi[i]]: (edge, offset, px, py, distance, preferred?, whether
-        any segment of the table is preferred: `near`'s best preferred distance is finite)."""
+        any segment of the table is preferred: `near`'s best preferred distance is finite). The first least
+        cost wins, a NaN cost before any (numpy's argmin in `Placer._near_np`). The compiled kernel
+        (`_fleet.near`) where in use, else `near_np`."""
+        k = compiled()
+        if k is not None:
+            return k.near(self, x, y, start, count, margin, pe, lo, hi)
+        return self.near_np(x, y, start, count, margin, pe, lo, hi)
+
+    def near_np(self, x: np.ndarray, y: np.ndarray, start: np.ndarray, count: np.ndarray, margin: np.ndarray,
+                pe: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
+        """`near` in numpy (the reference)."""
         n = len(x)
         gstart = np.cumsum(count) - count
         rep = np.repeat(np.arange(n), count)
@@ -122,7 +133,7 @@ class NearTables:
         pref = keys[at] == want
         cost = d + np.where(pref, 0.0, margin[rep])
         cmin = np.minimum.reduceat(cost, gstart)
-        hit = np.flatnonzero(cost == cmin[rep])
+        hit = np.flatnonzero((cost == cmin[rep]) | np.isnan(cost))  # (a row's NaN makes its cmin NaN)
         b = hit[np.searchsorted(rep[hit], np.arange(n))]
         kb = k[b]
         any_pref = np.logical_or.reduceat(pref, gstart)
@@ -135,7 +146,17 @@ def s_of_rows(pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, ed
     """`NetworkTracker._s_of(fix, s_pred, k_hint)` for rows of padded paths (edges `pe`, directions `pd`,
     cumulative lengths `pc`, `pn` edges): the fix's edge at the hint (or next to it: k, k + 1, k - 1 in that
     order) with no other occurrence within three edges, else its occurrence nearest `s_pred` (the first of
-    equals), else `s_pred`. The same additions as the scalar code (`dist_of`: offset, or length - offset)."""
+    equals), else `s_pred`. The same additions as the scalar code (`dist_of`: offset, or length - offset).
+    The compiled kernel (`_fleet.s_of_rows`) where in use, else `s_of_rows_np`."""
+    k = compiled()
+    if k is not None:
+        return k.s_of_rows(pe, pd, pc, pn, edge_len, e, off, s_pred, k_hint)
+    return s_of_rows_np(pe, pd, pc, pn, edge_len, e, off, s_pred, k_hint)
+
+
+def s_of_rows_np(pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, edge_len: np.ndarray,
+                 e: np.ndarray, off: np.ndarray, s_pred: np.ndarray, k_hint: np.ndarray) -> np.ndarray:
+    """`s_of_rows` in numpy (the reference)."""
     m, w = pe.shape
     rows = np.arange(m)
     elen = edge_len[e]
@@ -179,7 +200,17 @@ def best_on_rows(geo, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.nda
     window lo..hi (its first occurrence) projected as `Placer.project_on` does (`Geometry.project`), cost
     d * d + w * ds * ds with ds from `_s_of` hinted at that occurrence, the first minimum winning. Returns (per
     row whether it was decided here: every window edge has a segment and some cost is finite, edge, offset, px,
-    py, distance)."""
+    py, distance; the values of a row not decided here are not used). The compiled kernel
+    (`_fleet.best_on_rows`) where in use, else `best_on_rows_np`."""
+    k = compiled()
+    if k is not None:
+        return k.best_on_rows(geo, pe, pd, pc, pn, x, y, s_pred, lo, hi, 1.0 / (ALONG_SCALE * ALONG_SCALE))
+    return best_on_rows_np(geo, pe, pd, pc, pn, x, y, s_pred, lo, hi)
+
+
+def best_on_rows_np(geo, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.ndarray, x: np.ndarray,
+                    y: np.ndarray, s_pred: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`best_on_rows` in numpy (the reference: `Geometry.project_np`, `s_of_rows_np`)."""
     m, w = pe.shape
     span = hi - lo + 1
     rep = np.repeat(np.arange(m), span)
@@ -196,9 +227,9 @@ def best_on_rows(geo, pe: np.ndarray, pd: np.ndarray, pc: np.ndarray, pn: np.nda
     off, px, py, d = (np.full(n, np.inf) for _ in range(4))
     c = np.flatnonzero(segs)
     if len(c):
-        off[c], px[c], py[c], d[c] = geo.project(x[rep[c]], y[rep[c]], ce[c])
+        off[c], px[c], py[c], d[c] = geo.project_np(x[rep[c]], y[rep[c]], ce[c])
     with np.errstate(invalid="ignore"):
-        ds = s_of_rows(pe[rep], pd[rep], pc[rep], pn[rep], geo.edge_len, ce, off, s_pred[rep], col) - s_pred[rep]
+        ds = s_of_rows_np(pe[rep], pd[rep], pc[rep], pn[rep], geo.edge_len, ce, off, s_pred[rep], col) - s_pred[rep]
         wt = 1.0 / (ALONG_SCALE * ALONG_SCALE)
         cost = d * d + wt * ds * ds
     cost = np.where(segs, cost, np.inf)
