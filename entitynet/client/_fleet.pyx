@@ -404,3 +404,29 @@ def best_on_rows(geo, const long[:, :] pe, const long[:, :] pd, const double[:, 
         oko[i] = ok and bc < INFINITY
         eo[i], offo[i], pxo[i], pyo[i], do[i] = be, boff, bpx, bpy, bd
     return ok_a, e_a, off_a, px_a, py_a, d_a
+
+
+def ghost_row(double[:, ::1] gm, long[:, ::1] ge, long[:, ::1] gd, double[:, ::1] gc, long[::1] gn, Py_ssize_t s,
+              tuple nums, path):
+    """`FleetCore._refresh`'s read of a new ghost into slot s's derived columns: its numbers `nums` (the
+    `_GHOST` columns, in order) into gm, its path's edges, directions and cumulative lengths (+inf past them)
+    into ge, gd, gc and their count into gn (the same values as the reference's numpy assignments)."""
+    cdef list edges = path.edges, cum = path.cum
+    cdef Py_ssize_t n = len(edges), w = ge.shape[1], j
+    if not 0 <= s < gm.shape[0] or gn.shape[0] != gm.shape[0] or ge.shape[0] != gm.shape[0] \
+            or gd.shape[0] != gm.shape[0] or gc.shape[0] != gm.shape[0]:
+        raise IndexError(f"slot {s} outside the derived columns")
+    if len(nums) != gm.shape[1] or not 1 <= n <= w or gd.shape[1] != w or gc.shape[1] != w + 1 \
+            or len(cum) != n + 1:
+        raise ValueError(f"a ghost of {len(nums)} numbers and {n} edges does not fit rows of {w}")
+    for j in range(gm.shape[1]):
+        gm[s, j] = nums[j]
+    for j in range(n):
+        e, d = edges[j]
+        ge[s, j] = e
+        gd[s, j] = d
+    for j in range(n + 1):
+        gc[s, j] = cum[j]
+    for j in range(n + 1, w + 1):
+        gc[s, j] = INFINITY
+    gn[s] = n

@@ -38,7 +38,7 @@ import numpy as np
 
 from entitynet.client.fixes import FixRejected
 from entitynet.client.fleet_fix import SCALAR_WHY, WHY, fast_fixes
-from entitynet.client.fleet_kernels import Geometry
+from entitynet.client.fleet_kernels import Geometry, compiled
 from entitynet.client.fleet_near import NearTables
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
@@ -285,14 +285,19 @@ class FleetCore:
         if self._ghosts[s] is not ghost:  # a new ghost comes only with a publish (and with it its validity)
             self._ghosts[s] = ghost
             tb, sb, vb, b = ghost.plan
-            self.gm[s] = [p.rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a, ghost.vmax, tb, sb,
-                          vb, b, ghost.stop_s]
+            nums = (p.rules.validity(p.occupation), ghost.t0, ghost.s0, ghost.v, ghost.a, ghost.vmax, tb, sb, vb, b,
+                    ghost.stop_s)
             path = ghost.path
-            n = self.gn[s] = len(path.edges)
-            self.ge[s, :n] = [de[0] for de in path.edges]
-            self.gd[s, :n] = [de[1] for de in path.edges]
-            self.gc[s, : n + 1] = path.cum
-            self.gc[s, n + 1:] = math.inf
+            k = compiled()
+            if k is not None:  # (the same values, written in one call: `_fleet.ghost_row`)
+                k.ghost_row(self.gm, self.ge, self.gd, self.gc, self.gn, s, nums, path)
+            else:
+                self.gm[s] = nums
+                n = self.gn[s] = len(path.edges)
+                self.ge[s, :n] = [de[0] for de in path.edges]
+                self.gd[s, :n] = [de[1] for de in path.edges]
+                self.gc[s, : n + 1] = path.cum
+                self.gc[s, n + 1:] = math.inf
         if not self.consts[s]:
             rules, placer, et = p.rules, trk.placer, trk.etype
             self.cm[s] = [placer.switch_margin if trk.switch_margin is None else trk.switch_margin,

@@ -184,3 +184,27 @@ def test_twin_fleets_give_the_same_messages_through_both_kernels(topo, seed):
         fleet_kernels.use_compiled(was)
     assert runs[True][0] == runs[False][0] and runs[True][1] == runs[False][1]
     assert runs[True][1]["vector_near"] > 0 and runs[True][1]["vector_best_on"] > 0
+
+
+def test_ghost_row_writes_what_the_reference_writes():
+    """`_fleet.ghost_row` (a new ghost read into the derived columns) against `_refresh`'s numpy assignments."""
+    was = fleet_kernels.compiled_in_use()
+    try:
+        fleet_kernels.use_compiled(True)
+        _a, _b, core, _ents = _run(cross(arm=100.0), seed=1)
+        rows = [s for s in range(len(core.players)) if core.players[s] is not None and core._ghosts[s] is not None]
+        assert len(rows) > 5
+        written = {n: getattr(core, n)[rows].copy() for n in ("gm", "ge", "gd", "gc", "gn")}
+        fleet_kernels.use_compiled(False)
+        for s in rows:
+            core._ghosts[s] = None
+            core._refresh(s)
+    finally:
+        fleet_kernels.use_compiled(was)
+    for name, got in written.items():
+        assert _same(got, getattr(core, name)[rows]), name
+    p = core.players[rows[0]]
+    with pytest.raises(IndexError):
+        K.ghost_row(core.gm, core.ge, core.gd, core.gc, core.gn, len(core.gm), tuple(core.gm[0]), p.ghost.path)
+    with pytest.raises(ValueError):
+        K.ghost_row(core.gm, core.ge, core.gd, core.gc, core.gn, 0, (1.0,), p.ghost.path)
