@@ -75,49 +75,6 @@ def hypot_rows(const double[:] dx, const double[:] dy):
     return out
 
 
-def project(geo, const double[:] x, const double[:] y, const long[:] e):
-    """`Geometry.project(x, y, e)`: per i the projection of (x[i], y[i]) onto edge e[i] as `Placer.project_on`
-    does it (each segment in order, `u` clamped to [0, 1], the first least distance winning; no finite distance:
-    offset 0, foot (0, 0), distance inf): (offset, px, py, distance)."""
-    cdef const double[:] gx = geo.gx, gy = geo.gy, sdx = geo.sdx, sdy = geo.sdy, sl2 = geo.sl2
-    cdef const double[:] gcum = geo.gcum, slen = geo.slen
-    cdef const long[:] goff = geo.geom_off, nseg = geo.nseg
-    cdef Py_ssize_t n = e.shape[0], i, k, k0, k1
-    if x.shape[0] != n or y.shape[0] != n:
-        raise ValueError("x, y and e differ in length")
-    _check(e, nseg.shape[0], "edge")
-    off_a, px_a, py_a, d_a = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    cdef double[::1] off = off_a, px = px_a, py = py_a, dist = d_a
-    cdef double xi, yi, ax, ay, dx, dy, l2, u, qx, qy, dd, best, bu, bc0, bsl, bpx, bpy
-    cdef bint found
-    for i in range(n):
-        xi, yi = x[i], y[i]
-        k0 = goff[e[i]]
-        k1 = k0 + nseg[e[i]]
-        if k1 > gx.shape[0] - 1:
-            raise IndexError(f"edge {e[i]}'s segments run past the vertices")
-        best = INFINITY
-        found = False
-        bu = bc0 = bsl = bpx = bpy = 0.0
-        for k in range(k0, k1):
-            ax, ay, dx, dy, l2 = gx[k], gy[k], sdx[k], sdy[k], sl2[k]
-            if l2 <= 0.0:
-                u = 0.0
-            else:
-                u = ((xi - ax) * dx + (yi - ay) * dy) / l2
-                u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
-            qx = ax + u * dx
-            qy = ay + u * dy
-            dd = _hyp(xi - qx, yi - qy)
-            if dd < best:
-                best, found, bu, bc0, bsl, bpx, bpy = dd, True, u, gcum[k], slen[k], qx, qy
-        if found:
-            off[i], px[i], py[i], dist[i] = bc0 + bu * bsl, bpx, bpy, best
-        else:
-            off[i], px[i], py[i], dist[i] = 0.0, 0.0, 0.0, INFINITY
-    return off_a, px_a, py_a, d_a
-
-
 cdef inline Py_ssize_t _bisect_right(const double[:] a, double v, Py_ssize_t lo, Py_ssize_t hi) noexcept nogil:
     """`bisect.bisect_right(a, v, lo, hi)` (a NaN v compares false: lo ends at hi)."""
     cdef Py_ssize_t mid
@@ -430,3 +387,23 @@ def ghost_row(double[:, ::1] gm, long[:, ::1] ge, long[:, ::1] gd, double[:, ::1
     for j in range(n + 1, w + 1):
         gc[s, j] = INFINITY
     gn[s] = n
+
+
+def project(geo, const double[:] x, const double[:] y, const long[:] e):
+    """`Geometry.project(x, y, e)`: per i the projection of (x[i], y[i]) onto edge e[i] as `Placer.project_on`
+    does it (each segment in order, `u` clamped to [0, 1], the first least distance winning; no finite distance:
+    offset 0, foot (0, 0), distance inf): (offset, px, py, distance)."""
+    cdef geo_t g
+    _geo_of(geo, &g)
+    cdef Py_ssize_t n = e.shape[0], i
+    if x.shape[0] != n or y.shape[0] != n:
+        raise ValueError("x, y and e differ in length")
+    _check(e, g.n_edges, "edge")
+    for i in range(n):
+        if g.goff[e[i]] + g.nseg[e[i]] > g.n_vert - 1:
+            raise IndexError(f"edge {e[i]}'s segments run past the vertices")
+    off_a, px_a, py_a, d_a = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    cdef double[::1] off = off_a, px = px_a, py = py_a, dist = d_a
+    for i in range(n):
+        _project1(&g, x[i], y[i], e[i], &off[i], &px[i], &py[i], &dist[i])
+    return off_a, px_a, py_a, d_a
