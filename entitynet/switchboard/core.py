@@ -158,10 +158,21 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         if c is None:
             return
         cap = self.config.max_replies_per_frame
-        for m in msgs:
+        # the compiled PUBLISH run (`_fanout.publish_run`) takes the common PUBLISHes in one C loop and leaves
+        # the rest (refusals, new entities, stale seqs, followers, identities) to `_publish` below
+        run = outbox_module.compiled_publish_run() if self.cluster is None else None
+        i, n = 0, len(msgs)
+        while i < n:
             if c.closing:
                 return
+            m = msgs[i]
             t = type(m)
+            if t is P.Publish and run is not None and c.ready:
+                j = run(self, c, msgs, i, P.Publish, now)
+                if j != i:
+                    i = j
+                    continue
+            i += 1
             if (t is P.Ping or t is P.Query) and c.replies >= cap and c.ready:
                 c.refused += 1  # not answered, not executed: the frame asked for too many replies
                 continue
