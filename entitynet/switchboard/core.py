@@ -293,9 +293,11 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
     def _route(self, c: ClientState, e: EntityState, old: tuple[int, ...], new: tuple[int, ...]) -> None:
         """Deliver the new state to the entity's viewers, LEAVE to those who no longer see it: in C
         (`_fanout.route`) where it was built and the entity has no followers and shows no identity (nearly every
-        PUBLISH), else `_route_py`, the reference; both leave the same tables and outboxes behind."""
+        PUBLISH), else `_route_py`, the reference; both leave the same tables and outboxes behind. (Cells that are
+        not tuples come only from code feeding the core directly, never from the decoder: the reference takes them.)"""
         fast = outbox_module.compiled_route()
-        if fast is not None and not e.followers and e.owner.identity is None:
+        if fast is not None and not e.followers and e.owner.identity is None and type(new) is tuple \
+                and type(old) is tuple:
             fast(self, c, e, old, new)
         else:
             self._route_py(c, e, old, new)
