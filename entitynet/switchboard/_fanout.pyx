@@ -23,6 +23,7 @@ from libc.string cimport memcpy, memset
 
 from entitynet.protocol.codec import encode_leave as _encode_leave
 from entitynet.protocol.messages import LOCAL_ID_LIMIT, MAX_INT, UPDATE
+from entitynet.switchboard.occupancy import move as _move
 
 
 cdef extern from "Python.h":
@@ -381,21 +382,8 @@ cdef bint _publish_one(object sb, object c, object m, dict local_ids, dict entit
     if type(old) is not tuple:
         return False
     old_t = <tuple>old
-    # _apply_state: the same table operations in the same order (the sets' iteration order depends on it)
-    if old_t != new:
-        for cell in old_t:
-            if cell not in new:
-                s = occ[cell]
-                s.discard(eid)
-                if not s:
-                    del occ[cell]
-        for cell in new:
-            if cell not in old_t:
-                p = PyDict_GetItem(occ, cell)
-                if p == NULL:
-                    occ[cell] = {eid}
-                else:
-                    PySet_Add(<object>p, eid)
+    if old_t != new:  # `_apply_state`'s own update rule (one home: the sets' iteration order depends on it)
+        _move(occ, eid, old_t, new)
         e.cells = new
     e.seq = seq
     e.validity_ms = validity

@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
-from entitynet.switchboard import access
+from entitynet.switchboard import access, occupancy
 from entitynet.switchboard import outbox as outbox_module
 from entitynet.switchboard.config import SwitchConfig
 from entitynet.switchboard.mirror import MirrorMixin
@@ -265,20 +265,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         eid = e.eid
         old = e.cells
         if old != new:
-            occ = self.occupants
-            for cell in old:
-                if cell not in new:
-                    s = occ[cell]
-                    s.discard(eid)
-                    if not s:
-                        del occ[cell]
-            for cell in new:
-                if cell not in old:
-                    s = occ.get(cell)
-                    if s is None:
-                        occ[cell] = {eid}
-                    else:
-                        s.add(eid)
+            occupancy.move(self.occupants, eid, old, new)
             e.cells = new
         e.seq = seq
         e.validity_ms = validity_ms

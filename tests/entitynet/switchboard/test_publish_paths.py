@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from entitynet import protocol as P
 from entitynet.switchboard import outbox
-from tests.entitynet.switchboard_helpers import make
+from tests.entitynet.switchboard_helpers import join, make, on_both_paths
 
 N_CELLS = 8
 needs_compiled = pytest.mark.skipif(outbox.COMPILED is None, reason="the compiled fan-out was not built")
@@ -81,11 +81,8 @@ def _play(steps, compiled: bool):
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(step, min_size=1, max_size=25))
 def test_both_publish_paths_agree_on_hostile_frames(steps):
-    was = outbox.compiled_in_use()
-    try:
-        assert _play(steps, True) == _play(steps, False)
-    finally:
-        outbox.use_compiled(was)
+    fast, pure = on_both_paths(_play, steps)
+    assert fast == pure
 
 
 @needs_compiled
@@ -100,14 +97,11 @@ def test_the_run_takes_the_common_publishes_and_leaves_the_rest():
         return j
 
     was = outbox.compiled_in_use()
-    outbox.use_compiled(True)
     outbox.COMPILED.publish_run = counting
+    outbox.use_compiled(True)  # picks the counting wrapper up
     try:
-        outbox.use_compiled(True)
         sb = make(n_cells=N_CELLS)
-        pub, view = sb.connect(0.0), sb.connect(0.0)
-        for cid in (pub, view):
-            sb.receive(cid, [P.Hello(P.PROTOCOL_VERSION, "", sb.config.digest)], 0.0)
+        pub, view = join(sb), join(sb)
         sb.receive(view, [P.Subscribe((1, 2), ())], 0.0)
         sb.receive(pub, [P.Publish(e, 1, (1,), 1000, b"a") for e in range(3)], 0.0)
         taken.clear()

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from entitynet import protocol as P
 from entitynet.switchboard import outbox
-from tests.entitynet.switchboard_helpers import make
+from tests.entitynet.switchboard_helpers import make, on_both_paths
 
 N_CLIENTS = 5
 N_CELLS = 6
@@ -91,11 +91,8 @@ def _run(steps: list[tuple], compiled: bool) -> list:
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(step, min_size=1, max_size=40))
 def test_both_routes_send_the_same_messages(steps):
-    was = outbox.compiled_in_use()
-    try:
-        assert _run(steps, True) == _run(steps, False)
-    finally:
-        outbox.use_compiled(was)
+    fast, pure = on_both_paths(_run, steps)
+    assert fast == pure
 
 
 @pytest.mark.skipif(outbox.COMPILED is None or not hasattr(outbox.COMPILED, "route"),
