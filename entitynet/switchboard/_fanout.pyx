@@ -8,7 +8,9 @@ subscribers with a per-client stamp array (a C array indexed by client id: "seen
 union, the deduplication of viewers in two cells and the difference against the old viewers cost a C array
 access each instead of a hashed set operation, and no temporary set is built. The tables stay the core's own
 Python sets and dicts (one home per state: `Switchboard.subscribers`, `EntityState.viewers`, the outboxes);
-this module keeps only scratch space. The pure functions of `entitynet.switchboard.outbox` and
+this module keeps only scratch space. `publish_run` takes the rest of a common PUBLISH (the checks, the entity's
+fields, the occupants, the UPDATE's bytes, the expiry) for a run of PUBLISHes in one C loop, so that the route is
+reached without a Python call per message; anything unusual it leaves to `Switchboard._publish`. The pure functions of `entitynet.switchboard.outbox` and
 `Switchboard._route_py` are the reference (and the fallback where this module is not built); tests run both
 and compare every client's frames.
 """
