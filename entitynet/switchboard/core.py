@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 from entitynet import protocol as P
 from entitynet.protocol import ErrorCode
-from entitynet.switchboard import access
+from entitynet.switchboard import access, occupancy
 from entitynet.switchboard import outbox as outbox_module
 from entitynet.switchboard.config import SwitchConfig
 from entitynet.switchboard.mirror import MirrorMixin
@@ -158,10 +158,21 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         if c is None:
             return
         cap = self.config.max_replies_per_frame
-        for m in msgs:
+        # the compiled PUBLISH run (`_fanout.publish_run`) takes the common PUBLISHes in one C loop and leaves
+        # the rest (refusals, new entities, stale seqs, followers, identities) to `_publish` below
+        run = outbox_module.compiled_publish_run() if self.cluster is None else None
+        i, n = 0, len(msgs)
+        while i < n:
             if c.closing:
                 return
+            m = msgs[i]
             t = type(m)
+            if t is P.Publish and run is not None and c.ready:
+                j = run(self, c, msgs, i, P.Publish, now)
+                if j != i:
+                    i = j
+                    continue
+            i += 1
             if (t is P.Ping or t is P.Query) and c.replies >= cap and c.ready:
                 c.refused += 1  # not answered, not executed: the frame asked for too many replies
                 continue
@@ -254,20 +265,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         eid = e.eid
         old = e.cells
         if old != new:
-            occ = self.occupants
-            for cell in old:
-                if cell not in new:
-                    s = occ[cell]
-                    s.discard(eid)
-                    if not s:
-                        del occ[cell]
-            for cell in new:
-                if cell not in old:
-                    s = occ.get(cell)
-                    if s is None:
-                        occ[cell] = {eid}
-                    else:
-                        s.add(eid)
+            occupancy.move(self.occupants, eid, old, new)
             e.cells = new
         e.seq = seq
         e.validity_ms = validity_ms
@@ -282,9 +280,11 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
     def _route(self, c: ClientState, e: EntityState, old: tuple[int, ...], new: tuple[int, ...]) -> None:
         """Deliver the new state to the entity's viewers, LEAVE to those who no longer see it: in C
         (`_fanout.route`) where it was built and the entity has no followers and shows no identity (nearly every
-        PUBLISH), else `_route_py`, the reference; both leave the same tables and outboxes behind."""
+        PUBLISH), else `_route_py`, the reference; both leave the same tables and outboxes behind. (Cells that are
+        not tuples come only from code feeding the core directly, never from the decoder: the reference takes them.)"""
         fast = outbox_module.compiled_route()
-        if fast is not None and not e.followers and e.owner.identity is None:
+        if fast is not None and not e.followers and e.owner.identity is None and type(new) is tuple \
+                and type(old) is tuple:
             fast(self, c, e, old, new)
         else:
             self._route_py(c, e, old, new)

@@ -226,14 +226,16 @@ except ImportError:  # not built (no compiler at install time): the reference pa
     COMPILED = None
 _impl: Any = PURE
 _route: Any = None
+_publish_run: Any = None
 
 
 def use_compiled(flag: bool = True) -> bool:
     """Select the fan-out loops for this process: the compiled ones when `flag` and they were built, else the
     pure-Python reference. Returns whether the compiled ones are now in use."""
-    global _impl, _route
+    global _impl, _route, _publish_run
     _impl = COMPILED if flag and COMPILED is not None else PURE
     _route = getattr(_impl, "route", None)
+    _publish_run = getattr(_impl, "publish_run", None)
     Outbox.take_states = getattr(_impl, "take_states", Outbox.take_states_py)  # type: ignore[method-assign]
     Outboxes.fan_out_to = staticmethod(_impl.fan_out_to)  # type: ignore[method-assign]
     return _impl is COMPILED
@@ -243,6 +245,12 @@ def compiled_route() -> Any:
     """The compiled `Switchboard._route` (`_fanout.route`) when the compiled loops are in use, else None (the
     core then routes in Python)."""
     return _route
+
+
+def compiled_publish_run() -> Any:
+    """The compiled run of PUBLISHes (`_fanout.publish_run`: `_publish`, `_apply_state` and the route in one C
+    loop) when the compiled loops are in use, else None (the core then publishes in Python)."""
+    return _publish_run
 
 
 def compiled_in_use() -> bool:

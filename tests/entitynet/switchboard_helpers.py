@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from entitynet import protocol as P
-from entitynet.switchboard import Switchboard, SwitchConfig
+from entitynet.switchboard import Switchboard, SwitchConfig, outbox
 
 
 def make(**kw) -> Switchboard:
@@ -37,3 +37,13 @@ def pub(entity: int, seq: int, cells, validity_ms: int = 10_000, payload: bytes 
 
 def of(msgs, t):
     return [m for m in msgs if isinstance(m, t)]
+
+
+def on_both_paths(play, steps) -> tuple:
+    """`play(steps, compiled)` on the compiled path and on the pure one (what each left behind), putting back
+    the path that was in use."""
+    was = outbox.compiled_in_use()
+    try:
+        return play(steps, True), play(steps, False)
+    finally:
+        outbox.use_compiled(was)

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from entitynet import protocol as P
 from entitynet.switchboard import outbox
-from tests.entitynet.switchboard_helpers import make
+from tests.entitynet.switchboard_helpers import make, on_both_paths
 
 N_CLIENTS = 5
 N_CELLS = 6
@@ -91,41 +91,44 @@ def _run(steps: list[tuple], compiled: bool) -> list:
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(step, min_size=1, max_size=40))
 def test_both_routes_send_the_same_messages(steps):
-    was = outbox.compiled_in_use()
-    try:
-        assert _run(steps, True) == _run(steps, False)
-    finally:
-        outbox.use_compiled(was)
+    fast, pure = on_both_paths(_run, steps)
+    assert fast == pure
 
 
 @pytest.mark.skipif(outbox.COMPILED is None or not hasattr(outbox.COMPILED, "route"),
                     reason="the compiled route was not built")
 def test_the_compiled_route_is_used_and_exercised():
     """Not vacuous: the fixed sequence moves entities between watched cells (UPDATEs and LEAVEs on both
-    paths), and the compiled path really runs `route` (counted through a wrapper)."""
+    paths), and the compiled path really runs `route` for new entities and `publish_run` (which routes in C
+    without a Python call) for the updates of known ones (both counted through wrappers)."""
     steps = [("sub", 0, (0, 1), ()), ("sub", 1, (1, 2), ()), ("sub", 3, (3,), ()), ("pub", 2, 0, 0, (0,)),
              ("pub", 2, 0, 0, (1, 2)), ("pub", 2, 0, 0, (1, 2)), ("pub", 2, 0, 0, (3,)), ("pub", 3, 1, 0, (3,)),
              ("sub", 0, (3,), (0, 1)), ("pub", 2, 0, 0, (3,)), ("time", 2.0)]
-    calls = []
-    real = outbox.COMPILED.route
+    calls, runs = [], []
+    real, real_run = outbox.COMPILED.route, outbox.COMPILED.publish_run
     was = outbox.compiled_in_use()
 
     def counting(*a):
         calls.append(1)
         return real(*a)
 
-    outbox.COMPILED.route = counting
+    def counting_run(sb, c, msgs, i, *a):
+        j = real_run(sb, c, msgs, i, *a)
+        runs.append(j - i)
+        return j
+
+    outbox.COMPILED.route, outbox.COMPILED.publish_run = counting, counting_run
     try:
         fast = _run(steps, True)
     finally:
-        outbox.COMPILED.route = real
+        outbox.COMPILED.route, outbox.COMPILED.publish_run = real, real_run
         outbox.use_compiled(was)
     assert fast == _run(steps, False)
     outbox.use_compiled(was)
     sent = [m for got, _v, _s in fast for msgs in got if msgs for m in msgs]
     kinds = [P.decode_payload(P.payload_from_encoded([m]))[0] for m in sent]
     assert sum(isinstance(m, P.Update) for m in kinds) >= 6 and any(isinstance(m, P.Leave) for m in kinds)
-    assert len(calls) >= 6
+    assert len(calls) >= 2 and sum(runs) >= 4  # two new entities routed by `route`, four updates by the run
 
 
 @pytest.mark.skipif(outbox.COMPILED is None or not hasattr(outbox.COMPILED, "route"),
