@@ -68,7 +68,7 @@ class NatsClient:
     def __init__(self, servers: str | Sequence[str], name: str = "entitynet", token: str | None = None,
                  tls: ssl.SSLContext | None = None, max_pending: int = 64 << 20, reconnect_wait: float = 0.1,
                  connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None,
-                 on_disconnect: Callable[[str], None] | None = None):
+                 on_disconnect: Callable[[str], None] | None = None, on_batch: Callable[[], None] | None = None):
         self.servers = parse_servers(servers)
         self.name = name
         self.token = token
@@ -78,6 +78,9 @@ class NatsClient:
         self.connect_timeout = connect_timeout
         self.on_reconnect = on_reconnect
         self.on_disconnect = on_disconnect  # called with why, once, when an established connection ends
+        # called once after the messages of one read from the socket were dispatched (also when a malformed one
+        # ends the read): what handlers would otherwise do per message (wake a flusher) is done once per read
+        self.on_batch = on_batch
         self._lost_why: str | None = None  # what ended the current connection (reader or writer)
         self.writes = 0  # socket writes (each carries every publication queued since the last)
         self.info: dict = {}
@@ -190,6 +193,8 @@ class NatsClient:
                 elif isinstance(ev, N.Msg):
                     self._dispatch(ev)
         self.info, self._stream, self.server, self.connected = info, stream, (host, port), True
+        if self.on_batch is not None:
+            self.on_batch()  # messages that arrived with the handshake's PONG were dispatched
         if not first:
             self.reconnects += 1
             log.debug("NATS reconnected to %s:%s", host, port)
@@ -236,23 +241,27 @@ class NatsClient:
             if not data:
                 return
             parser.receive_data(data)
-            while (ev := parser.next_event()) is not None:
-                t = type(ev)
-                if t is N.Msg:
-                    self._dispatch(ev)
-                elif t is N.Ping:
-                    self._send(N.PONG)
-                elif t is N.Pong:
-                    if self._pongs:
-                        f = self._pongs.pop(0)
-                        f.ok = True
-                        f.event.set()
-                elif t is N.Err:
-                    log.warning("NATS error: %s", ev.text)
-                    if "authorization" in ev.text.lower() or "stale" in ev.text.lower():
-                        return
-                elif t is N.Info:
-                    self.info.update(ev.info)
+            try:
+                while (ev := parser.next_event()) is not None:
+                    t = type(ev)
+                    if t is N.Msg:
+                        self._dispatch(ev)
+                    elif t is N.Ping:
+                        self._send(N.PONG)
+                    elif t is N.Pong:
+                        if self._pongs:
+                            f = self._pongs.pop(0)
+                            f.ok = True
+                            f.event.set()
+                    elif t is N.Err:
+                        log.warning("NATS error: %s", ev.text)
+                        if "authorization" in ev.text.lower() or "stale" in ev.text.lower():
+                            return
+                    elif t is N.Info:
+                        self.info.update(ev.info)
+            finally:
+                if self.on_batch is not None:
+                    self.on_batch()
 
     async def _writer(self, stream, scope: trio.CancelScope) -> None:
         try:
