@@ -170,8 +170,7 @@ class ClusterLink:
         for subject in subs:
             if subject not in self._sids:
                 self._sids[subject] = nc.subscribe(subject, self._on_msg)
-        for subject, payload, reply in core.take_out():
-            nc.publish(subject, payload, reply)
+        nc.publish_batch(core.take_out())  # written now, in one system call (no wake-up of the writer task)
         if core.redirects and not self._releasing:
             self._releasing = True
             self._nursery.start_soon(self._release)
