@@ -234,6 +234,10 @@ class NatsClient:
         return ev
 
     async def _reader(self, stream, parser: N.Parser) -> None:
+        """Read until the connection ends. Over plain TCP the reader waits until the socket is readable and
+        then reads once: trio's `receive_some` tries the read first (a failed system call and a raised
+        exception whenever nothing is there, i.e. on nearly every read of a lightly loaded shard) and passes
+        through the scheduler once more after a read that succeeded."""
         try:
             await self._read_loop(stream, parser)
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError, N.NatsProtocolError) as exc:
@@ -241,8 +245,19 @@ class NatsClient:
             log.debug("NATS connection lost: %s", exc)
 
     async def _read_loop(self, stream, parser: N.Parser) -> None:
+        fd = self._fd
+        wait = trio.lowlevel.wait_readable
         while True:
-            data = await stream.receive_some(262144)
+            if fd is None:
+                data = await stream.receive_some(262144)
+            else:  # plain TCP: wait, then one read (the server's reader does the same: `Server._read_fd`)
+                try:
+                    await wait(fd)
+                    data = os.read(fd, 262144)
+                except BlockingIOError:
+                    continue  # readable was reported but nothing was there: wait again
+                except OSError as exc:  # reset by the server
+                    raise trio.BrokenResourceError(f"read failed: {exc}") from None
             if not data:
                 return
             parser.receive_data(data)
