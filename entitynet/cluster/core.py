@@ -73,7 +73,10 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
         self.region_of = regions.cell_region.tolist()
         self.shard = shard
         self.address = address
-        self.prefix = f"en.{regions.digest[:12]}"
+        self.map_digest = regions.digest  # (a property that hashes the map: taken once, compared per heartbeat)
+        self.prefix = f"en.{self.map_digest[:12]}"
+        self._tables_at = -float("inf")  # when the heartbeat's table counts were last taken (failover.py)
+        self._table_counts: dict[str, int] = {}
         self.inbox = inbox
         self.heartbeat_s, self.dead_after_s = heartbeat_s, dead_after_s
         self.follow_ttl_s, self.query_wait_s, self.follow_wait_s = follow_ttl_s, query_wait_s, follow_wait_s

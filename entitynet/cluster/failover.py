@@ -23,6 +23,10 @@ from entitynet import protocol as P
 log = logging.getLogger("entitynet.cluster")
 
 HEARTBEAT = 5
+# a heartbeat's subscription, follow, timer and mirror counts (each walks every client or mirror) are taken at
+# most this often; the heartbeats in between (4 a second at `--dead-after 1`) repeat them. Clients and
+# entities are counted afresh every time (a `len`)
+TABLE_COUNTS_EVERY_S = 1.0
 
 _packb = msgpack.Packer(use_bin_type=True).pack
 
@@ -107,7 +111,7 @@ class ClusterFailoverMixin:
         if not 0 <= shard < self.regions.shards:
             self.stats["bad_messages"] += 1
             return
-        if str(m[3]) != self.regions.digest:
+        if str(m[3]) != self.map_digest:
             self.stats["peer_map_mismatch"] += 1  # another cluster map: not one of ours
             return
         p = self.peers.get(shard)
@@ -132,15 +136,20 @@ class ClusterFailoverMixin:
         """Our heartbeat: address, map digest, counts, and the shards we hold dead (so every survivor drops a
         dead shard's copies before anyone publishes its clients' new ones: see `_heartbeat`)."""
         self._next_hb = now + self.heartbeat_s
-        counts = self.sb.counts()
+        sb = self.sb
+        if now >= self._tables_at + TABLE_COUNTS_EVERY_S:  # the figures that walk every client or mirror
+            self._tables_at = now
+            self._table_counts = sb.counts()
+            self._table_counts["mirrored"] = sum(len(c.entities) for c in sb.mirrors.values())
+        counts = dict(self._table_counts)
+        counts["clients"], counts["entities"] = len(sb.clients), len(sb.entities)
         counts["owned_regions"] = len(self.owned_regions(now))
-        counts["mirrored"] = sum(len(c.entities) for c in self.sb.mirrors.values())
         counts["updates_in"] = self.sb.stats["updates_in"]
         counts["deliveries"] = self.sb.stats["deliveries"]
         counts["held"] = len(self.held)
         counts.update(self.extra_counts())
         dead = sorted(p.shard for p in self.peers.values() if not p.alive)
-        self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT, self.shard, self.address, self.regions.digest, counts,
+        self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT, self.shard, self.address, self.map_digest, counts,
                                                dead]))
 
     def _declare_dead(self, p: Peer, now: float, by: int | None = None) -> None:

@@ -11,6 +11,7 @@ switchboard's subscribed cells.
 from __future__ import annotations
 
 import logging
+import math
 import ssl
 from dataclasses import dataclass
 from typing import Any
@@ -46,39 +47,54 @@ class ClusterLink:
         self.config = config
         self.core: ClusterCore | None = None
         self.nc: NatsClient | None = None
-        self._wake = trio.Event()
-        self._poked_at = 0.0  # trio time of the first poke since the last pump (the latency budget counts from it)
-        self._urgent = trio.Event()  # a held REDIRECT: pump now
+        # when the pump must next run for what the core has queued (inf: nothing queued since the last pump); the
+        # loop waits in `_scope`, whose deadline a poke brings forward: no Event, so a poke wakes nobody early
+        self._due = math.inf
+        self._scope: trio.CancelScope | None = None
         self._sids: dict[str, int] = {}
         self._releasing = False
         self._nursery: trio.Nursery | None = None
         self._lost_at: float | None = None  # trio time the NATS connection was lost (None: connected)
 
     def _poke(self, urgent: bool = False) -> None:
-        """The core has something for NATS (or new interest): wake the pump. The first poke since the last pump
-        starts the latency budget; a REDIRECT waiting for its LEAVEs, a request of ours (a viewer's snapshot,
-        QUERY or FOLLOW waits on it), or an answer another shard's request waits for (`urgent`), cuts the wait
-        short: each would otherwise add a budget to the documented bound of two."""
-        if not self._wake.is_set():
-            self._poked_at = trio.current_time()
-            self._wake.set()
+        """The core has something for NATS (or new interest): the pump runs one latency budget after the first
+        poke since it last ran, so that one pass of the loop and one NATS write carry all of it (and the other
+        shards read it in one go) instead of one each. A REDIRECT waiting for its LEAVEs, a request of ours (a
+        viewer's snapshot, QUERY or FOLLOW waits on it), or an answer another shard's request waits for
+        (`urgent`) is pumped now: each would otherwise add a budget to the documented bound of two. Only the
+        wait's deadline moves: the loop wakes once, when it is due (a wake-up and then a timed wait for the
+        budget cost a shard two passes of trio's scheduler per write)."""
         core = self.core
+        now = trio.current_time()
         if urgent or (core is not None and (core.redirects or (core.out and core.out[-1][2] is not None))):
-            self._urgent.set()  # (the last publication names a reply subject: our own request)
+            due = now  # (the last publication names a reply subject: our own request)
+        elif self._due == math.inf:
+            due = now + max(0.0, self.server.config.latency_budget)
+        else:
+            return  # already due no later than a budget from the first poke
+        if due < self._due:
+            self._due = due
+            if self._scope is not None:
+                self._scope.deadline = min(self._scope.deadline, due)
 
-    async def _coalesce(self, budget: float) -> None:
-        """Let the core's publications gather for up to `budget` seconds after the first poke, so that one wake-up
-        and one NATS write carry all of them (and the other shards read them in one go) instead of one each:
-        what a shard at light load spent most of its CPU on. Held REDIRECTs and answers to requests do not
-        wait (`_urgent`)."""
+    def _wait_until(self) -> float:
+        """The trio time the loop sleeps until: the pump's due time, but never past the core's next deadline
+        (heartbeats and failover decisions are not postponed by a long budget)."""
         core = self.core
-        if budget <= 0.0 or (core is not None and core.redirects):
-            return
-        until = self._poked_at + budget
-        if core is not None:  # nor past the core's next deadline: heartbeats and failover are not postponed
-            until = min(until, trio.current_time() + max(0.0, core.next_deadline() - self.server.clock()))
-        with trio.move_on_at(until):
-            await self._urgent.wait()
+        return min(self._due, trio.current_time() + max(0.0, core.next_deadline() - self.server.clock()))
+
+    async def _serve_core(self) -> None:
+        """Until cancelled: sleep until the pump is due or the core's deadline, then tick and pump; whatever the
+        tick and the pump queue themselves (a heartbeat) is handed over in the same pass."""
+        while True:
+            with trio.CancelScope(deadline=self._wait_until()) as scope:
+                self._scope = scope
+                await trio.sleep_forever()
+            self._scope = None
+            self.core.tick(self.server.clock())
+            self._pump()
+            self._due = math.inf
+            self.server._note_news()  # LEAVEs of a dead shard's mirrors, answers to queries and follows
 
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
         """Join NATS, build the core, subscribe to the cluster-wide subjects, then pump until cancelled:
@@ -87,7 +103,7 @@ class ClusterLink:
         clock = server.clock
         address = cfg.address or f"{server.config.host}:{server.port}"
         nc = NatsClient(cfg.servers, name=f"entitynet-shard-{cfg.shard}", token=cfg.token, tls=cfg.tls,
-                        on_reconnect=self._reconnected, on_disconnect=self._lost)
+                        on_reconnect=self._reconnected, on_disconnect=self._lost, on_batch=self._after_read)
         async with nc, trio.open_nursery() as nursery:
             self._nursery = nursery
             self.nc = nc
@@ -105,26 +121,21 @@ class ClusterLink:
             await nc.flush()
             log.info("shard %d joined the cluster at %s (map %s)", cfg.shard, nc.server, cfg.regions.digest[:12])
             task_status.started(self)
-            while True:
-                with trio.move_on_at(trio.current_time() + max(0.0, self.core.next_deadline() - clock())):
-                    await self._wake.wait()
-                if self._wake.is_set():
-                    await self._coalesce(server.config.latency_budget)
-                self._wake = trio.Event()
-                self._urgent = trio.Event()
-                self.core.tick(clock())
-                self._pump()
-                server._note_news()  # LEAVEs of a dead shard's mirrors, answers to queries and follows
+            await self._serve_core()
 
     def _on_msg(self, subject: str, reply: str | None, payload: bytes) -> None:
         if self.core is None:
             return
         self.core.on_message(subject, reply, payload, self.server.clock())
-        self.server._note_news()  # mirrored states for our viewers (a heartbeat wakes nobody)
         if self.core.out:
             # a request (it names a reply subject: a QUERY, FOLLOW or snapshot another shard, and maybe its
             # client, waits on) is answered now, not after the latency budget
             self._poke(urgent=reply is not None)
+
+    def _after_read(self) -> None:
+        """Every message of one NATS read is in the core: wake the flusher once for their mirrored states (not once
+        per message; a heartbeat wakes nobody)."""
+        self.server._note_news()
 
     def _where(self) -> str:
         """host:port of the NATS node the shard is (or was last) connected to, else the configured URLs."""
@@ -159,8 +170,7 @@ class ClusterLink:
         for subject in subs:
             if subject not in self._sids:
                 self._sids[subject] = nc.subscribe(subject, self._on_msg)
-        for subject, payload, reply in core.take_out():
-            nc.publish(subject, payload, reply)
+        nc.publish_batch(core.take_out())  # written now, in one system call (no wake-up of the writer task)
         if core.redirects and not self._releasing:
             self._releasing = True
             self._nursery.start_soon(self._release)

@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import itertools
 import logging
+import os
 import secrets
 import ssl
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from urllib.parse import urlsplit
 
 import trio
@@ -68,7 +69,7 @@ class NatsClient:
     def __init__(self, servers: str | Sequence[str], name: str = "entitynet", token: str | None = None,
                  tls: ssl.SSLContext | None = None, max_pending: int = 64 << 20, reconnect_wait: float = 0.1,
                  connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None,
-                 on_disconnect: Callable[[str], None] | None = None):
+                 on_disconnect: Callable[[str], None] | None = None, on_batch: Callable[[], None] | None = None):
         self.servers = parse_servers(servers)
         self.name = name
         self.token = token
@@ -78,6 +79,9 @@ class NatsClient:
         self.connect_timeout = connect_timeout
         self.on_reconnect = on_reconnect
         self.on_disconnect = on_disconnect  # called with why, once, when an established connection ends
+        # called once after the messages of one read from the socket were dispatched (also when a malformed one
+        # ends the read): what handlers would otherwise do per message (wake a flusher) is done once per read
+        self.on_batch = on_batch
         self._lost_why: str | None = None  # what ended the current connection (reader or writer)
         self.writes = 0  # socket writes (each carries every publication queued since the last)
         self.info: dict = {}
@@ -93,6 +97,8 @@ class NatsClient:
         self._wake = trio.Event()
         self._pongs: list[_Flush] = []
         self._stream: trio.abc.Stream | None = None
+        self._fd: int | None = None  # the plain TCP connection's descriptor (`write_now`), None over TLS or offline
+        self._writing = False  # the writer task is inside a send: nobody else may write to the socket
         self._nursery: trio.Nursery | None = None
         self._connected_ev = trio.Event()
         self._closed = False
@@ -190,6 +196,9 @@ class NatsClient:
                 elif isinstance(ev, N.Msg):
                     self._dispatch(ev)
         self.info, self._stream, self.server, self.connected = info, stream, (host, port), True
+        self._fd = stream.socket.fileno() if isinstance(stream, trio.SocketStream) else None
+        if self.on_batch is not None:
+            self.on_batch()  # messages that arrived with the handshake's PONG were dispatched
         if not first:
             self.reconnects += 1
             log.debug("NATS reconnected to %s:%s", host, port)
@@ -203,6 +212,7 @@ class NatsClient:
                 await self._reader(stream, parser)
                 n.cancel_scope.cancel()
         finally:
+            self._fd = None
             with trio.CancelScope(shield=True), trio.move_on_after(0.2):
                 try:
                     await stream.aclose()
@@ -224,6 +234,10 @@ class NatsClient:
         return ev
 
     async def _reader(self, stream, parser: N.Parser) -> None:
+        """Read until the connection ends. Over plain TCP the reader waits until the socket is readable and
+        then reads once: trio's `receive_some` tries the read first (a failed system call and a raised
+        exception whenever nothing is there, i.e. on nearly every read of a lightly loaded shard) and passes
+        through the scheduler once more after a read that succeeded."""
         try:
             await self._read_loop(stream, parser)
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError, N.NatsProtocolError) as exc:
@@ -231,28 +245,43 @@ class NatsClient:
             log.debug("NATS connection lost: %s", exc)
 
     async def _read_loop(self, stream, parser: N.Parser) -> None:
+        fd = self._fd
+        wait = trio.lowlevel.wait_readable
         while True:
-            data = await stream.receive_some(262144)
+            if fd is None:
+                data = await stream.receive_some(262144)
+            else:  # plain TCP: wait, then one read (the server's reader does the same: `Server._read_fd`)
+                try:
+                    await wait(fd)
+                    data = os.read(fd, 262144)
+                except BlockingIOError:
+                    continue  # readable was reported but nothing was there: wait again
+                except OSError as exc:  # reset by the server
+                    raise trio.BrokenResourceError(f"read failed: {exc}") from None
             if not data:
                 return
             parser.receive_data(data)
-            while (ev := parser.next_event()) is not None:
-                t = type(ev)
-                if t is N.Msg:
-                    self._dispatch(ev)
-                elif t is N.Ping:
-                    self._send(N.PONG)
-                elif t is N.Pong:
-                    if self._pongs:
-                        f = self._pongs.pop(0)
-                        f.ok = True
-                        f.event.set()
-                elif t is N.Err:
-                    log.warning("NATS error: %s", ev.text)
-                    if "authorization" in ev.text.lower() or "stale" in ev.text.lower():
-                        return
-                elif t is N.Info:
-                    self.info.update(ev.info)
+            try:
+                while (ev := parser.next_event()) is not None:
+                    t = type(ev)
+                    if t is N.Msg:
+                        self._dispatch(ev)
+                    elif t is N.Ping:
+                        self._send(N.PONG)
+                    elif t is N.Pong:
+                        if self._pongs:
+                            f = self._pongs.pop(0)
+                            f.ok = True
+                            f.event.set()
+                    elif t is N.Err:
+                        log.warning("NATS error: %s", ev.text)
+                        if "authorization" in ev.text.lower() or "stale" in ev.text.lower():
+                            return
+                    elif t is N.Info:
+                        self.info.update(ev.info)
+            finally:
+                if self.on_batch is not None:
+                    self.on_batch()
 
     async def _writer(self, stream, scope: trio.CancelScope) -> None:
         try:
@@ -263,7 +292,11 @@ class NatsClient:
                     data = bytes(self._out)
                     self._out.clear()
                     self.writes += 1
-                    await stream.send_all(data)
+                    self._writing = True
+                    try:
+                        await stream.send_all(data)
+                    finally:
+                        self._writing = False
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as exc:
             self._lost_why = self._lost_why or f"write failed: {exc}"
             log.debug("NATS write failed: %s", exc)
@@ -286,12 +319,50 @@ class NatsClient:
     # ------------------------------------------------------------------------------------------ API
     def publish(self, subject: str, payload: bytes, reply: str | None = None) -> bool:
         """Queue a publication (no await); False if it was dropped (buffer over `max_pending`)."""
+        if not self._queue(subject, payload, reply):
+            return False
+        self._wake.set()
+        return True
+
+    def _queue(self, subject: str, payload: bytes, reply: str | None) -> bool:
         if len(self._out) > self.max_pending:
             self.dropped += 1
             return False
         self.published += 1
-        self._send(N.pub(subject, payload, reply))
+        self._out += N.pub(subject, payload, reply)
         return True
+
+    def publish_batch(self, items: Iterable[tuple[str, bytes, str | None]]) -> None:
+        """Queue several publications (subject, payload, reply) and write them now (`write_now`): what a shard's
+        pump hands over after each latency budget."""
+        for subject, payload, reply in items:
+            self._queue(subject, payload, reply)
+        self.write_now()
+
+    def write_now(self) -> None:
+        """Write what is queued from the caller, in one system call, when the connection is plain TCP and the
+        writer task is not inside a send (so bytes never interleave); what the socket does not take at once,
+        and everything over TLS or while reconnecting, is left to the writer task. Why: waking the writer task
+        for each write was a pass of trio's scheduler per NATS write, a large part of a lightly loaded shard's
+        CPU; the server's reader answers a PING the same way (docs/switch.md)."""
+        if not self._out:
+            return
+        fd = self._fd
+        if fd is None or self._writing:
+            self._wake.set()
+            return
+        try:
+            n = os.write(fd, self._out)
+        except BlockingIOError:
+            n = 0
+        except OSError:  # the connection is failing: the writer task finds out, and the client reconnects
+            self._wake.set()
+            return
+        if n:
+            self.writes += 1
+            del self._out[:n]
+        if self._out:
+            self._wake.set()
 
     def subscribe(self, subject: str, handler: Handler) -> int:
         """Remember `handler` for `subject` and return its sid; the SUB is sent now if connected, and every

@@ -33,15 +33,33 @@ from entitynet.cluster.natsd import NatsCluster
 from sims.bench.cluster_load import Load
 
 
-def _cpu(pids: list[int]) -> float:
-    total = 0.0
+def _cpu_each(pids: list[int]) -> dict[int, tuple[float, float]]:
+    """(user, system) CPU seconds of each process still alive."""
+    out = {}
     for pid in pids:
         try:
             t = psutil.Process(pid).cpu_times()
-            total += t.user + t.system
+            out[pid] = (t.user, t.system)
         except psutil.Error:
             pass
-    return total
+    return out
+
+
+def _cpu(pids: list[int]) -> float:
+    return sum(u + s for u, s in _cpu_each(pids).values())
+
+
+def _per_process(roles: list[str], pids: list[int], before: dict, after: dict, seconds: float) -> dict[str, Any]:
+    """Each process's CPU over the window, in ms per second (user, system): where a cluster's CPU goes (a shard
+    against the single server, the NATS nodes)."""
+    out = {}
+    for role, pid in zip(roles, pids, strict=True):
+        if pid in before and pid in after:
+            u, s = (after[pid][i] - before[pid][i] for i in (0, 1))
+            ms = 1000 / seconds
+            out[role] = {"cpu_ms_per_s": round((u + s) * ms, 1), "user_ms_per_s": round(u * ms, 1),
+                         "system_ms_per_s": round(s * ms, 1)}
+    return out
 
 
 def _p99(xs: list[float]) -> float | None:
@@ -99,6 +117,8 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
                 p, random.Random(p["seed"]))
     beats = _Beats()
     pids = [pr.pid for pr in shards.procs] + ([n.proc.pid for n in nats.nodes] if nats else [])
+    roles = ([f"shard_{i}" for i in range(len(shards.procs))] if nats else ["server"]) + \
+        ([f"nats_{i}" for i in range(len(nats.nodes))] if nats else [])
     out: dict[str, Any] = {}
     # the listener uses the last node: it survives the node kill
     listen = NatsClient(nats.nodes[-1].url, name="bench") if nats is not None else contextlib.nullcontext()
@@ -110,12 +130,14 @@ async def _drive(topo, regions, shards: LocalShards, nats: NatsCluster | None, p
                     await trio.sleep(0.02)
         await load.start(nursery)
         await trio.sleep(p["warmup_s"])
-        d0, c0, n0, t0 = load.deliveries(), _cpu(pids), beats.total("nats_in"), time.perf_counter()
+        d0, e0, n0, t0 = load.deliveries(), _cpu_each(pids), beats.total("nats_in"), time.perf_counter()
         await trio.sleep(p["window_s"])
-        d1, c1, n1, t1 = load.deliveries(), _cpu(pids), beats.total("nats_in"), time.perf_counter()
+        d1, e1, n1, t1 = load.deliveries(), _cpu_each(pids), beats.total("nats_in"), time.perf_counter()
         deliveries = d1 - d0
+        cpu = sum(u + s for u, s in e1.values()) - sum(u + s for pid, (u, s) in e0.items() if pid in e1)
         out["deliveries_per_s"] = round(deliveries / (t1 - t0), 1)
-        out["cpu_s_per_million_deliveries"] = round((c1 - c0) / max(deliveries, 1) * 1e6, 1)
+        out["cpu_s_per_million_deliveries"] = round(cpu / max(deliveries, 1) * 1e6, 1)
+        out["cpu_by_process"] = _per_process(roles, pids, e0, e1, t1 - t0)
         out["cross_shard_fraction"] = round((n1 - n0) / max(deliveries, 1), 4) if nats else 0.0
         out["redirects"] = sum(m.redirects for m in load.movers)
         load.moving = False

@@ -72,3 +72,33 @@ def test_a_state_for_several_subjects_is_encoded_once_and_received_as_sent(monke
     assert m == [STATE, 0, c.session, e.eid, 2, [12], 10_000, b"\x01two", c.identity, None, c.user_id]
     got = b.entities[e.eid]  # the payload reaches the other shard's tables byte for byte
     assert got.payload == b"\x01two" and got.cells == (12,) and got.seq == 2
+
+
+def test_a_heartbeat_walks_the_tables_at_most_once_a_second(monkeypatch):
+    """Heartbeats go out 4 times a second at `--dead-after 1`; the counts that walk every client (subscriptions,
+    follows) and every mirror are taken once a second and repeated in between, while clients and entities are
+    counted afresh in each heartbeat."""
+    bus = Bus()
+    bus.run(0.0)
+    core, sb = bus.cores[0], bus.sbs[0]
+    walks = []
+    real = sb.counts
+    monkeypatch.setattr(sb, "counts", lambda: (walks.append(1), real())[1])
+    beats = []
+    pack = msgpack.Packer(use_bin_type=True).pack
+    monkeypatch.setattr("entitynet.cluster.failover._packb", lambda m: (beats.append(m), pack(m))[1])
+    t = 10.0
+    core._heartbeat_out(t)
+    v = join(sb)
+    sb.receive(v, [P.Subscribe((10, 11), ())], t)
+    p = join(sb)
+    sb.receive(p, [pub(1, 1, (10,))], t)
+    core._heartbeat_out(t + 0.25)
+    core._heartbeat_out(t + 0.5)
+    assert len(walks) == 1  # (at t) the table walk is not repeated within the second
+    first, later = beats[0][4], beats[-1][4]
+    assert first["subscriptions"] == later["subscriptions"] == 0  # repeated, up to a second old
+    assert (first["clients"], first["entities"]) == (0, 0) and (later["clients"], later["entities"]) == (2, 1)
+    core._heartbeat_out(t + 1.0)
+    assert len(walks) == 2 and beats[-1][4]["subscriptions"] == 2  # a second on: walked again
+    assert beats[-1][3] == core.regions.digest  # the map digest taken once at start is the map's

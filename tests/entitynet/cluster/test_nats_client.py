@@ -117,3 +117,28 @@ async def test_a_flush_whose_connection_dies_fails_instead_of_confirming(nats_se
         with pytest.raises(NatsConnectionLost):
             a.publish("x.y", b"lost with the node")
             await a.flush(timeout=5)
+
+
+async def test_a_batch_written_from_the_caller_keeps_its_order_with_the_writer_task(nats_server):
+    """`publish_batch` writes from the caller (no writer wake-up); a socket that takes only part of it leaves the
+    rest to the writer task, and publications queued meanwhile the usual way follow in order."""
+    import socket
+
+    got: list[bytes] = []
+    async with NatsClient(nats_server.urls, name="a") as a, NatsClient(nats_server.urls, name="b") as b:
+        b.subscribe("en.c.9", lambda s, r, p: got.append(p))
+        await b.flush()
+        await a.flush()
+        a._stream.socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)  # a partial write, surely
+        filler = b"." * 10_000
+        a.publish_batch([("en.c.9", b"%d" % i + filler, None) for i in range(200)])
+        assert a._out  # 2 MB did not fit the socket: the writer task has the rest
+        a.publish("en.c.9", b"200" + filler)
+        a.publish_batch([("en.c.9", b"%d" % i + filler, None) for i in range(201, 210)])
+        await a.flush()
+        await _until(lambda: len(got) == 210, timeout=20)
+        assert [int(p[: -len(filler)]) for p in got] == list(range(210))
+        small = a.writes
+        a.publish_batch([("en.c.9", b"last", None)])  # a small batch on an idle socket: written at once
+        assert not a._out and a.writes == small + 1
+        await _until(lambda: got[-1] == b"last")

@@ -134,3 +134,13 @@ async def test_the_load_connects_its_clients_concurrently(monkeypatch):
         nursery.cancel_scope.cancel()
     assert most[0] == 10  # ten at a time, not one after another
     assert [h[1] for _c, h in log] == [1] * 10 + [2] * 10  # every viewer connected before any mover
+
+
+def test_cpu_by_process_is_each_processes_own_share_of_the_window():
+    """The report's `cpu_by_process`: each role's CPU over the window in ms per second; a process that is gone
+    at either end of the window is left out rather than counted as zero."""
+    before = {10: (1.0, 0.5), 11: (2.0, 0.0), 12: (0.2, 0.1)}
+    after = {10: (1.5, 0.6), 11: (2.1, 0.1)}  # 12 died during the window
+    out = cluster_bench._per_process(["shard_0", "shard_1", "nats_0"], [10, 11, 12], before, after, 2.0)
+    assert out == {"shard_0": {"cpu_ms_per_s": 300.0, "user_ms_per_s": 250.0, "system_ms_per_s": 50.0},
+                   "shard_1": {"cpu_ms_per_s": 100.0, "user_ms_per_s": 50.0, "system_ms_per_s": 50.0}}
