@@ -22,24 +22,12 @@ def small(**kw) -> SimConfig:
 
 
 def _own_decoders(sim: Sim) -> None:
-    """Each viewer decodes its own payloads and the measure asks each ghost store for its positions, as
-    before the savings."""
+    """Each viewer a ghost store of its own (a table of one column) decoding its own payloads, as before the
+    savings: no shared table, decoder or extrapolation."""
+    from entitynet.client import GhostStore
+
     for v in sim.viewers:
-        v.ghosts._decode = v.ghosts._decode_payload
-
-    def sample(now, world, viewers, eid_to_agent, _orig=sim.measure.sample):
-        import sims.engine.measure as m
-
-        def drawn(v, now, memo):
-            return {e: (xy, v.ghosts.ghosts[e].cells) for e, xy in v.ghosts.positions(now).items()}
-
-        saved, m._drawn = m._drawn, drawn
-        try:
-            _orig(now, world, viewers, eid_to_agent)
-        finally:
-            m._drawn = saved
-
-    sim.measure.sample = sample
+        v.ghosts = GhostStore(sim.world.net)
 
 
 def test_the_shared_decoder_and_the_memo_give_the_same_report():
