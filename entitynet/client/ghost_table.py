@@ -39,6 +39,15 @@ _LEAVE = -1  # a queued LEAVE's version
 _COL_BITS = 24  # a queued (row, column) pair's key: row << _COL_BITS | column
 
 
+def csr_take(off: np.ndarray, flat: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The entries of the CSR rows `idx` (row k holds `flat[off[k]:off[k + 1]]`), flattened in order: for each
+    entry the position in `idx` of its row, and its value."""
+    start = off[idx]
+    n = off[idx + 1] - start
+    at = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + np.repeat(start, n)
+    return np.repeat(np.arange(len(idx)), n), flat[at]
+
+
 def _grow(a: np.ndarray, n: int, fill) -> np.ndarray:
     """`a` with room for at least `n` along its first axis (doubling), new slots set to `fill`."""
     if n <= len(a):
@@ -269,13 +278,8 @@ class GhostTable:
             mask[cells - lo] = True
             got = self._visible_mask[col] = (mask, lo)
         mask, lo = got
-        start, end = self.voff[versions], self.voff[versions + 1]
-        n = end - start
-        if not n.sum():
-            return np.zeros(len(versions), dtype=bool)
-        owner = np.repeat(np.arange(len(versions)), n)
-        at = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + np.repeat(start, n)
-        idx = self.vcells[at] - lo
+        owner, cells = csr_take(self.voff, self.vcells, versions)
+        idx = cells - lo
         idx[(idx < 0) | (idx >= len(mask) - 1)] = len(mask) - 1
         seen = np.zeros(len(versions), dtype=bool)
         seen[owner[mask[idx]]] = True
@@ -301,9 +305,8 @@ class GhostTable:
         hit = held >= 0
         held[hit] = new_of[held[hit]]
         counts = self.voff[live + 1] - self.voff[live]
-        at = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts) \
-            + np.repeat(self.voff[live], counts)
-        self.vcells = self.vcells[at].copy() if len(at) else np.zeros(256, dtype=np.int64)
+        cells = csr_take(self.voff, self.vcells, live)[1]
+        self.vcells = cells if len(cells) else np.zeros(256, dtype=np.int64)
         self.voff = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         for name in ("vseq", "vexp", "vrow", "vok", "vmid"):
             setattr(self, name, getattr(self, name)[live].copy())

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from entitynet.client.ghost_table import csr_take
 from entitynet.client.network import NetView
 from sims.engine.source import Truth
 from sims.engine.truth_arrays import EdgeArrays, truth_arrays
@@ -104,12 +105,8 @@ class Measure:
             inside = np.zeros(n, dtype=bool)
             inside[inside_rows] = True
             out = np.flatnonzero(~((rows >= 0) & inside[np.maximum(rows, 0)]))  # ghosts of entities not inside
-            table = v.ghosts.table
-            for k in out.tolist():
-                row = int(rows[k])
-                own = truth.cells_of(row) if row >= 0 else ()
-                if set(own).isdisjoint(table.cells_of(int(vers[k]))):
-                    t.stale += 1
+            if len(out):
+                t.stale += len(out) - _claims_met(v.ghosts.table, vers[out], truth, rows[out])
 
     def _edge_arrays(self, world: Truth) -> EdgeArrays | None:
         """The map's `EdgeArrays` for the truth's positions (built once per map)."""
@@ -175,3 +172,21 @@ def _drawn(v: SimViewer, now: float, memo: dict, agents: dict[int, np.ndarray],
         mxy[k] = models[k].xy_at(t)
         done[k] = True
     return aids, mxy[mids], vers
+
+
+def _claims_met(table, versions: np.ndarray, truth, rows: np.ndarray) -> int:
+    """How many of the ghosts (`versions`, their entities' truth `rows`, -1: none) claimed a cell their entity
+    truly occupies (the others are stale): each ghost's claimed cells and its entity's cells as (ghost, cell)
+    pairs, sorted together, a ghost meets its claim where one pair comes from both sides."""
+    co, cv = csr_take(table.voff, table.vcells, versions)
+    known = np.flatnonzero(rows >= 0)
+    to, tv = csr_take(truth.cell_off, truth.cells, rows[known])
+    owner = np.concatenate([co, known[to]])
+    cell = np.concatenate([cv, tv.astype(np.int64)])
+    side = np.concatenate([np.zeros(len(co), dtype=np.int8), np.ones(len(to), dtype=np.int8)])
+    order = np.lexsort((side, cell, owner))
+    owner, cell, side = owner[order], cell[order], side[order]
+    both = (owner[1:] == owner[:-1]) & (cell[1:] == cell[:-1]) & (side[1:] != side[:-1])
+    met = np.zeros(len(versions), dtype=bool)
+    met[owner[1:][both]] = True
+    return int(met.sum())

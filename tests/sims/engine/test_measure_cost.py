@@ -38,9 +38,9 @@ def test_the_shared_decoder_and_the_memo_give_the_same_report():
     want = run_local(slow, 30.0)
     assert rep["truth_vs_viewer"]["all"]["visible_entity_samples"] > 50
     assert rep == want
-    # one payload reached several viewers and was decoded once
-    assert fast.decode_cache.hits > fast.decode_cache.misses > 0
-    assert fast.decode_cache.misses == len(fast.decode_cache)
+    # one payload reached several viewers and was decoded once (one version of the message in the ghost table)
+    calls = fast.decode_cache.hits + fast.decode_cache.misses
+    assert sum(v.deliveries for v in fast.viewers) > calls >= fast.decode_cache.misses == len(fast.decode_cache) > 0
 
 
 def test_the_cache_returns_what_decode_returns_and_refuses_bad_payloads_every_time():
