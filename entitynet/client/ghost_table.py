@@ -35,7 +35,6 @@ from entitynet.client.payload import PayloadError, decode
 from entitynet.protocol import Leave, Update
 
 _I64 = (-(2**63), 2**63 - 1)
-_LEAVE = -1  # a queued LEAVE's version
 _COL_BITS = 24  # a queued (row, column) pair's key: row << _COL_BITS | column
 
 
@@ -91,8 +90,7 @@ class GhostTable:
         self._compact_at = 4096
         # the queue (see the module docstring)
         self._q_col: list[int] = []
-        self._q_row: list[int] = []
-        self._q_ver: list[int] = []
+        self._q_ver: list[int] = []  # a version, or for a LEAVE -1 - its row
         self._q_pairs: set[int] = set()
 
     # ---- columns ---------------------------------------------------------------------------------------------
@@ -127,39 +125,46 @@ class GhostTable:
         """The default decoder: `payload.decode` on the table's map."""
         return decode(data, self.net)
 
-    def receive(self, col: int, msgs: Iterable[Update | Leave], now: float) -> None:
-        """Take a frame's UPDATEs and LEAVEs for viewer `col`, in order, arrived at receiver time `now` (other
-        message types: TypeError, before anything of the frame is taken)."""
-        msgs = list(msgs)
-        for m in msgs:
-            if type(m) is not Update and type(m) is not Leave:
-                raise TypeError(f"a ghost table takes UPDATE and LEAVE, not {type(m).__name__}")
-            if not (type(m.entity) is int and _I64[0] <= m.entity <= _I64[1]):
-                raise ValueError(f"entity must be a 64-bit integer, got {m.entity!r}")
-            if type(m) is Update and not (type(m.seq) is int and _I64[0] <= m.seq <= _I64[1]):
-                raise ValueError(f"seq must be a 64-bit integer, got {m.seq!r}")
+    def receive(self, col: int, msgs: Iterable[Update | Leave], now: float, decoded: bool = False) -> int:
+        """Take a frame's UPDATEs and LEAVEs for viewer `col`, in order, arrived at receiver time `now`; how many
+        were LEAVEs. Anything else (another message type, an id or seq that is not a 64-bit integer) is refused
+        with TypeError or ValueError before anything of the frame is taken, unless `decoded`: the messages
+        come from the protocol's codec (ids and seqs in [0, 2**53]) and are all UPDATEs and LEAVEs (the viewer
+        fleet's frames, which the session checked: `ClientSession.delivers_whole`)."""
+        if not decoded:
+            msgs = list(msgs)
+            for m in msgs:
+                if type(m) is not Update and type(m) is not Leave:
+                    raise TypeError(f"a ghost table takes UPDATE and LEAVE, not {type(m).__name__}")
+                if not (type(m.entity) is int and _I64[0] <= m.entity <= _I64[1]):
+                    raise ValueError(f"entity must be a 64-bit integer, got {m.entity!r}")
+                if type(m) is Update and not (type(m.seq) is int and _I64[0] <= m.seq <= _I64[1]):
+                    raise ValueError(f"seq must be a 64-bit integer, got {m.seq!r}")
         if now != self._version_now:  # a version's expiry is its message's `now + life`
             self._version_of.clear()
             self._version_now = now
-        version_of, pairs, rows = self._version_of, self._q_pairs, self._vrow_list
+        version_of, pairs, rows, row_of = self._version_of, self._q_pairs, self._vrow_list, self._row_of
+        add_col, add_ver, new_version = self._q_col.append, self._q_ver.append, self._new_version
+        leaves = 0
         for m in msgs:
             if type(m) is Update:
                 ver = version_of.get(id(m))
                 if ver is None:
-                    ver = self._new_version(m, now)
-                row = rows[ver]
+                    ver = new_version(m, now)
+                key = rows[ver] << _COL_BITS | col
             else:
-                row = self._row_of.get(m.entity, -1)
+                leaves += 1
+                row = row_of.get(m.entity, -1)
                 if row < 0:
                     continue  # LEAVE of an entity no viewer holds
-                ver = _LEAVE
-            key = row << _COL_BITS | col
+                ver = -1 - row  # a queued LEAVE: its row, below zero
+                key = row << _COL_BITS | col
             if key in pairs:
                 self.flush()
             pairs.add(key)
-            self._q_col.append(col)
-            self._q_row.append(row)
-            self._q_ver.append(ver)
+            add_col(col)
+            add_ver(ver)
+        return leaves
 
     def _new_version(self, m: Update, now: float) -> int:
         """The version of message `m` taken at `now` (its payload decoded once, here)."""
@@ -219,13 +224,13 @@ class GhostTable:
         if not self._q_ver:
             return
         cols = np.array(self._q_col, dtype=np.int64)
-        rows = np.array(self._q_row, dtype=np.int64)
         vers = np.array(self._q_ver, dtype=np.int64)
         self._q_col.clear()
-        self._q_row.clear()
         self._q_ver.clear()
         self._q_pairs.clear()
-        leave = vers == _LEAVE
+        leave = vers < 0
+        rows = np.where(leave, -1 - vers, self.vrow[np.maximum(vers, 0)])
+        vers[leave] = -1  # what a LEAVE leaves held: none
         cur = self.held[rows, cols]
         has = cur >= 0
         newer = np.ones(len(vers), dtype=bool)

@@ -73,7 +73,9 @@ class ViewerFleet:
                 for m in msgs:
                     if type(m) is P.Update:
                         learn(m)
-            viewer.receive_frame(msgs, self.now(), sum(map(size, msgs)))
+            nbytes = getattr(msgs, "nbytes", None)  # the shared decoder's `Frame`: its size at once
+            # the codec decoded them and the session found them all UPDATEs and LEAVEs: `decoded`
+            viewer.receive_frame(msgs, self.now(), sum(map(size, msgs)) if nbytes is None else nbytes, True)
 
         return on_frame
 

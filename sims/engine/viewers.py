@@ -102,15 +102,14 @@ class SimViewer:
         self._last_cells = cells
         return msgs
 
-    def receive_frame(self, msgs: list[P.Update | P.Leave], now: float, size: int) -> None:
+    def receive_frame(self, msgs: list[P.Update | P.Leave], now: float, size: int, decoded: bool = False) -> None:
         """A whole frame of UPDATEs and LEAVEs that arrived (`size`: their encoded bytes): what `receive` does
-        with each, taken by the ghost table in one call (the viewer fleet's path, `sims.engine.viewer_fleet`)."""
+        with each, taken by the ghost table in one call (the viewer fleet's path, `sims.engine.viewer_fleet`;
+        `decoded`: the codec's messages, see `GhostTable.receive`)."""
+        leaves = self.ghosts.table.receive(self.ghosts.col, msgs, now, decoded)
         self.bytes += size
-        n = len(msgs)
-        leaves = sum(1 for m in msgs if type(m) is P.Leave) if n else 0
-        self.deliveries += n - leaves
+        self.deliveries += len(msgs) - leaves
         self.leaves += leaves
-        self.ghosts.table.receive(self.ghosts.col, msgs, now)
 
     def receive(self, msg: P.Message, now: float, size: int = 0) -> None:
         """Count and apply a message that arrived. A WELCOME clears the ghosts (entity ids are per server

@@ -57,9 +57,9 @@ async def test_viewers_share_one_decoder_and_count_each_arrival_at_its_encoded_s
             got.append(([m], size))
             one(m, now, size)
 
-        def receive_frame(msgs, now, size):
+        def receive_frame(msgs, now, size, decoded=False):
             got.append((list(msgs), size))
-            frame(msgs, now, size)
+            frame(msgs, now, size, decoded)
 
         v.receive, v.receive_frame = receive, receive_frame
 
