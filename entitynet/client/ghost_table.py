@@ -71,7 +71,8 @@ class GhostTable:
         self.n_cols = 0
         self.clock_offset: list[float] = []  # column -> add to a payload's t0 to get receiver time
         self.visible: list[frozenset[int]] = []  # column -> the cells it sees (its PVS)
-        self._visible_mask: list[tuple[np.ndarray, int] | None] = []  # column -> (mask, its first cell id)
+        #: column -> (a mask over its visible cell ids or None where they are too far apart, the first id, the ids)
+        self._visible_mask: list[tuple[np.ndarray | None, int, np.ndarray] | None] = []
         self.bad = np.zeros(4, dtype=np.int64)  # column -> undecodable payloads counted
         # versions: one per distinct message taken at one `now`
         self.vseq = np.zeros(64, dtype=np.int64)
@@ -279,14 +280,20 @@ class GhostTable:
         if got is None:
             cells = np.fromiter(vis, dtype=np.int64, count=len(vis))
             lo = int(cells.min())
-            mask = np.zeros(int(cells.max()) - lo + 2, dtype=bool)  # the last slot: a cell outside the range
-            mask[cells - lo] = True
-            got = self._visible_mask[col] = (mask, lo)
-        mask, lo = got
+            span = int(cells.max()) - lo + 2  # the last slot: a cell outside the range
+            mask = None
+            if span <= 4 * len(cells) + (1 << 20):  # else a set of far-apart ids (bad input): `isin`, no mask
+                mask = np.zeros(span, dtype=bool)
+                mask[cells - lo] = True
+            got = self._visible_mask[col] = (mask, lo, cells)
+        mask, lo, vis_cells = got
         owner, cells = csr_take(self.voff, self.vcells, versions)
+        seen = np.zeros(len(versions), dtype=bool)
+        if mask is None:
+            seen[owner[np.isin(cells, vis_cells)]] = True
+            return seen
         idx = cells - lo
         idx[(idx < 0) | (idx >= len(mask) - 1)] = len(mask) - 1
-        seen = np.zeros(len(versions), dtype=bool)
         seen[owner[mask[idx]]] = True
         return seen
 

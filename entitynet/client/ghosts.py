@@ -55,10 +55,12 @@ class GhostStore:
 
     @property
     def clock_offset(self) -> float:
+        """Add to a payload's t0 to get this viewer's receiver time (its column's, in the table)."""
         return self.table.clock_offset[self.col]
 
     @clock_offset.setter
     def clock_offset(self, value: float) -> None:
+        """A new estimate (PING / PONG)."""
         self.table.clock_offset[self.col] = value
 
     @property
@@ -66,10 +68,6 @@ class GhostStore:
         """Undecodable payloads this viewer received with a newer seq (counted, skipped)."""
         self.table.flush()
         return int(self.table.bad[self.col])
-
-    @property
-    def visible_cells(self) -> frozenset[int]:
-        return self.table.visible[self.col]
 
     @property
     def _decode(self) -> Callable[[bytes], Model]:
@@ -112,10 +110,6 @@ class GhostStore:
     def expire(self, now: float) -> list[int]:
         """Drop ghosts whose validity ran out; returns their ids."""
         return self.table.expire(self.col, now)
-
-    def is_visible(self, g: Ghost) -> bool:
-        """Whether any of the ghost's cells is in the viewer's current PVS (only those are drawn)."""
-        return not self.visible_cells.isdisjoint(g.cells)
 
     def positions(self, now: float, visible_only: bool = True) -> dict[int, tuple[float, float]]:
         """Extrapolated (x, y) of the ghosts to draw now (expired ones are dropped first)."""

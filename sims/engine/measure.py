@@ -69,7 +69,8 @@ class Measure:
         """One sample of every viewer against the truth at `now`: errors of shown entities in subscribed cells,
         misses, and stale ghosts (see the module docstring for the rules). Over arrays: the truth once
         (`truth_arrays`), then per viewer its subscribed cells as a mask over every (entity, cell) the truth
-        occupies; only the viewer's ghosts are walked one by one (`_drawn`)."""
+        occupies; its drawn ghosts read from the viewers' ghost table over arrays (`_drawn`), and the stale test
+        over (ghost, cell) pairs (`_claims_met`)."""
         truth = truth_arrays(world.agents, self._edge_arrays(world))
         n = len(truth.ids)
         pair_row = np.repeat(np.arange(n), np.diff(truth.cell_off))
@@ -79,7 +80,7 @@ class Measure:
         pair_cell = truth.cells - low
         n_cells = int(getattr(world.topo, "n_cells", 0) or 0) - low
         n_cells = max(n_cells, int(pair_cell.max()) + 1 if len(pair_cell) else 0)
-        memo: dict = {}  # (model, t) -> xy: viewers share models; (table, t) -> its versions' xy
+        memo: dict = {}  # (table, t) -> its distinct models' xy at t (viewers share versions and models)
         agents: dict[int, np.ndarray] = {}  # id(table) -> the truth's agent of each of its rows (-1: none)
         for v in viewers:
             t = self.tallies["roof" if v.high else "street"]
@@ -137,9 +138,9 @@ def _drawn(v: SimViewer, now: float, memo: dict, agents: dict[int, np.ndarray],
     """What `v.ghosts.positions(now)` draws (expired ghosts dropped, only the visible drawn), read from the
     viewers' ghost table over arrays: the truth's agent ids of the drawn ghosts (one per agent; ghosts of
     entities that are not simulated, such as the demo's transit proxy's, left out), their (x, y) and their
-    versions (for the claimed cells). Why not `positions`: the viewers share decoded models
-    (`sims.engine.decode_cache`), so one entity's model is extrapolated once per sample in `memo`, not once per
-    viewer that holds it; keyed by the model object's id, alive while the table holds it."""
+    versions (for the claimed cells). Why not `positions`: the viewers share versions and decoded models
+    (`sims.engine.decode_cache`), so one model is extrapolated once per sample in `memo` (by the table's model
+    index, `vmid`), not once per viewer that holds it."""
     if not math.isfinite(now):
         raise ValueError(f"now must be finite, got {now!r}")
     gs = v.ghosts

@@ -163,3 +163,15 @@ def test_the_table_stays_bounded_under_churn():
     assert len(gs) == 3
     assert len(table.vmsg) <= 8192 and table.held.shape[0] <= 8192
     assert np.all(table.held[:table._n_rows, 0][table.held[:table._n_rows, 0] >= 0] < len(table.vmsg))
+
+
+def test_visible_cells_far_apart_need_no_mask_of_their_span():
+    gs = GhostStore(None)
+    p = encode(WorldModel(0.0, 5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1))
+    gs.receive(Update(1, 1, (2**62,), 5000, p), 0.0)
+    gs.receive(Update(2, 1, (-(2**62), 3), 5000, p), 0.0)
+    gs.receive(Update(3, 1, (4,), 5000, p), 0.0)
+    gs.set_visible({-(2**62), 2**62})  # a mask over that span would not fit in memory
+    assert set(gs.positions(1.0)) == {1, 2}
+    gs.set_visible({3, 4})
+    assert set(gs.positions(1.0)) == {2, 3}
