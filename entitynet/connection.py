@@ -100,6 +100,7 @@ class Connection:
         failover_s: float = 3.0,
         failover_attempts: int = 2,
         decode: Callable[[bytes], list[P.Message]] | None = None,
+        on_frame: Callable[[list[P.Message]], None] | None = None,
     ):
         # alternates: the cluster's other shards, where this client fails over when its shard keeps failing
         # (`failover_attempts` attempts in a row, or for `failover_s`: ClientSession)
@@ -116,6 +117,9 @@ class Connection:
         # decode: payload -> messages, the codec's decode_payload under `limits` unless given one that returns
         # and raises the same (a simulation's viewers share one that decodes each distinct message once)
         self.decode = decode if decode is not None else functools.partial(P.decode_payload, limits=limits)
+        # on_frame: a frame of UPDATEs and LEAVEs on the open link, whole, instead of on_message per message
+        # (what the session would do with it: `ClientSession.delivers_whole`); a simulation's viewer fleet
+        self.on_frame = on_frame
         self._in_send, self.incoming = trio.open_memory_channel[P.Message](incoming_size)
         self.connected = trio.Event()
         self._streams: dict[int, _Stream] = {}
@@ -291,8 +295,12 @@ class Connection:
                 try:
                     s.kind, s.stream = await self._open(address)
                     await self._apply(self.session.connection_made(link, self.clock()), wake=True)
+                    on_frame = self.on_frame
                     while True:
                         msgs = await self._next_messages(s)
+                        if on_frame is not None and self.session.delivers_whole(link, msgs, self.clock()):
+                            on_frame(msgs)  # no deadline moves on a delivery: the timers need no wake
+                            continue
                         await self._apply(self.session.receive(link, msgs, self.clock()), wake=True)
                 except _LOST as exc:
                     error = str(exc) or type(exc).__name__

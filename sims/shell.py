@@ -32,9 +32,9 @@ import trio
 from entitynet import protocol as P
 from entitynet.connection import Connection
 from sims.engine.collector import settle_after_start, unsettle
-from sims.engine.message_cache import MessageCache
 from sims.engine.payload_ids import PayloadIds
 from sims.engine.sim import Sim
+from sims.engine.viewer_fleet import ViewerFleet
 
 Say = Callable[[str], None]
 
@@ -93,11 +93,7 @@ class Shell:
         self.outages = 0
         self.server = None
         self.subscribe_msgs = 0
-        self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
         self._cameras: dict[int, tuple[float, float]] = {}  # viewer -> where its camera was last sent
-        self._sizes: dict[P.Update | P.Leave, int] = {}  # this tick's arrivals -> encoded size (`_size`)
-        #: the viewer connections' one frame decoder: a message fanned out to many viewers is decoded once
-        self.messages = MessageCache()
         self._window = {"published": 0, "deliveries": 0, "t": 0.0}
         self.published = 0
         self.publishers: list[Connection] = []
@@ -105,6 +101,8 @@ class Shell:
         self._tick_wall: float | None = None  # monotonic time of the last tick (the clock runs on from it)
         self._frozen = sim.now  # the clock while paused
         self.ids = PayloadIds()  # an external server's entity ids -> ours (truth against viewers)
+        #: the viewers' connections: frames into the shared ghost table whole, one frame decoder for all
+        self.viewer_fleet = ViewerFleet(sim.viewers, lambda: self.sim.now, self._learn)
         self.server_info: dict = {}  # more about where the server ran (a child process: its pid), for the report
         self._deaths_said = 0  # viewer processes' deaths already said on the live output
 
@@ -149,8 +147,7 @@ class Shell:
                 else:
                     pubs = [Connection(address, digest, cfg.token, on_message=lambda m: None)
                             for _ in range(self.sim.config.connections)]
-                    views = [Connection(address, digest, cfg.token, on_message=self._on_view(i),
-                                        decode=self.messages.decode)
+                    views = [self.viewer_fleet.connection(i, address, digest, cfg.token)
                              for i in range(len(self.sim.viewers))]
                 self.publishers = pubs
                 for c in pubs + views:
@@ -182,34 +179,14 @@ class Shell:
         fleet, cfg, alts = self.sim.fleet, self.config, tuple(cl.addresses)
         pubs = [Connection(cl.addresses[j // fleet.per_shard], digest, cfg.token, on_message=lambda m: None,
                            alternates=alts) for j in range(fleet.connections)]
-        views = [Connection(cl.address_at(*v.traj.position()), digest, cfg.token, on_message=self._on_view(i),
-                            alternates=alts, decode=self.messages.decode) for i, v in enumerate(self.sim.viewers)]
+        views = [self.viewer_fleet.connection(i, cl.address_at(*v.traj.position()), digest, cfg.token,
+                                              alternates=alts) for i, v in enumerate(self.sim.viewers)]
         return pubs, views
 
-    def _on_view(self, i: int):
-        sim, ids = self.sim, self.ids
-
-        def on_message(m: P.Message) -> None:
-            if isinstance(m, P.Redirect):
-                self.redirects += 1
-            elif type(m) is P.Update and m.entity not in ids.local_of:
-                ids.learn(m.entity, m.payload)
-            size = self._size(m) if isinstance(m, P.Update | P.Leave) else 0
-            sim.deliver(i, m, size)
-
-        return on_message
-
-    def _size(self, m: P.Update | P.Leave) -> int:
-        """The encoded size of a message that arrived (for the viewers' byte counts). Why a cache: the server
-        fans one UPDATE out to every viewer of its cells, and re-encoding each copy cost more than the viewer's
-        own handling of it; equal messages (frozen dataclasses, every field in the key) encode alike. Cleared
-        every tick, so it holds one tick's distinct messages."""
-        size = self.messages.size(m)  # decoded from the frame by the shared decoder: its bytes' length
-        if size is None:
-            size = self._sizes.get(m)
-            if size is None:
-                size = self._sizes[m] = len(P.encode_message(m))
-        return size
+    def _learn(self, m: P.Update) -> None:
+        """An UPDATE arrived: map an external server's entity id back to ours from its payload."""
+        if m.entity not in self.ids.local_of:
+            self.ids.learn(m.entity, m.payload)
 
     async def _loop(self, pubs: list[Connection], views: list[Connection], stop: trio.Event) -> None:
         sim, cfg = self.sim, self.config
@@ -267,8 +244,7 @@ class Shell:
                     self.say(f"[{sim.ticks * sim.dt:6.0f}s] server unreachable: {down} connection(s) down, "
                              "stepping on and reconnecting")
             self._was_down = bool(down)
-            self._sizes.clear()
-            self.messages.clear()
+            self.viewer_fleet.clear()
             # the truth measure samples here, before the world steps: the truth is still the last tick's and the
             # deliveries of that tick's messages have had the tick's wait to arrive (`sample_before_step`)
             self.sample_before_step(pubs)
@@ -477,7 +453,8 @@ class Shell:
                          "outages": self.outages}
         if self.config.cluster is not None:
             cl = self.config.cluster
-            rep["cluster"] = {"shards": cl.per_shard(), "nats": cl.nats_urls, "viewer_redirects": self.redirects}
+            rep["cluster"] = {"shards": cl.per_shard(), "nats": cl.nats_urls,
+                              "viewer_redirects": self.viewer_fleet.redirects}
         if self.server is None and isinstance(rep.get("truth_vs_viewer"), dict):
             rep["truth_vs_viewer"]["ids"] = ("an external server's entity ids, mapped to the simulation's by the "
                                              "payload each entity last published")

@@ -6,6 +6,10 @@ expires, on LEAVE, or when a newer UPDATE replaces it. Out-of-order updates (low
 lives at most `limits.HORIZON` seconds after its UPDATE whatever validity it claims, and its model never
 extrapolates past the horizon nor faster than its type's cap (entitynet/client/limits.py).
 Undecodable payloads are counted and skipped, never raised into the viewer.
+
+The rules live in `entitynet.client.ghost_table.GhostTable`, which holds many viewers' ghosts in arrays (a
+simulation's viewers share one); a `GhostStore` is one viewer's view of such a table (its own table of one
+column unless it is given one), so the Python viewer and the simulation's viewers follow the same code.
 """
 
 from __future__ import annotations
@@ -14,10 +18,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from entitynet.client.limits import HORIZON
+from entitynet.client.ghost_table import GhostTable
 from entitynet.client.motion import Model
 from entitynet.client.network import NetView
-from entitynet.client.payload import PayloadError, decode
 from entitynet.protocol import Leave, Update
 
 
@@ -35,63 +38,88 @@ class Ghost:
 
 class GhostStore:
     """A viewer's received entities, kept while invisible until their validity ends so that they
-    reappear at once when their cells become visible again."""
+    reappear at once when their cells become visible again: one column of a `GhostTable`."""
 
     def __init__(self, net: NetView | None, *, clock_offset: float = 0.0,
-                 decoder: Callable[[bytes], Model] | None = None) -> None:
+                 decoder: Callable[[bytes], Model] | None = None, table: GhostTable | None = None) -> None:
         """`clock_offset`: add to a payload's t0 to get receiver time (from PING/PONG); 0 on a shared clock.
         `decoder`: payload bytes -> model, raising PayloadError (default: `payload.decode` on `net`); many
         viewers in one process share one caching decoder, since the server fans one payload out to all of them
-        and models are immutable (sims.engine.decode_cache)."""
+        and models are immutable (sims.engine.decode_cache). `table`: the table this viewer is a column of
+        (shared by a process's viewers; its decoder then decodes, `decoder` must be None)."""
+        if table is not None and decoder is not None:
+            raise ValueError("a store on a shared table decodes with the table's decoder")
+        self.table = table if table is not None else GhostTable(net, decoder)
+        self.col = self.table.add_viewer(clock_offset)
         self.net = net
-        self._decode: Callable[[bytes], Model] = decoder if decoder is not None else self._decode_payload
-        self.clock_offset = clock_offset
-        self.ghosts: dict[int, Ghost] = {}
-        self.visible_cells: set[int] = set()
-        self.bad_payloads = 0
+
+    @property
+    def clock_offset(self) -> float:
+        """Add to a payload's t0 to get this viewer's receiver time (its column's, in the table)."""
+        return self.table.clock_offset[self.col]
+
+    @clock_offset.setter
+    def clock_offset(self, value: float) -> None:
+        """A new estimate (PING / PONG)."""
+        self.table.clock_offset[self.col] = value
+
+    @property
+    def bad_payloads(self) -> int:
+        """Undecodable payloads this viewer received with a newer seq (counted, skipped)."""
+        self.table.flush()
+        return int(self.table.bad[self.col])
+
+    @property
+    def _decode(self) -> Callable[[bytes], Model]:
+        return self.table.decoder
+
+    @_decode.setter
+    def _decode(self, f: Callable[[bytes], Model]) -> None:  # tests and benches swap the table's decoder
+        self.table.decoder = f
+
+    def _decode_payload(self, data: bytes) -> Model:
+        return self.table.decode_payload(data)
 
     def __len__(self) -> int:
-        return len(self.ghosts)
+        return len(self.table.rows_of(self.col)[0])
+
+    @property
+    def ghosts(self) -> dict[int, Ghost]:
+        """A snapshot of this viewer's ghosts by entity id (in the table's row order)."""
+        t = self.table
+        rows, vers = t.rows_of(self.col)
+        out = {}
+        for e, k in zip(t.entity(rows).tolist(), vers.tolist(), strict=True):
+            m = t.vmsg[k]
+            out[e] = Ghost(e, m.seq, tuple(m.cells), float(t.vexp[k]), t.model(k), m.identity)
+        return out
 
     def receive(self, msg: Update | Leave, now: float) -> None:
         """Apply an UPDATE or LEAVE: older sequence numbers are ignored, undecodable payloads counted
         (`bad_payloads`) and skipped, and life is capped at the horizon whatever validity is claimed."""
-        if isinstance(msg, Leave):
-            self.ghosts.pop(msg.entity, None)
-            return
-        old = self.ghosts.get(msg.entity)
-        if old is not None and msg.seq <= old.seq:
-            return
-        try:
-            model = self._decode(msg.payload)
-        except PayloadError:
-            self.bad_payloads += 1
-            return
-        life = min(msg.validity_ms / 1000.0, HORIZON)
-        self.ghosts[msg.entity] = Ghost(msg.entity, msg.seq, tuple(msg.cells), now + life, model, msg.identity)
+        self.table.receive(self.col, (msg,), now)
 
-    def _decode_payload(self, data: bytes) -> Model:
-        return decode(data, self.net)
+    def clear(self) -> None:
+        """Drop every ghost (a WELCOME after a reconnect: entity ids are per server session)."""
+        self.table.clear(self.col)
 
     def set_visible(self, cells) -> None:
         """The cells the viewer currently sees (its PVS)."""
-        self.visible_cells = set(cells)
+        self.table.set_visible(self.col, cells)
 
     def expire(self, now: float) -> list[int]:
         """Drop ghosts whose validity ran out; returns their ids."""
-        gone = [e for e, g in self.ghosts.items() if now >= g.expires]
-        for e in gone:
-            del self.ghosts[e]
-        return gone
-
-    def is_visible(self, g: Ghost) -> bool:
-        """Whether any of the ghost's cells is in the viewer's current PVS (only those are drawn)."""
-        return not self.visible_cells.isdisjoint(g.cells)
+        return self.table.expire(self.col, now)
 
     def positions(self, now: float, visible_only: bool = True) -> dict[int, tuple[float, float]]:
         """Extrapolated (x, y) of the ghosts to draw now (expired ones are dropped first)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
-        self.expire(now)
-        t = now - self.clock_offset
-        return {e: g.model.xy_at(t) for e, g in self.ghosts.items() if not visible_only or self.is_visible(g)}
+        t = self.table
+        t.expire(self.col, now)
+        rows, vers = t.rows_of(self.col)
+        if visible_only:
+            keep = t.visible_versions(self.col, vers)
+            rows, vers = rows[keep], vers[keep]
+        at = now - self.clock_offset
+        return {e: t.model(k).xy_at(at) for e, k in zip(t.entity(rows).tolist(), vers.tolist(), strict=True)}

@@ -164,6 +164,20 @@ class ClientSession:
                 self._message(lk, m, now, out)
         return out
 
+    def delivers_whole(self, link: int, msgs: list[P.Message], now: float) -> bool:
+        """Whether `receive(link, msgs, now)` would do nothing but Deliver each message in order (an open link
+        not being dropped, every message an UPDATE or LEAVE), so that a shell may hand the frame on whole
+        (a simulation's viewer fleet: sims.engine.viewer_fleet). Takes `now` as `receive` does."""
+        self._now(now)
+        lk = self._live(link)
+        if lk is None or lk.phase != "open" or lk.dropping:
+            return False
+        for m in msgs:
+            t = type(m)
+            if t is not P.Update and t is not P.Leave:
+                return False
+        return True
+
     def connection_lost(self, link: int, now: float, error: str | None = None) -> list[Action]:
         """Attempt `link` ended (by the peer, the network, or a Drop): schedule the next attempt, or stop."""
         now = self._now(now)

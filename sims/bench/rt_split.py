@@ -79,6 +79,7 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
     for v in sim.viewers:
         timed(v, "move", "viewer_move")
         timed(v, "receive", "viewer_receive")
+        timed(v, "receive_frame", "viewer_receive")  # the viewer fleet's whole frames
     timed(sim, "maybe_sample", "measure")
     shell = Shell(sim, ShellConfig(duration=seconds + WARM * sim.dt, speed=1000.0, summary_every=1e9,
                                    artifact=artifact, keys=False), lambda m: None)

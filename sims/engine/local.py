@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from entitynet import protocol as P
 from entitynet.switchboard import Switchboard, SwitchConfig
+from sims.engine.message_cache import MessageCache
 from sims.engine.sim import Sim
 
 
@@ -26,6 +27,9 @@ class LocalSwitch:
         self.pubs = [self.sb.connect(now, "sim") for _ in range(sim.config.connections)]
         self.views = [self.sb.connect(now, "viewer") for _ in sim.viewers]
         self.viewer_of = {cid: i for i, cid in enumerate(self.views)}
+        #: the viewers' frames decoded as the shell decodes them: one object per distinct message of a flush,
+        #: shared by the viewers it reaches (so the ghost table takes it as one version)
+        self.messages = MessageCache()
         self.updates_in = 0
         self.bytes_in = 0
         hello = P.Hello(P.PROTOCOL_VERSION, "sim", topo.digest)
@@ -60,6 +64,7 @@ class LocalSwitch:
     def flush(self, now: float) -> None:
         """Drain every dirty outbox and hand each viewer's messages (with their encoded size, for the byte
         counts) to `Sim.deliver`; publishers' outboxes are drained and dropped."""
+        self.messages.clear()
         for cid in sorted(self.sb.take_dirty()):
             ob = self.sb.outbox(cid)
             if ob is None:
@@ -68,7 +73,7 @@ class LocalSwitch:
             i = self.viewer_of.get(cid)
             if i is None or not encoded:
                 continue
-            msgs = P.decode_payload(P.payload_from_encoded(encoded))
+            msgs = self.messages.decode(P.payload_from_encoded(encoded))
             for enc, m in zip(encoded, msgs, strict=True):
                 self.sim.deliver(i, m, len(enc))
 

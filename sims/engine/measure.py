@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from entitynet.client.ghost_table import csr_take
 from entitynet.client.network import NetView
 from sims.engine.source import Truth
 from sims.engine.truth_arrays import EdgeArrays, truth_arrays
@@ -68,7 +69,8 @@ class Measure:
         """One sample of every viewer against the truth at `now`: errors of shown entities in subscribed cells,
         misses, and stale ghosts (see the module docstring for the rules). Over arrays: the truth once
         (`truth_arrays`), then per viewer its subscribed cells as a mask over every (entity, cell) the truth
-        occupies; only the viewer's ghosts are walked one by one (`_drawn`)."""
+        occupies; its drawn ghosts read from the viewers' ghost table over arrays (`_drawn`), and the stale test
+        over (ghost, cell) pairs (`_claims_met`)."""
         truth = truth_arrays(world.agents, self._edge_arrays(world))
         n = len(truth.ids)
         pair_row = np.repeat(np.arange(n), np.diff(truth.cell_off))
@@ -78,7 +80,8 @@ class Measure:
         pair_cell = truth.cells - low
         n_cells = int(getattr(world.topo, "n_cells", 0) or 0) - low
         n_cells = max(n_cells, int(pair_cell.max()) + 1 if len(pair_cell) else 0)
-        memo: dict[tuple[int, float], tuple[float, float]] = {}  # (model, t) -> xy: viewers share models
+        memo: dict = {}  # (table, t) -> its distinct models' xy at t (viewers share versions and models)
+        agents: dict[int, np.ndarray] = {}  # id(table) -> the truth's agent of each of its rows (-1: none)
         for v in viewers:
             t = self.tallies["roof" if v.high else "street"]
             t.viewer_samples += 1
@@ -86,17 +89,9 @@ class Measure:
             sub = np.fromiter(v.subs.cells, dtype=np.int64, count=len(v.subs.cells)) - low
             mask[sub[(sub >= 0) & (sub < n_cells)]] = True
             inside_rows = np.unique(pair_row[mask[pair_cell]])
-            shown: dict[int, tuple[float, float]] = {}
-            claimed: dict[int, tuple[int, ...]] = {}
-            for eid, (xy, cells) in _drawn(v, now, memo).items():
-                aid = eid_to_agent.get(eid, -1)
-                if aid < 0:  # not a simulated entity (the demo's transit proxy publishes its own): no truth
-                    continue
-                shown[aid] = xy
-                claimed[aid] = cells
+            aids, xy, vers = _drawn(v, now, memo, agents, eid_to_agent)
             t.visible += len(inside_rows)
-            t.shown += len(shown)
-            aids = np.fromiter(shown, dtype=np.int64, count=len(shown))
+            t.shown += len(aids)
             rows = truth.rows(aids)
             ghost_at = np.full(n, -1, dtype=np.int64)  # row -> index into `aids` of its ghost
             live = rows >= 0
@@ -105,18 +100,14 @@ class Measure:
             hit = g >= 0
             t.missed += int(len(g) - hit.sum())
             if hit.any():
-                xy = np.array(list(shown.values()), dtype=np.float64).reshape(-1, 2)
                 dx = (xy[g[hit], 0] - truth.x[inside_rows[hit]]).tolist()
                 dy = (xy[g[hit], 1] - truth.y[inside_rows[hit]]).tolist()
                 t.errors.extend(map(math.hypot, dx, dy))
             inside = np.zeros(n, dtype=bool)
             inside[inside_rows] = True
-            for aid, row in zip(aids.tolist(), rows.tolist(), strict=True):
-                if row >= 0 and inside[row]:
-                    continue
-                own = truth.cells_of(row) if row >= 0 else ()
-                if set(own).isdisjoint(claimed[aid]):
-                    t.stale += 1
+            out = np.flatnonzero(~((rows >= 0) & inside[np.maximum(rows, 0)]))  # ghosts of entities not inside
+            if len(out):
+                t.stale += len(out) - _claims_met(v.ghosts.table, vers[out], truth, rows[out])
 
     def _edge_arrays(self, world: Truth) -> EdgeArrays | None:
         """The map's `EdgeArrays` for the truth's positions (built once per map)."""
@@ -142,24 +133,61 @@ class Measure:
         return out
 
 
-def _drawn(v: SimViewer, now: float, memo: dict) -> dict[int, tuple[tuple[float, float], tuple[int, ...]]]:
-    """What `v.ghosts.positions(now)` gives (expired ghosts dropped, only the visible drawn), with each ghost's
-    claimed cells. Why not call it: the viewers share decoded models (`sims.engine.decode_cache`), so one
-    entity's ghost is extrapolated once per sample in `memo`, not once per viewer that holds it (the per-viewer
-    calls were most of a sample's cost). Keyed by the model object's id, alive while the ghosts hold it."""
-    gs = v.ghosts
+def _drawn(v: SimViewer, now: float, memo: dict, agents: dict[int, np.ndarray],
+           eid_to_agent: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What `v.ghosts.positions(now)` draws (expired ghosts dropped, only the visible drawn), read from the
+    viewers' ghost table over arrays: the truth's agent ids of the drawn ghosts (one per agent; ghosts of
+    entities that are not simulated, such as the demo's transit proxy's, left out), their (x, y) and their
+    versions (for the claimed cells). Why not `positions`: the viewers share versions and decoded models
+    (`sims.engine.decode_cache`), so one model is extrapolated once per sample in `memo` (by the table's model
+    index, `vmid`), not once per viewer that holds it."""
     if not math.isfinite(now):
         raise ValueError(f"now must be finite, got {now!r}")
-    gs.expire(now)
+    gs = v.ghosts
+    table, col = gs.table, gs.col
+    table.expire(col, now)
+    rows, vers = table.rows_of(col)
+    keep = table.visible_versions(col, vers)
+    rows, vers = rows[keep], vers[keep]
+    of_row = agents.get(id(table))
+    if of_row is None or len(of_row) < table.n_rows:
+        ents = table.entity(np.arange(table.n_rows)).tolist()
+        of_row = agents[id(table)] = np.array([eid_to_agent.get(e, -1) for e in ents], dtype=np.int64)
+    aids = of_row[rows]
+    sim = aids >= 0
+    aids, vers = aids[sim], vers[sim]
+    if len(np.unique(aids)) < len(aids):  # two entity ids of one agent: the later ghost's position, as a dict
+        last = {a: i for i, a in enumerate(aids.tolist())}
+        first = dict.fromkeys(aids.tolist())
+        pick = np.array([last[a] for a in first], dtype=np.int64)
+        aids, vers = aids[pick], vers[pick]
     t = now - gs.clock_offset
-    visible = gs.visible_cells
-    out = {}
-    for e, g in gs.ghosts.items():
-        if visible.isdisjoint(g.cells):
-            continue
-        key = (id(g.model), t)
-        xy = memo.get(key)
-        if xy is None:
-            xy = memo[key] = g.model.xy_at(t)
-        out[e] = (xy, g.cells)
-    return out
+    at = memo.get((id(table), t))  # the table's distinct models extrapolated to t, each once per sample
+    if at is None:
+        n = len(table.models)
+        at = memo[(id(table), t)] = (np.full((n, 2), np.nan), np.zeros(n, dtype=bool))
+    mxy, done = at
+    mids = table.vmid[vers]
+    models = table.models
+    for k in np.unique(mids[~done[mids]]).tolist():
+        mxy[k] = models[k].xy_at(t)
+        done[k] = True
+    return aids, mxy[mids], vers
+
+
+def _claims_met(table, versions: np.ndarray, truth, rows: np.ndarray) -> int:
+    """How many of the ghosts (`versions`, their entities' truth `rows`, -1: none) claimed a cell their entity
+    truly occupies (the others are stale): each ghost's claimed cells and its entity's cells as (ghost, cell)
+    pairs, sorted together, a ghost meets its claim where one pair comes from both sides."""
+    co, cv = csr_take(table.voff, table.vcells, versions)
+    known = np.flatnonzero(rows >= 0)
+    to, tv = csr_take(truth.cell_off, truth.cells, rows[known])
+    owner = np.concatenate([co, known[to]])
+    cell = np.concatenate([cv, tv.astype(np.int64)])
+    side = np.concatenate([np.zeros(len(co), dtype=np.int8), np.ones(len(to), dtype=np.int8)])
+    order = np.lexsort((side, cell, owner))
+    owner, cell, side = owner[order], cell[order], side[order]
+    both = (owner[1:] == owner[:-1]) & (cell[1:] == cell[:-1]) & (side[1:] != side[:-1])
+    met = np.zeros(len(versions), dtype=bool)
+    met[owner[1:][both]] = True
+    return int(met.sum())

@@ -24,6 +24,13 @@ import msgpack
 from entitynet import protocol as P
 
 
+class Frame(list):
+    """A frame's messages, as a list, with `nbytes`: the encoded size of them all (the payload less its array
+    header), so that a viewer's byte count takes a frame in one addition."""
+
+    __slots__ = ("nbytes",)
+
+
 class MessageCache:
     """Frame payload -> messages, each distinct message's bytes decoded once (see the module docstring);
     `size(msg)` is the encoded size of a message it returned (the viewers' byte counts without re-encoding)."""
@@ -54,45 +61,52 @@ class MessageCache:
 
     def decode(self, payload: bytes) -> list[P.Message]:
         """The messages of one frame payload, as `protocol.decode_payload(payload, limits)` gives them (and
-        its ProtocolError for a bad frame)."""
+        its ProtocolError for a bad frame); a `Frame` with their encoded size where the fast walk took it."""
         lim = self.limits
         if len(payload) > lim.max_frame:
             return P.decode_payload(payload, lim)  # raises FRAME_TOO_LARGE
-        try:
+        out = Frame()
+        get = self._messages.get
+        misses = 0
+        try:  # one pass: where each message ends (msgpack's C unpacker, no objects built), then its bytes looked up
             up = msgpack.Unpacker(max_buffer_size=max(len(payload), 1))
             up.feed(payload)
             n = up.read_array_header()
             if n > lim.max_messages:
                 return P.decode_payload(payload, lim)  # raises
-            spans = []
-            at = up.tell()
+            skip, tell = up.skip, up.tell
+            at = first = tell()
             for _ in range(n):
-                up.skip()
-                end = up.tell()
-                spans.append((at, end))
+                skip()
+                end = tell()
+                piece = payload[at:end]
+                m = get(piece)
+                if m is None:
+                    m = self._decode_new(piece, end - at)
+                    if m is None:
+                        # the frame is bad; the codec unpacks it whole before it checks any message, so a later
+                        # message msgpack refuses decides the error over this one's: the codec gives it
+                        return P.decode_payload(payload, lim)
+                    misses += 1
+                out.append(m)
                 at = end
         except Exception:  # not one array of whole msgpack objects: the codec says what is wrong
             return P.decode_payload(payload, lim)
         if at != len(payload):
             return P.decode_payload(payload, lim)  # trailing bytes
-        table = self._messages
-        out = []
-        for a, b in spans:
-            piece = payload[a:b]
-            m = table.get(piece)
-            if m is None:
-                self.misses += 1
-                try:
-                    (m,) = P.decode_payload(self._one + piece, lim)
-                except P.ProtocolError:
-                    # the frame is bad; the codec unpacks it whole before it checks any message, so a later
-                    # message msgpack refuses decides the error over this one's: the codec gives it
-                    return P.decode_payload(payload, lim)
-                if len(table) >= self.max_entries:
-                    self.clear()
-                table[piece] = m
-                self._sizes[id(m)] = (m, b - a)
-            else:
-                self.hits += 1
-            out.append(m)
+        self.misses += misses
+        self.hits += n - misses
+        out.nbytes = at - first
         return out
+
+    def _decode_new(self, piece: bytes, size: int) -> P.Message | None:
+        """A message not seen since the last clear, decoded alone by the codec and remembered (None: refused)."""
+        try:
+            (m,) = P.decode_payload(self._one + piece, self.limits)
+        except P.ProtocolError:
+            return None
+        if len(self._messages) >= self.max_entries:
+            self.clear()
+        self._messages[piece] = m
+        self._sizes[id(m)] = (m, size)
+        return m

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from entitynet import protocol as P
+from entitynet.client.ghost_table import GhostTable
 from sims.engine import TICK_HZ_RANGE
 from sims.engine.clients import Fleet
 from sims.engine.decode_cache import DecodeCache
@@ -116,7 +117,9 @@ class Sim:
         rng = random.Random(config.seed + 7)
         n_high = round(config.viewers * config.roof_share)
         self.decode_cache = DecodeCache(self.world.net)  # one payload reaches many viewers: decode it once
-        self.viewers = [SimViewer(self.world.net, i, i < n_high, cells_at, rng, self.decode_cache)
+        #: every viewer's ghosts in one table of arrays (the ghost rules' one home), decoding through the cache
+        self.ghost_table = GhostTable(self.world.net, self.decode_cache)
+        self.viewers = [SimViewer(self.world.net, i, i < n_high, cells_at, rng, table=self.ghost_table)
                         for i in range(config.viewers)]
         self.measure = Measure()
         self.dt = 1.0 / config.tick_hz

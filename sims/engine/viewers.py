@@ -14,6 +14,7 @@ import numpy as np
 
 from entitynet import protocol as P
 from entitynet.client import GhostStore, Subscriptions
+from entitynet.client.ghost_table import GhostTable
 from entitynet.client.motion import Model
 from entitynet.client.network import NetView
 from sims.mobility import Trajectory, random_start
@@ -66,9 +67,10 @@ class SimViewer:
     6 m/s), subscribed to what `cells_at` gives for its position."""
 
     def __init__(self, net: NetView, index: int, high: bool, cells_at: CellsAt, rng: random.Random,
-                 decoder: Callable[[bytes], Model] | None = None):
-        """`decoder`: the payload decoder its ghost store uses (the simulation's viewers share one caching
-        decoder, `sims.engine.decode_cache`; default: each decodes its own)."""
+                 decoder: Callable[[bytes], Model] | None = None, table: GhostTable | None = None):
+        """`table`: the ghost table its store is a column of (the simulation's viewers share one, which decodes
+        with the shared caching decoder, `sims.engine.decode_cache`); else `decoder`: its own store's decoder
+        (default: each decodes its own)."""
         self.index = index
         self.high = high
         self.z = rng.uniform(40.0, 90.0) if high else 1.7
@@ -78,7 +80,7 @@ class SimViewer:
         self._cells_at = cells_at
         self._last_cells: np.ndarray | None = None  # the lookup's answer at the last move
         self.lookups_skipped = 0
-        self.ghosts = GhostStore(net, decoder=decoder)
+        self.ghosts = GhostStore(net, decoder=decoder, table=table)
         self.deliveries = 0
         self.leaves = 0
         self.bytes = 0
@@ -100,6 +102,15 @@ class SimViewer:
         self._last_cells = cells
         return msgs
 
+    def receive_frame(self, msgs: list[P.Update | P.Leave], now: float, size: int, decoded: bool = False) -> None:
+        """A whole frame of UPDATEs and LEAVEs that arrived (`size`: their encoded bytes): what `receive` does
+        with each, taken by the ghost table in one call (the viewer fleet's path, `sims.engine.viewer_fleet`;
+        `decoded`: the codec's messages, see `GhostTable.receive`)."""
+        leaves = self.ghosts.table.receive(self.ghosts.col, msgs, now, decoded)
+        self.bytes += size
+        self.deliveries += len(msgs) - leaves
+        self.leaves += leaves
+
     def receive(self, msg: P.Message, now: float, size: int = 0) -> None:
         """Count and apply a message that arrived. A WELCOME clears the ghosts (entity ids are per server
         session, so after a reconnect the old ones mean nothing) and adopts the server's limits (the next move
@@ -112,6 +123,6 @@ class SimViewer:
             self.leaves += 1
             self.ghosts.receive(msg, now)
         elif isinstance(msg, P.Welcome):
-            self.ghosts.ghosts.clear()  # entity ids are per server session
+            self.ghosts.clear()  # entity ids are per server session
             self.subs.apply_limits(msg.limits)
             self._last_cells = None  # the next move recomputes its subscription under the new limits

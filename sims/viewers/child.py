@@ -82,35 +82,14 @@ def _leaves(exc: BaseException):
 async def _run(sock: socket.socket, reader: wire.FrameReader, share, address: tuple[str, int], token: str) -> None:
     import trio
 
-    from entitynet import protocol as P
-    from entitynet.connection import Connection
-    from sims.engine.message_cache import MessageCache
+    from sims.engine.viewer_fleet import ViewerFleet
 
     stream = trio.SocketStream(trio.socket.from_stdlib_socket(sock))
-    messages = MessageCache()  # one decoder for this process's viewer connections, cleared each tick
-    sizes: dict = {}
-
-    def on_view(i: int):
-        viewer = share.viewers[i]
-
-        def on_message(m: P.Message) -> None:
-            size = 0
-            if isinstance(m, P.Update | P.Leave):
-                if type(m) is P.Update:
-                    share.learn(m)
-                size = messages.size(m)
-                if size is None:
-                    size = sizes.get(m)
-                    if size is None:
-                        size = sizes[m] = len(P.encode_message(m))
-            viewer.receive(m, share.now, size)
-
-        return on_message
+    fleet = ViewerFleet(share.viewers, lambda: share.now, share.learn)  # frames into the ghost table whole
 
     digest = share.sim.topo.digest
     async with trio.open_nursery() as nursery:
-        conns = [Connection(address, digest, token, on_message=on_view(i), decode=messages.decode)
-                 for i in range(len(share.viewers))]
+        conns = [fleet.connection(i, address, digest, token) for i in range(len(share.viewers))]
         for c in conns:
             await nursery.start(c.run)
         await stream.send_all(wire.encode("ready", viewers=len(conns)))
@@ -124,8 +103,7 @@ async def _run(sock: socket.socket, reader: wire.FrameReader, share, address: tu
                 continue
             for f in frames:
                 if f["t"] == "tick":
-                    messages.clear()
-                    sizes.clear()
+                    fleet.clear()
                     subs = share.tick(f["k"], f["pub"], f["unpub"], time.monotonic() - f["sent"])
                     for c, msgs in zip(conns, subs, strict=True):
                         for m in msgs:

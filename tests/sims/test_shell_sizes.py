@@ -26,13 +26,13 @@ def test_an_arrival_is_counted_at_its_encoded_size_and_encoded_once(monkeypatch)
     calls = []
     real = P.encode_message
     monkeypatch.setattr(P, "encode_message", lambda m: calls.append(m) or real(m))
-    got = [shell._size(m) for m in (a, same, other, leave, leave)]
+    got = [shell.viewer_fleet.size(m) for m in (a, same, other, leave, leave)]
     assert got == [len(real(m)) for m in (a, same, other, leave, leave)]
     assert calls == [a, other, leave]
     deliveries = []
-    shell.sim.deliver = lambda i, m, size=0: deliveries.append((i, size))
-    shell._on_view(1)(a)
-    assert deliveries == [(1, len(real(a)))]
+    shell.sim.viewers[1].receive = lambda m, now, size=0: deliveries.append((m, size))
+    shell.viewer_fleet.on_message(1)(a)
+    assert deliveries == [(a, len(real(a)))]
 
 
 def test_cli_refuses_a_bad_measure_share(capsys):
@@ -48,18 +48,27 @@ async def test_viewers_share_one_decoder_and_count_each_arrival_at_its_encoded_s
                                   subscribe="radius"))
     shell = Shell(sim, ShellConfig(duration=2.0, speed=2.0, summary_every=1e9, artifact=helsinki_path, keys=False),
                   lambda m: None)
-    got: list[tuple[P.Message, int]] = []
-    deliver = sim.deliver
+    got: list[tuple[list[P.Message], int]] = []  # what reached the viewers: messages, and the bytes counted
 
-    def recording(i, m, size=0):
-        got.append((m, size))
-        deliver(i, m, size)
+    def recording(v):
+        one, frame = v.receive, v.receive_frame
 
-    sim.deliver = recording
+        def receive(m, now, size=0):
+            got.append(([m], size))
+            one(m, now, size)
+
+        def receive_frame(msgs, now, size, decoded=False):
+            got.append((list(msgs), size))
+            frame(msgs, now, size, decoded)
+
+        v.receive, v.receive_frame = receive, receive_frame
+
+    for v in sim.viewers:
+        recording(v)
     with trio.fail_after(60):
         rep = await shell.run()
-    arrivals = [(m, size) for m, size in got if isinstance(m, P.Update | P.Leave)]
-    assert len(arrivals) > 50 and rep["viewers"]["bytes"] == sum(size for _, size in arrivals)
-    assert all(size == len(P.encode_message(m)) for m, size in arrivals)
+    arrivals = [(ms, size) for ms, size in got if all(isinstance(m, P.Update | P.Leave) for m in ms)]
+    assert sum(len(ms) for ms, _ in arrivals) > 50 and rep["viewers"]["bytes"] == sum(s for _, s in arrivals)
+    assert all(size == sum(len(P.encode_message(m)) for m in ms) for ms, size in arrivals)
     # the viewers' frames carried the same messages: decoded once, the same object handed to each viewer
-    assert shell.messages.hits > shell.messages.misses > 0
+    assert shell.viewer_fleet.messages.hits > shell.viewer_fleet.messages.misses > 0

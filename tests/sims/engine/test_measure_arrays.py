@@ -9,7 +9,7 @@ from collections import defaultdict
 import pytest
 
 from sims.engine.local import LocalSwitch
-from sims.engine.measure import Measure, Tally, _drawn
+from sims.engine.measure import Measure, Tally
 from sims.engine.sim import Sim, SimConfig
 
 
@@ -22,7 +22,6 @@ def reference_sample(tallies, now, world, viewers, eid_to_agent) -> None:
         cells_of[a.id] = cs = a.cells()
         for c in cs:
             where[c].append(a.id)
-    memo: dict = {}
     for v in viewers:
         t = tallies["roof" if v.high else "street"]
         t.viewer_samples += 1
@@ -30,7 +29,10 @@ def reference_sample(tallies, now, world, viewers, eid_to_agent) -> None:
         for c in v.subs.cells:
             inside.update(where.get(c, ()))
         shown, claimed = {}, {}
-        for eid, (xy, cells) in _drawn(v, now, memo).items():
+        drawn = v.ghosts.positions(now)  # the store's own API: each viewer's ghosts one by one
+        held = v.ghosts.ghosts
+        for eid, xy in drawn.items():
+            cells = held[eid].cells
             aid = eid_to_agent.get(eid, -1)
             if aid < 0:
                 continue
@@ -109,8 +111,9 @@ def test_cells_outside_the_map_count_as_the_per_entity_measure_counts_them():
 
     world = SimpleNamespace(topo=SimpleNamespace(n_cells=4), net=None,
                             agents={1: Body(1, (0,)), 2: Body(2, (3,)), 3: Body(3, (-2,)), 4: Body(4, (-1, 2))})
-    no_ghosts = SimpleNamespace(expire=lambda now: None, clock_offset=0.0, visible_cells=frozenset(), ghosts={})
-    viewers = [SimpleNamespace(high=False, subs=SimpleNamespace(cells=frozenset(s)), ghosts=no_ghosts)
+    from entitynet.client import GhostStore
+
+    viewers = [SimpleNamespace(high=False, subs=SimpleNamespace(cells=frozenset(s)), ghosts=GhostStore(None))
                for s in ({-1}, {-3}, {7}, {-2}, {3, -5}, {2, 9})]
     ours, ref = Measure(), defaultdict(Tally)
     ours.sample(10.0, world, viewers, {})

@@ -1,0 +1,337 @@
+"""The ghost rules' one home: every viewer's received entities of a process in one table of arrays.
+
+Why a table: a simulation holds hundreds of viewers in one process, and the server fans one UPDATE out to every
+viewer of its cells, so the same message reaches each of them. A dict of `Ghost` objects per viewer cost a
+`Ghost` per viewer per message and a walk of every viewer's ghosts at every truth sample (about 1 us per ghost);
+reading such dicts into arrays costs as much as walking them (docs/simulation.md). Here a message becomes one
+*version* (its entity's row, seq, expiry in receiver time, decoded model, claimed cells) shared by every viewer
+that takes it, and a viewer holds an entity by the version index in its column of `held` (rows: entities,
+columns: viewers, -1: none). The rules apply over arrays, in bulk:
+
+- an UPDATE replaces what a viewer holds of its entity only with a higher sequence number; an undecodable
+  payload (PayloadError) is counted per viewer (`bad_payloads`) when its seq is newer, and changes nothing;
+- a ghost lives `min(validity, limits.HORIZON)` seconds after its UPDATE arrived (`now` at receipt), and is
+  dropped when `expire(now)` finds `now >= expires` (ghosts kept while invisible: reference section 4.4);
+- LEAVE drops the entity from that viewer (an unknown entity: nothing); `clear` (a WELCOME: entity ids are per
+  server session) drops all of a viewer's ghosts.
+
+Messages are queued and applied when something reads the table; a queue in which every (entity, viewer) pair
+appears at most once gives the same result applied at once as one by one, so a pair seen twice applies the
+queue first. The public per-viewer API is `entitynet.client.GhostStore`, a view of one column; a single
+viewer is a table of one column. Bounded: versions no viewer holds any more are dropped, and rows no viewer
+holds are reused, when the version count doubles (`_compact`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from entitynet.client.limits import HORIZON
+from entitynet.client.motion import Model
+from entitynet.client.network import NetView
+from entitynet.client.payload import PayloadError, decode
+from entitynet.protocol import Leave, Update
+
+_I64 = (-(2**63), 2**63 - 1)
+_COL_BITS = 24  # a queued (row, column) pair's key: row << _COL_BITS | column
+
+
+def csr_take(off: np.ndarray, flat: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The entries of the CSR rows `idx` (row k holds `flat[off[k]:off[k + 1]]`), flattened in order: for each
+    entry the position in `idx` of its row, and its value."""
+    start = off[idx]
+    n = off[idx + 1] - start
+    at = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + np.repeat(start, n)
+    return np.repeat(np.arange(len(idx)), n), flat[at]
+
+
+def _grow(a: np.ndarray, n: int, fill) -> np.ndarray:
+    """`a` with room for at least `n` along its first axis (doubling), new slots set to `fill`."""
+    if n <= len(a):
+        return a
+    out = np.full((max(n, 2 * len(a)),) + a.shape[1:], fill, dtype=a.dtype)
+    out[:len(a)] = a
+    return out
+
+
+class GhostTable:
+    """The received entities of many viewers (columns) over shared versions of the messages (see the module
+    docstring). `decoder`: payload bytes -> model, raising PayloadError (default: `payload.decode` on `net`)."""
+
+    def __init__(self, net: NetView | None, decoder: Callable[[bytes], Model] | None = None) -> None:
+        self.net = net
+        self.decoder: Callable[[bytes], Model] = decoder if decoder is not None else self.decode_payload
+        self.held = np.full((64, 4), -1, dtype=np.int64)  # row x column -> version (-1: none)
+        self._row_of: dict[int, int] = {}  # entity id -> row
+        self._entity = np.zeros(64, dtype=np.int64)  # row -> entity id
+        self._free_rows: list[int] = []
+        self._n_rows = 0
+        self.n_cols = 0
+        self.clock_offset: list[float] = []  # column -> add to a payload's t0 to get receiver time
+        self.visible: list[frozenset[int]] = []  # column -> the cells it sees (its PVS)
+        #: column -> (a mask over its visible cell ids or None where they are too far apart, the first id, the ids)
+        self._visible_mask: list[tuple[np.ndarray | None, int, np.ndarray] | None] = []
+        self.bad = np.zeros(4, dtype=np.int64)  # column -> undecodable payloads counted
+        # versions: one per distinct message taken at one `now`
+        self.vseq = np.zeros(64, dtype=np.int64)
+        self.vexp = np.zeros(64, dtype=np.float64)
+        self.vrow = np.zeros(64, dtype=np.int64)
+        self.vok = np.zeros(64, dtype=bool)  # the payload decoded
+        self.voff = np.zeros(65, dtype=np.int64)  # claimed cells of version k: vcells[voff[k]:voff[k + 1]]
+        self.vcells = np.zeros(256, dtype=np.int64)
+        self.vmid = np.zeros(64, dtype=np.int64)  # version -> its model's index in `models`
+        self.models: list[Model | None] = []  # the distinct decoded models (None: undecodable), shared by versions
+        self._model_of: dict[int, int] = {}  # id(model) -> its index (the model kept alive in `models`)
+        self.vmsg: list[Update] = []
+        self._vrow_list: list[int] = []
+        self._version_of: dict[int, int] = {}  # id(message) -> its version at `_version_now`
+        self._version_now: float | None = None
+        self._compact_at = 4096
+        # the queue (see the module docstring)
+        self._q_col: list[int] = []
+        self._q_ver: list[int] = []  # a version, or for a LEAVE -1 - its row
+        self._q_pairs: set[int] = set()
+
+    # ---- columns ---------------------------------------------------------------------------------------------
+    def add_viewer(self, clock_offset: float = 0.0) -> int:
+        """A new column (a viewer with no ghosts); its index."""
+        col = self.n_cols
+        if col >= 1 << _COL_BITS:
+            raise ValueError(f"a ghost table holds at most {1 << _COL_BITS} viewers")
+        if col >= self.held.shape[1]:
+            wider = np.full((self.held.shape[0], 2 * self.held.shape[1]), -1, dtype=np.int64)
+            wider[:, :col] = self.held
+            self.held = wider
+        self.bad = _grow(self.bad, col + 1, 0)
+        self.n_cols += 1
+        self.clock_offset.append(clock_offset)
+        self.visible.append(frozenset())
+        self._visible_mask.append(None)
+        return col
+
+    def set_visible(self, col: int, cells: Iterable[int]) -> None:
+        """The cells viewer `col` currently sees (only ghosts with a claimed cell among them are drawn)."""
+        self.visible[col] = frozenset(cells)
+        self._visible_mask[col] = None
+
+    @property
+    def n_rows(self) -> int:
+        """Rows in use or free (entity ids seen since the last compaction that freed them)."""
+        return self._n_rows
+
+    # ---- receiving -------------------------------------------------------------------------------------------
+    def decode_payload(self, data: bytes) -> Model:
+        """The default decoder: `payload.decode` on the table's map."""
+        return decode(data, self.net)
+
+    def receive(self, col: int, msgs: Iterable[Update | Leave], now: float, decoded: bool = False) -> int:
+        """Take a frame's UPDATEs and LEAVEs for viewer `col`, in order, arrived at receiver time `now`; how many
+        were LEAVEs. Anything else (another message type, an id or seq that is not a 64-bit integer) is refused
+        with TypeError or ValueError before anything of the frame is taken, unless `decoded`: the messages
+        come from the protocol's codec (ids and seqs in [0, 2**53]) and are all UPDATEs and LEAVEs (the viewer
+        fleet's frames, which the session checked: `ClientSession.delivers_whole`)."""
+        if not decoded:
+            msgs = list(msgs)
+            for m in msgs:
+                if type(m) is not Update and type(m) is not Leave:
+                    raise TypeError(f"a ghost table takes UPDATE and LEAVE, not {type(m).__name__}")
+                if not (type(m.entity) is int and _I64[0] <= m.entity <= _I64[1]):
+                    raise ValueError(f"entity must be a 64-bit integer, got {m.entity!r}")
+                if type(m) is Update and not (type(m.seq) is int and _I64[0] <= m.seq <= _I64[1]):
+                    raise ValueError(f"seq must be a 64-bit integer, got {m.seq!r}")
+        if now != self._version_now:  # a version's expiry is its message's `now + life`
+            self._version_of.clear()
+            self._version_now = now
+        version_of, pairs, rows, row_of = self._version_of, self._q_pairs, self._vrow_list, self._row_of
+        add_col, add_ver, new_version = self._q_col.append, self._q_ver.append, self._new_version
+        leaves = 0
+        for m in msgs:
+            if type(m) is Update:
+                ver = version_of.get(id(m))
+                if ver is None:
+                    ver = new_version(m, now)
+                key = rows[ver] << _COL_BITS | col
+            else:
+                leaves += 1
+                row = row_of.get(m.entity, -1)
+                if row < 0:
+                    continue  # LEAVE of an entity no viewer holds
+                ver = -1 - row  # a queued LEAVE: its row, below zero
+                key = row << _COL_BITS | col
+            if key in pairs:
+                self.flush()
+            pairs.add(key)
+            add_col(col)
+            add_ver(ver)
+        return leaves
+
+    def _new_version(self, m: Update, now: float) -> int:
+        """The version of message `m` taken at `now` (its payload decoded once, here)."""
+        try:
+            cells = np.array(m.cells, dtype=np.int64).reshape(-1)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"cells must be 64-bit integers, got {m.cells!r:.80}") from None
+        if len(self.vmsg) >= self._compact_at:
+            self._compact()
+        row = self._row_of.get(m.entity)
+        if row is None:
+            row = self._new_row(m.entity)
+        try:
+            model: Model | None = self.decoder(m.payload)
+        except PayloadError:
+            model = None
+        k = len(self.vmsg)
+        self.vseq = _grow(self.vseq, k + 1, 0)
+        self.vexp = _grow(self.vexp, k + 1, 0.0)
+        self.vrow = _grow(self.vrow, k + 1, 0)
+        self.vok = _grow(self.vok, k + 1, False)
+        self.vmid = _grow(self.vmid, k + 1, 0)
+        self.voff = _grow(self.voff, k + 2, 0)
+        a = int(self.voff[k])
+        self.vcells = _grow(self.vcells, a + len(cells), 0)
+        self.vcells[a:a + len(cells)] = cells
+        self.voff[k + 1] = a + len(cells)
+        self.vseq[k] = m.seq
+        self.vexp[k] = now + min(m.validity_ms / 1000.0, HORIZON)
+        self.vrow[k] = row
+        self.vok[k] = model is not None
+        mid = self._model_of.get(id(model))
+        if mid is None:
+            mid = self._model_of[id(model)] = len(self.models)
+            self.models.append(model)
+        self.vmid[k] = mid
+        self.vmsg.append(m)
+        self._vrow_list.append(row)
+        self._version_of[id(m)] = k
+        return k
+
+    def _new_row(self, entity: int) -> int:
+        if self._free_rows:
+            row = self._free_rows.pop()
+        else:
+            row = self._n_rows
+            self._n_rows += 1
+            if row >= self.held.shape[0]:
+                self.held = _grow(self.held, row + 1, -1)
+                self._entity = _grow(self._entity, row + 1, 0)
+        self._row_of[entity] = row
+        self._entity[row] = entity
+        return row
+
+    def flush(self) -> None:
+        """Apply the queued messages (each (entity, viewer) pair once in the queue: as if one by one)."""
+        if not self._q_ver:
+            return
+        cols = np.array(self._q_col, dtype=np.int64)
+        vers = np.array(self._q_ver, dtype=np.int64)
+        self._q_col.clear()
+        self._q_ver.clear()
+        self._q_pairs.clear()
+        leave = vers < 0
+        rows = np.where(leave, -1 - vers, self.vrow[np.maximum(vers, 0)])
+        vers[leave] = -1  # what a LEAVE leaves held: none
+        cur = self.held[rows, cols]
+        has = cur >= 0
+        newer = np.ones(len(vers), dtype=bool)
+        upd = ~leave
+        held_seq = self.vseq[cur[upd & has]]
+        newer[np.flatnonzero(upd & has)] = self.vseq[vers[upd & has]] > held_seq
+        ok = self.vok[np.where(leave, 0, vers)]
+        bad = upd & newer & ~ok
+        if bad.any():
+            np.add.at(self.bad, cols[bad], 1)
+        take = leave | (newer & ok)
+        self.held[rows[take], cols[take]] = vers[take]  # a LEAVE's version is -1: none
+
+    def clear(self, col: int) -> None:
+        """Drop every ghost of viewer `col` (after a WELCOME: entity ids are per server session)."""
+        self.flush()
+        self.held[:, col] = -1
+
+    def expire(self, col: int, now: float) -> list[int]:
+        """Drop viewer `col`'s ghosts whose validity ran out (`now >= expires`); their entity ids."""
+        self.flush()
+        held = self.held[:self._n_rows, col]
+        rows = np.flatnonzero(held >= 0)
+        gone = rows[now >= self.vexp[held[rows]]]
+        self.held[gone, col] = -1
+        return self._entity[gone].tolist()
+
+    # ---- reading ---------------------------------------------------------------------------------------------
+    def rows_of(self, col: int) -> tuple[np.ndarray, np.ndarray]:
+        """Viewer `col`'s ghosts: their rows and versions, in row order (after the queue is applied)."""
+        self.flush()
+        held = self.held[:self._n_rows, col]
+        rows = np.flatnonzero(held >= 0)
+        return rows, held[rows]
+
+    def entity(self, rows: np.ndarray) -> np.ndarray:
+        """The entity ids of `rows`."""
+        return self._entity[rows]
+
+    def visible_versions(self, col: int, versions: np.ndarray) -> np.ndarray:
+        """Which of `versions` claim a cell that viewer `col` sees (a bool per version)."""
+        vis = self.visible[col]
+        if not vis or not len(versions):
+            return np.zeros(len(versions), dtype=bool)
+        got = self._visible_mask[col]
+        if got is None:
+            cells = np.fromiter(vis, dtype=np.int64, count=len(vis))
+            lo = int(cells.min())
+            span = int(cells.max()) - lo + 2  # the last slot: a cell outside the range
+            mask = None
+            if span <= 4 * len(cells) + (1 << 20):  # else a set of far-apart ids (bad input): `isin`, no mask
+                mask = np.zeros(span, dtype=bool)
+                mask[cells - lo] = True
+            got = self._visible_mask[col] = (mask, lo, cells)
+        mask, lo, vis_cells = got
+        owner, cells = csr_take(self.voff, self.vcells, versions)
+        seen = np.zeros(len(versions), dtype=bool)
+        if mask is None:
+            seen[owner[np.isin(cells, vis_cells)]] = True
+            return seen
+        idx = cells - lo
+        idx[(idx < 0) | (idx >= len(mask) - 1)] = len(mask) - 1
+        seen[owner[mask[idx]]] = True
+        return seen
+
+    def model(self, version: int) -> Model | None:
+        """The decoded model of version `version` (None: its payload did not decode)."""
+        return self.models[self.vmid[version]]
+
+    def cells_of(self, version: int) -> tuple[int, ...]:
+        """The cells version `version`'s UPDATE claimed."""
+        return self.vmsg[version].cells
+
+    # ---- bounds ----------------------------------------------------------------------------------------------
+    def _compact(self) -> None:
+        """Drop the versions no viewer holds and free the rows no viewer holds (the queue applied first)."""
+        self.flush()
+        n = self._n_rows
+        held = self.held[:n, :self.n_cols]
+        live = np.unique(held[held >= 0])
+        new_of = np.full(len(self.vmsg), -1, dtype=np.int64)
+        new_of[live] = np.arange(len(live))
+        hit = held >= 0
+        held[hit] = new_of[held[hit]]
+        counts = self.voff[live + 1] - self.voff[live]
+        cells = csr_take(self.voff, self.vcells, live)[1]
+        self.vcells = cells if len(cells) else np.zeros(256, dtype=np.int64)
+        self.voff = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        for name in ("vseq", "vexp", "vrow", "vok", "vmid"):
+            setattr(self, name, getattr(self, name)[live].copy())
+        keep = live.tolist()
+        mids, self.vmid = np.unique(self.vmid, return_inverse=True)
+        self.models = [self.models[k] for k in mids.tolist()]
+        self._model_of = {id(m): k for k, m in enumerate(self.models)}
+        self.vmsg = [self.vmsg[k] for k in keep]
+        self._vrow_list[:] = [self._vrow_list[k] for k in keep]  # in place: `receive` holds it
+        self._version_of.clear()
+        for row in np.flatnonzero(~hit.any(axis=1)).tolist():
+            ent = int(self._entity[row])
+            if self._row_of.get(ent) == row:
+                del self._row_of[ent]
+                self._free_rows.append(row)
+        self._compact_at = max(4096, 2 * len(keep))

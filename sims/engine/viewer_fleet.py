@@ -1,0 +1,94 @@
+"""The simulation's viewer connections as one fleet: frames read from each viewer's socket go to the shared
+ghost table whole, not message by message.
+
+Why: with the server fanning each UPDATE out to every viewer of its cells, the viewers' side of a large run was
+about 14-15 us of CPU per delivery over sockets, most of it per message: the session's action per message, the
+callback chain, a `Ghost` object per viewer per message (docs/simulation.md, "The coordinator's part"). Here a
+frame's payload is split by msgpack's C unpacker and its messages looked up in the shared decoder
+(`message_cache.MessageCache`: each distinct message decoded once, by the codec), and a frame of only UPDATEs
+and LEAVEs on an open link, the usual frame, goes whole to the viewer's column of the ghost table
+(`entitynet.client.ghost_table`, the ghost rules' one home) with no per-message call in between
+(`Connection(on_frame=...)`: the session says when that is exactly what it would do, `delivers_whole`).
+
+What a simulated viewer keeps of the session: each viewer is still an `entitynet.connection.Connection` with
+its own `ClientSession`, so the handshake (HELLO / WELCOME, digest check), the SUBSCRIBE differences, the
+PING / PONG clock offset, reconnects with backoff and the replay of the subscription, REDIRECT and ERROR go
+through the session as for any client; only the UPDATE / LEAVE frames of an open link skip the per-message
+actions. What it skips that the browser-less Python viewer does: nothing of the rules (the same table), but the
+simulated viewers share one clock with the publishers, so their ghosts use clock offset 0, not the PONG estimate.
+Sans-IO apart from building the connections; `now()` is the simulation's receiver time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from entitynet import protocol as P
+from entitynet.connection import Connection
+from sims.engine.message_cache import MessageCache
+from sims.engine.viewers import SimViewer
+
+
+class ViewerFleet:
+    """Many viewers' connections and what arrives on them (see the module docstring). `learn(update)` is told
+    of every UPDATE that arrives (an external server's ids mapped back to the truth), None for none."""
+
+    def __init__(self, viewers: list[SimViewer], now: Callable[[], float],
+                 learn: Callable[[P.Update], None] | None = None) -> None:
+        self.viewers = viewers
+        self.now = now
+        self.learn = learn
+        self.messages = MessageCache()  # one frame decoder for all the connections, cleared each tick
+        self._sizes: dict[P.Message, int] = {}
+        self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
+        self.frames_whole = 0  # frames handed to the ghost table whole (the rest went message by message)
+
+    def clear(self) -> None:
+        """Forget the tick's decoded messages (a message is shared within a tick's fan-out)."""
+        self.messages.clear()
+        self._sizes.clear()
+
+    def size(self, m: P.Update | P.Leave) -> int:
+        """The encoded size of a message that arrived: its bytes' length in the frame when the shared decoder
+        returned it, else encoded once per tick (equal messages encode alike)."""
+        size = self.messages.size(m)
+        if size is None:
+            size = self._sizes.get(m)
+            if size is None:
+                size = self._sizes[m] = len(P.encode_message(m))
+        return size
+
+    def connection(self, i: int, address, digest: str, token: str, **kw) -> Connection:
+        """Viewer `i`'s connection, its frames decoded by the shared decoder and handed to this fleet."""
+        return Connection(address, digest, token, on_message=self.on_message(i), on_frame=self.on_frame(i),
+                          decode=self.messages.decode, **kw)
+
+    def on_frame(self, i: int) -> Callable[[list[P.Message]], None]:
+        """Viewer `i`'s whole frames of UPDATEs and LEAVEs: counted, learnt, and into the ghost table."""
+        viewer, size, learn = self.viewers[i], self.size, self.learn
+
+        def on_frame(msgs: list[P.Message]) -> None:
+            self.frames_whole += 1
+            if learn is not None:
+                for m in msgs:
+                    if type(m) is P.Update:
+                        learn(m)
+            nbytes = getattr(msgs, "nbytes", None)  # the shared decoder's `Frame`: its size at once
+            # the codec decoded them and the session found them all UPDATEs and LEAVEs: `decoded`
+            viewer.receive_frame(msgs, self.now(), sum(map(size, msgs)) if nbytes is None else nbytes, True)
+
+        return on_frame
+
+    def on_message(self, i: int) -> Callable[[P.Message], None]:
+        """Viewer `i`'s messages one by one (WELCOME, REDIRECT, ERROR, and a frame that was not all UPDATEs and
+        LEAVEs on an open link): as `SimViewer.receive` takes them."""
+        viewer, learn = self.viewers[i], self.learn
+
+        def on_message(m: P.Message) -> None:
+            if isinstance(m, P.Redirect):
+                self.redirects += 1
+            elif type(m) is P.Update and learn is not None:
+                learn(m)
+            viewer.receive(m, self.now(), self.size(m) if isinstance(m, P.Update | P.Leave) else 0)
+
+        return on_message
