@@ -3,8 +3,8 @@
 """`occupy` compiled as a whole (entitynet/client/occupation.py; the pure function there is the reference, used
 where pip did not build this module or ENTITYNET_PURE_PYTHON is set): the choice search, the certain stretch
 and its memo, the cells along the path (`Path.cell`, `cover_cells`, `cells_between`, `starts_in`,
-`first_boundary_after` written out over the path's and the map's lists), the branch tree's memo lookup (a miss
-runs the pure `_span` and stores its answer as the pure `branch_cover` does) and the periods. Why as a whole:
+`first_boundary_after` written out over the path's and the map's lists), the branch tree (its memo lookup as
+the pure `branch_cover` does, and on a miss the search `_span`, compiled too) and the periods. Why as a whole:
 issue 22 measured one more small kernel per function as not reaching the publish's target; the Python calls
 between those functions were the cost.
 
@@ -14,7 +14,9 @@ larger), so NaN and -0.0 come out as they do there; the travel times are the ref
 are read with bounds checks and negative indices as Python reads them. tests/entitynet/client/
 test_occupy_compiled.py holds it equal to the pure function on the map, synthetic paths and hostile input."""
 
+from cpython.mem cimport PyMem_Free, PyMem_Malloc, PyMem_Realloc
 from libc.math cimport INFINITY, isfinite
+from libc.string cimport memset
 
 from entitynet.client import occupation as _occ
 from entitynet.client.kinematics import time_to_travel as _time_to_travel
@@ -64,6 +66,7 @@ cdef class _Map:
     cdef double[::1] edge_len, bp_start, piece_a
     cdef Py_ssize_t[::1] bp_off, bp_cell, piece_off, piece_c
     cdef dict choice  # networks -> bytearray per directed edge (0: not asked yet, 1: no, 2: yes)
+    cdef dict onward  # networks -> {key: `_onward`'s row}
 
     def __init__(self, net):
         import numpy as np
@@ -86,6 +89,7 @@ cdef class _Map:
         self.piece_a = np.asarray(a_s, dtype=np.float64)
         self.piece_c = np.asarray(c_s, dtype=np.intp)
         self.choice = {}
+        self.onward = {}
 
     cdef bytearray choices_of(self, networks):
         """The per-directed-edge choice flags of one network mask."""
@@ -260,11 +264,163 @@ cdef class _P:
         return _min(s_node + <double>allowance, self.length)
 
 
+cdef struct _Heap:
+    double *d
+    Py_ssize_t *k
+    Py_ssize_t n, cap
+
+
+cdef inline bint _less(_Heap *h, Py_ssize_t i, Py_ssize_t j) noexcept:
+    """(d, key) order: the order of heapq's (distance, (edge, dir)) tuples (key = 2 edge + (dir > 0))."""
+    return h.d[i] < h.d[j] or (h.d[i] == h.d[j] and h.k[i] < h.k[j])
+
+
+cdef inline void _swap(_Heap *h, Py_ssize_t i, Py_ssize_t j) noexcept:
+    cdef double td = h.d[i]
+    cdef Py_ssize_t tk = h.k[i]
+    h.d[i], h.k[i] = h.d[j], h.k[j]
+    h.d[j], h.k[j] = td, tk
+
+
+cdef int _push(_Heap *h, double d, Py_ssize_t key) except -1:
+    """Push (d, key), growing the arrays."""
+    cdef Py_ssize_t i, parent
+    if h.n == h.cap:
+        h.cap = 2 * h.cap + 16
+        h.d = <double *>PyMem_Realloc(h.d, h.cap * sizeof(double))
+        h.k = <Py_ssize_t *>PyMem_Realloc(h.k, h.cap * sizeof(Py_ssize_t))
+        if h.d == NULL or h.k == NULL:
+            raise MemoryError()
+    i = h.n
+    h.d[i], h.k[i] = d, key
+    h.n += 1
+    while i > 0:
+        parent = (i - 1) >> 1
+        if not _less(h, i, parent):
+            break
+        _swap(h, i, parent)
+        i = parent
+    return 0
+
+
+cdef void _pop(_Heap *h, double *d, Py_ssize_t *key) noexcept:
+    """Pop the least (d, key) (the heap is not empty)."""
+    cdef Py_ssize_t i = 0, l, r, m
+    d[0], key[0] = h.d[0], h.k[0]
+    h.n -= 1
+    h.d[0], h.k[0] = h.d[h.n], h.k[h.n]
+    while True:
+        l = 2 * i + 1
+        if l >= h.n:
+            break
+        r = l + 1
+        m = r if r < h.n and _less(h, r, l) else l
+        if not _less(h, m, i):
+            break
+        _swap(h, i, m)
+        i = m
+
+
+cdef tuple _onward(_Map m, object net, Py_ssize_t key, object networks):
+    """(length, area cell at the end node or -1, the keys of the ways on) of the directed edge `key`: what the
+    pure search reads of it (`_info_row`), kept per view and network mask."""
+    rows = m.onward.get(networks)
+    if rows is None:
+        rows = m.onward[networks] = {}
+    hit = rows.get(key)
+    if hit is None:
+        cand = (key >> 1, 1 if key & 1 else -1)
+        _pieces, length, end_cell, ways = _occ._info_row(net, cand, networks)
+        hit = rows[key] = (length, end_cell, tuple([2 * <Py_ssize_t>w[0] + (1 if w[1] > 0 else 0) for w in ways]))
+    return hit
+
+
+def span(net, de, double depth, networks, Py_ssize_t max_cells, Py_ssize_t max_edges):
+    """`occupation._span` (see there): the branch tree's search, nearest first. The queue is a binary heap of
+    (distance, key) in C ordered as the pure search's heap of (distance, (edge, dir)) tuples (the order is total
+    for finite distances: any heap pops the same sequence), the seen set a byte per directed edge, the cell
+    pieces from the view's C tables and the ways on from `_info_row`."""
+    cdef _Map m = _map(net)
+    cdef list cells = []
+    cdef set listed = set()
+    cdef double lo = -INFINITY, hi = INFINITY, shortest = INFINITY, d0, d1, x
+    cdef Py_ssize_t edges = 0, e, r, i, i1, key, nk = 2 * m.n_edges
+    cdef bint leaf
+    cdef _Heap h
+    cdef unsigned char *seen
+    node = net.end_node(de)
+    if net.node_area[node] >= 0:
+        cells.append(net.area_cell[net.node_area[node]])
+        listed.add(cells[0])
+    e = de[0]
+    if not 0 <= e < m.n_edges:
+        raise IndexError(f"edge {e} is not in the map")
+    h.d = NULL
+    h.k = NULL
+    h.n = h.cap = 0
+    seen = <unsigned char *>PyMem_Malloc(nk + 1)
+    if seen == NULL:
+        raise MemoryError()
+    try:
+        memset(seen, 0, nk + 1)
+        seen[2 * e + (1 if de[1] > 0 else 0)] = 1
+        for cand in net.choices(de, networks):
+            _push(&h, 0.0, 2 * <Py_ssize_t>cand[0] + (1 if cand[1] > 0 else 0))
+        while h.n:
+            _pop(&h, &d0, &key)
+            if seen[key]:
+                continue
+            seen[key] = 1
+            edges += 1
+            if edges > max_edges or len(cells) >= max_cells:
+                if d0 < shortest:
+                    shortest = d0
+                continue
+            e = key >> 1
+            r = 2 * e if key & 1 else 2 * e + 1  # (the pieces' row: forward 2e, backward 2e + 1)
+            leaf = False
+            i1 = m.piece_off[r + 1]
+            for i in range(m.piece_off[r], i1):
+                x = d0 + m.piece_a[i]
+                if x > depth:
+                    if x < hi:
+                        hi = x
+                    if x < shortest:
+                        shortest = x
+                    leaf = True
+                    break
+                if x > lo:
+                    lo = x
+                c = m.piece_c[i]
+                if c not in listed:
+                    listed.add(c)
+                    cells.append(c)
+            if leaf:
+                continue
+            length, end_cell, ways = _onward(m, net, key, networks)
+            d1 = d0 + <double>length
+            if end_cell >= 0:
+                if end_cell not in listed:
+                    listed.add(end_cell)
+                    cells.append(end_cell)
+                if d1 < shortest:
+                    shortest = d1
+                continue
+            for w in ways:
+                _push(&h, d1, w)
+    finally:
+        PyMem_Free(seen)
+        PyMem_Free(h.d)
+        PyMem_Free(h.k)
+    return cells, (0.0 if shortest == INFINITY and not cells else shortest), lo, hi
+
+
 cdef tuple _branch_cover(object net, object de, double depth, object networks):
     """`branch_cover(path, k, depth, networks)` with its default budgets (48 cells, 64 edges): the memo's
     bisection, or the pure `_span` on a miss (stored as the pure function stores it)."""
-    if depth != depth:
-        return _occ._branch_cover(net, de, depth, networks, 48, 64)
+    if depth != depth:  # (NaN: computed, never cached, as the pure function does)
+        cells, shortest, _lo, _hi = span(net, de, depth, networks, 48, 64)
+        return cells, shortest
     cdef dict cache = net.__dict__.setdefault("_branch_cover", {})
     key = (de, networks, 48, 64)
     spans = cache.get(key)
@@ -277,7 +433,7 @@ cdef tuple _branch_cover(object net, object de, double depth, object networks):
     if i >= 0 and depth < <double>rest[i][0]:
         hit = rest[i]
         return list(hit[1]), hit[2]
-    cells, shortest, lo, hi = _occ._span(net, de, depth, networks, 48, 64)
+    cells, shortest, lo, hi = span(net, de, depth, networks, 48, 64)
     if len(los) < 256:
         j = _bisect_list(los, lo, 0, len(los))
         los.insert(j, lo)

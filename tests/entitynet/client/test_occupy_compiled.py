@@ -149,3 +149,27 @@ def test_pure_python_forces_the_reference():
     done = subprocess.run([sys.executable, "-c", code], cwd=FilePath(__file__).parents[3], capture_output=True,
                           text=True, timeout=300, env=env)
     assert done.returncode == 0 and done.stdout.strip() == "reference ok", done.stderr[-3000:]
+
+
+@needs_compiled
+@pytest.mark.parametrize("topo", TOPOS)
+def test_the_compiled_branch_search_is_the_reference(topo):
+    """`_span` (the branch tree and the interval of depths it answers) compiled against the pure search: every
+    directed edge, network mask and budget, at depths on and between the tree's cell boundaries and at NaN,
+    infinities, -0.0 and negative depths; compared by bit pattern."""
+    net = netview(topo)
+    rng = random.Random(7)
+    hard = [0.0, -0.0, -5.0, 5e-324, 1e308, math.inf, -math.inf, math.nan]
+    for e in range(net.n_edges):
+        for d in (1, -1):
+            for networks in (ALL, 1, 2):
+                for budget in ((48, 64), (2, 64), (48, 2), (0, 0)):
+                    for depth in hard + [rng.uniform(0.0, 150.0) for _ in range(12)] + [10.0, 20.0, 30.0, 40.0]:
+                        want = occupation._span(net, (e, d), depth, networks, *budget)
+                        got = compiled.span(net, (e, d), depth, networks, *budget)
+                        assert _bits_span(got) == _bits_span(want), ((e, d), depth, networks, budget)
+
+
+def _bits_span(out):
+    cells, shortest, lo, hi = out
+    return cells, [struct.pack("=d", v) if v == v else "nan" for v in (shortest, lo, hi)]
