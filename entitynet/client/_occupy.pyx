@@ -18,6 +18,8 @@ from cpython.mem cimport PyMem_Free, PyMem_Malloc, PyMem_Realloc
 from libc.math cimport INFINITY, isfinite
 from libc.string cimport memset
 
+from entitynet.client._bisect cimport bisect_right
+
 from entitynet.client import occupation as _occ
 from entitynet.client.kinematics import time_to_travel as _time_to_travel
 
@@ -38,18 +40,6 @@ cdef inline Py_ssize_t _bisect(const double *a, double x, Py_ssize_t lo, Py_ssiz
     while lo < hi:
         mid = (lo + hi) >> 1
         if x < a[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
-
-
-cdef inline Py_ssize_t _bisect_list(list a, double x, Py_ssize_t lo, Py_ssize_t hi):
-    """`bisect.bisect_right` over a list of floats (the branch memo's interval starts)."""
-    cdef Py_ssize_t mid
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if x < <double>a[mid]:
             hi = mid
         else:
             lo = mid + 1
@@ -138,7 +128,7 @@ cdef class _P:
 
     cdef inline Py_ssize_t index(self, double s) except -1:
         """`Path.index`."""
-        cdef Py_ssize_t k = _bisect_list(self.cum_list, s, 0, self.n + 1) - 1
+        cdef Py_ssize_t k = bisect_right(self.cum_list, s, 0, self.n + 1) - 1
         if k < 0:
             return 0
         return k if k < self.n else self.n - 1
@@ -166,6 +156,18 @@ cdef class _P:
     cdef void starts_into(self, list out, double s0, double s1) except *:
         """The cells of `Path.starts_in(s0, s1)` (pieces starting in (s0, s1], in order of travel) appended to
         `out` where not in it yet."""
+        self.walk(out, s0, s1, s1, s1)
+
+    cdef list cover_cells(self, double start, double reach, double cover_end):
+        """`Path.cover_cells`."""
+        cdef list cells = [self.cell(start)]
+        self.walk(cells, start, cover_end if cover_end > reach else reach, reach, cover_end)
+        return cells
+
+    cdef void walk(self, list out, double s0, double s1, double reach, double cover_end) except *:
+        """The pieces starting in (s0, s1] with sa <= reach or sa < cover_end, in order of travel: their cells
+        appended to `out` where not in it yet (`starts_in` is reach = cover_end = s1, where the second test
+        always holds; `cover_cells` the loop of its own)."""
         cdef Py_ssize_t k = self.index(s0), i, i1, r
         cdef double base, sa
         cdef _Map m = self.m
@@ -177,33 +179,11 @@ cdef class _P:
                 sa = base + m.piece_a[i]
                 if sa > s1:
                     break
-                if sa > s0:
+                if sa > s0 and (sa <= reach or sa < cover_end):
                     c = m.piece_c[i]
                     if c not in out:
                         out.append(c)
             k += 1
-
-    cdef list cover_cells(self, double start, double reach, double cover_end):
-        """`Path.cover_cells`."""
-        cdef list cells = [self.cell(start)]
-        cdef double s1 = cover_end if cover_end > reach else reach
-        cdef Py_ssize_t k = self.index(start), i, i1, r
-        cdef double base, sa
-        cdef _Map m = self.m
-        while k < self.n and self.c(k) <= s1:
-            base = self.c(k)
-            r = self.rowk(k)
-            i1 = m.piece_off[r + 1]
-            for i in range(m.piece_off[r], i1):
-                sa = base + m.piece_a[i]
-                if sa > s1:
-                    break
-                if sa > start and (sa <= reach or sa < cover_end):
-                    c = m.piece_c[i]
-                    if c not in cells:
-                        cells.append(c)
-            k += 1
-        return cells
 
     cdef int first_boundary_after(self, double s, double limit, double *out) except -1:
         """`Path.first_boundary_after`: the first cell change in (s, min(limit, length)] into `out`; False
@@ -417,7 +397,7 @@ def span(net, de, double depth, networks, Py_ssize_t max_cells, Py_ssize_t max_e
 
 cdef tuple _branch_cover(object net, object de, double depth, object networks):
     """`branch_cover(path, k, depth, networks)` with its default budgets (48 cells, 64 edges): the memo's
-    bisection, or the pure `_span` on a miss (stored as the pure function stores it)."""
+    bisection, or the search (`span`) on a miss, stored as the pure function stores it."""
     if depth != depth:  # (NaN: computed, never cached, as the pure function does)
         cells, shortest, _lo, _hi = span(net, de, depth, networks, 48, 64)
         return cells, shortest
@@ -429,13 +409,13 @@ cdef tuple _branch_cover(object net, object de, double depth, object networks):
             cache.clear()
         spans = cache[key] = ([], [])
     cdef list los = spans[0], rest = spans[1]
-    cdef Py_ssize_t i = _bisect_list(los, depth, 0, len(los)) - 1, j
+    cdef Py_ssize_t i = bisect_right(los, depth, 0, len(los)) - 1, j
     if i >= 0 and depth < <double>rest[i][0]:
         hit = rest[i]
         return list(hit[1]), hit[2]
     cells, shortest, lo, hi = span(net, de, depth, networks, 48, 64)
     if len(los) < 256:
-        j = _bisect_list(los, lo, 0, len(los))
+        j = bisect_right(los, lo, 0, len(los))
         los.insert(j, lo)
         rest.insert(j, (hi, tuple(cells), shortest))
     return cells, shortest

@@ -70,6 +70,7 @@ def measure(entities: int = 2000, warmup: int = 20, seconds: int = 30, seed: int
 
 
 def main(argv: list[str] | None = None) -> None:
+    """The command: one measurement, printed as JSON (and written to `--out`)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--entities", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=20)
