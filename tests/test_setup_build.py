@@ -21,6 +21,6 @@ def test_every_compiled_extension_is_optional(monkeypatch):
     exts = seen["ext_modules"]
     assert {e.name for e in exts} == {"entitynet.switchboard._fanout", "entitynet.server._flushloop",
                                       "entitynet.client._columns", "entitynet.client._lateral",
-                                      "entitynet.client._geom", "entitynet.protocol._decode",
-                                      "entitynet.client._fleet"}
+                                      "entitynet.client._geom", "entitynet.client._occupy",
+                                      "entitynet.protocol._decode", "entitynet.client._fleet"}
     assert all(e.optional for e in exts)

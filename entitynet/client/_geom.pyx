@@ -9,19 +9,7 @@ edge of one geometry point or none gives the pure method's answer or its IndexEr
 
 cimport cython
 
-
-@cython.boundscheck(True)
-@cython.wraparound(True)
-cdef inline Py_ssize_t _bisect_right(list a, double x, Py_ssize_t lo, Py_ssize_t hi):
-    """`bisect.bisect_right(a, x, lo, hi)` over a list of floats (a NaN x compares false: lo ends at hi)."""
-    cdef Py_ssize_t mid
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if x < <double>a[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
+from entitynet.client._bisect cimport bisect_right
 
 
 @cython.boundscheck(True)
@@ -30,7 +18,7 @@ def path_xy(path, double s):
     """Local (x, y) at path coordinate s, clamped to the path (`Path.xy`)."""
     cdef list cum = path.cum, edges = path.edges
     cdef Py_ssize_t ne = len(edges), k, lo, hi
-    k = _bisect_right(cum, s, 0, len(cum)) - 1
+    k = bisect_right(cum, s, 0, len(cum)) - 1
     if k < 0:
         k = 0
     elif k >= ne:
@@ -51,7 +39,7 @@ def path_xy(path, double s):
     if hi - lo == 2:
         k = lo
     else:
-        k = _bisect_right(gcum, offset, lo, hi) - 1
+        k = bisect_right(gcum, offset, lo, hi) - 1
         k = min(max(k, lo), hi - 2)
     cdef double c0 = gcum[k]
     cdef double seg = <double>gcum[k + 1] - c0

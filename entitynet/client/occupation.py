@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import os
 from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -377,3 +378,16 @@ def occupy_area(x: float, y: float, vx: float, vy: float, ring_xy, area_cell: in
     period = INF if speed == 0.0 else time_to_travel(dist - margin, speed, 0.0, speed)
     validity = max(min(period, max_validity), min_validity)
     return Occupation((int(area_cell),), validity, period, INF, 0.0, 0.0)
+
+
+#: the pure `occupy` above: the reference the compiled one is held equal to (tests/entitynet/client/
+#: test_occupy_compiled.py), and the one used where pip did not build `_occupy` or ENTITYNET_PURE_PYTHON is set
+occupy_reference = occupy
+_COMPILED = None
+if not os.environ.get("ENTITYNET_PURE_PYTHON"):
+    try:  # `occupy` compiled as a whole (entitynet/client/_occupy.pyx; optional in setup.py)
+        from entitynet.client import _occupy as _COMPILED  # type: ignore[attr-defined,no-redef]
+    except ImportError:  # the pure function above
+        _COMPILED = None
+if _COMPILED is not None:
+    occupy = _COMPILED.occupy  # noqa: F811 (the compiled twin of the reference above)

@@ -1,0 +1,90 @@
+"""What one publish costs: the CPU time inside `Player._publish` in a city simulation with the fleet core (issue 22).
+
+Why a command: the publish is most of a fleet fix's cost where an entity publishes, and its target (20 us amortised)
+is checked by measurement, not by a timed test. The run is the one docs/dead-reckoning.md describes: a `Sim` of
+`--entities` entities on the bundled map (no viewers, no transit, 1 Hz fixes and ticks, seed 5, the fleet core),
+`--warmup` simulated seconds, then `--seconds` more with `Player._publish` wrapped in a `time.thread_time_ns`
+timer (this thread's CPU time: other processes on a shared machine do not count, but cache and frequency effects
+do, so compare trees by alternated runs). It also prints a digest of every message the fleet returned and every
+publish's bytes, so two trees (or the pure and the compiled path) can be shown to publish the same messages.
+
+`python -m sims.bench.publish_cost [--entities 2000] [--warmup 20] [--seconds 30] [--out FILE.json]`
+(also runs as a script path, e.g. under another checkout's interpreter).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+
+
+def measure(entities: int = 2000, warmup: int = 20, seconds: int = 30, seed: int = 5) -> dict:
+    """Run the simulation and return the publish count, the mean CPU us per publish, the fleet's CPU us per
+    entity-step and the digest of the messages (during the measured seconds)."""
+    from entitynet.client.player import Player
+    from entitynet.topology_cache import bundled_topology
+    from sims.engine.sim import Sim, SimConfig
+
+    if not (0 < entities <= 100_000 and 0 <= warmup <= 3600 and 0 < seconds <= 3600):
+        raise ValueError("entities in (0, 100000], warmup in [0, 3600], seconds in (0, 3600]")
+    topo, _path = bundled_topology()
+    sim = Sim(topo, SimConfig(entities=entities, viewers=0, transit=False, tick_hz=1.0, seed=seed, core="fleet"))
+    sim.start()
+    for _ in range(warmup):
+        sim.step()
+    inner = Player._publish
+    spent = [0, 0]  # ns, publishes
+    clock = time.thread_time_ns
+
+    def timed(self, *args, **kwargs):
+        t0 = clock()
+        out = inner(self, *args, **kwargs)
+        spent[0] += clock() - t0
+        spent[1] += 1
+        return out
+
+    h = hashlib.sha256()
+    fleet_ns = 0
+    Player._publish = timed  # type: ignore[method-assign]
+    try:
+        for _ in range(seconds):
+            src = sim.source.step(sim.dt)
+            for a in src:
+                sim.fleet.add(a)
+            t0 = clock()
+            conns = sim.fleet.step(sim.now)
+            fleet_ns += clock() - t0
+            for msgs in conns:
+                for m in msgs:
+                    h.update(repr(m).encode())
+    finally:
+        Player._publish = inner  # type: ignore[method-assign]
+    n = spent[1]
+    return {"entities": entities, "warmup_s": warmup, "seconds": seconds, "seed": seed, "publishes": n,
+            "publish_us": spent[0] / n / 1000.0 if n else float("nan"),
+            "fleet_us_per_entity_step": fleet_ns / (entities * seconds) / 1000.0,
+            "publish_share_of_fleet": spent[0] / fleet_ns if fleet_ns else float("nan"),
+            "digest": h.hexdigest()[:16]}
+
+
+def main(argv: list[str] | None = None) -> None:
+    """The command: one measurement, printed as JSON (and written to `--out`)."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--entities", type=int, default=2000)
+    ap.add_argument("--warmup", type=int, default=20)
+    ap.add_argument("--seconds", type=int, default=30)
+    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    res = measure(args.entities, args.warmup, args.seconds, args.seed)
+    text = json.dumps(res, indent=1)
+    print(text)
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
