@@ -263,6 +263,8 @@ def run(args, progress) -> dict:
         datasets["vehicles"] = vehicles(topo, 6 if quick else 36, rng, progress)
     else:
         notes.append("../shared/data/hsl-gtfs-2022-02.zip absent: no vehicle dataset")
+        progress(f"dr: warning: {SHARED / 'hsl-gtfs-2022-02.zip'} not found: the table has no vehicle rows "
+                 "(../shared beside the checkout holds it)")
     datasets["pedestrians"] = pedestrians(topo, 6 if quick else MAIN_PEDESTRIANS, rng)
     car = car_trace()
     for name, ents in datasets.items():
