@@ -18,7 +18,7 @@ from cpython.mem cimport PyMem_Free, PyMem_Malloc, PyMem_Realloc
 from libc.math cimport INFINITY, isfinite
 from libc.string cimport memset
 
-from entitynet.client._bisect cimport bisect_right
+from entitynet.client._bisect cimport bisect_right, bisect_right_c
 
 from entitynet.client import occupation as _occ
 from entitynet.client.kinematics import time_to_travel as _time_to_travel
@@ -32,18 +32,6 @@ cdef inline double _min(double a, double b):
 cdef inline double _max(double a, double b):
     """Python's `max(a, b)` on floats: b only when strictly larger."""
     return b if b > a else a
-
-
-cdef inline Py_ssize_t _bisect(const double *a, double x, Py_ssize_t lo, Py_ssize_t hi) noexcept:
-    """`bisect.bisect_right(a, x, lo, hi)` over doubles (a NaN x compares false: lo ends at hi)."""
-    cdef Py_ssize_t mid
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if x < a[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
 
 
 cdef class _Map:
@@ -142,7 +130,7 @@ cdef class _P:
         d = 0.0 if d < 0.0 else (length if d > length else d)
         cdef double off = d if (r & 1) == 0 else length - d
         cdef Py_ssize_t lo = self.m.bp_off[e], hi = self.m.bp_off[e + 1]
-        cdef Py_ssize_t j = _bisect(&self.m.bp_start[0], off, lo, hi) - 1
+        cdef Py_ssize_t j = bisect_right_c(&self.m.bp_start[0], off, lo, hi) - 1
         return self.m.bp_cell[j if j > lo else lo]
 
     cdef list cells_between(self, double s0, double s1):
@@ -348,6 +336,8 @@ def span(net, de, double depth, networks, Py_ssize_t max_cells, Py_ssize_t max_e
             _push(&h, 0.0, 2 * <Py_ssize_t>cand[0] + (1 if cand[1] > 0 else 0))
         while h.n:
             _pop(&h, &d0, &key)
+            if not 0 <= key < nk:  # a way from a malformed map: an error, not a read past `seen`
+                raise IndexError(f"directed edge {key >> 1} is not in the map")
             if seen[key]:
                 continue
             seen[key] = 1

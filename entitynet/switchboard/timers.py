@@ -42,8 +42,10 @@ class ExpiryHeap:
         self._push(key, deadline)
 
     def cancel(self, key: int) -> None:
-        """Disarm the timer of `key` (its heap entry, if any, is dropped when it comes up)."""
+        """Disarm the timer of `key`: its heap entry, if any, turns stale (dropped when it comes up, and counted
+        towards a compaction, so that keys cancelled with far deadlines do not hold the heap's memory)."""
         self._deadline.pop(key, None)
+        self._queued.pop(key, None)
 
     def next_deadline(self) -> float | None:
         """The earliest live deadline, or None (stale and early entries on top are settled on the way)."""
@@ -58,6 +60,7 @@ class ExpiryHeap:
                 del self._queued[key]
                 if real is not None:
                     self._push(key, real)
+                    heap = self._heap  # a push may compact: the heap is then a new list
             else:
                 heapq.heappop(heap)
         return None
@@ -79,6 +82,7 @@ class ExpiryHeap:
                 out.append(key)
             else:
                 self._push(key, real)  # moved later since this entry was pushed
+                heap = self._heap  # a push may compact: the heap is then a new list
         return out
 
     def _push(self, key: int, deadline: float) -> None:

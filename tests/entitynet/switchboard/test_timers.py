@@ -74,3 +74,34 @@ def test_deadlines_moving_earlier_stay_bounded():
     assert heap.heap_size <= 2 * 3 + 1024 + 1
     assert heap.next_deadline() == 1e6 - 19_999
     assert heap.pop_due(1e6 - 19_997) == [1, 0, 2]  # keys 19,999 % 3, 19,998 % 3, 19,997 % 3
+
+
+def test_a_compaction_inside_an_expiry_pass_loses_no_armed_key():
+    """A re-push from `pop_due` or `next_deadline` may compact the heap (a new list): the pass must go on over
+    the new heap. Before, it went on over the old list, where every entry had turned stale, and dropped them
+    all: `next_deadline` said None (a server sleeping forever) while a key was still armed."""
+    heap = ExpiryHeap()
+    for k in range(1, 11):
+        heap.set(k, 1.0)
+    for i in range(1035):
+        heap.set(0, 4000.0 - i)  # moved earlier each time: 1,035 entries, all but one stale
+    heap.set(0, 5000.0)  # then later: no push
+    assert heap.pop_due(1.0) == list(range(1, 11))
+    assert heap.next_deadline() == 5000.0
+    assert heap.pop_due(5000.0) == [0]
+    assert heap.next_deadline() is None
+
+
+def test_cancelled_keys_do_not_hold_the_heap():
+    """Entities that come and go (an UNPUBLISH, a client's reconnect with new ids) cancel timers with far
+    deadlines: their entries turn stale and count towards a compaction, so the heap stays within a constant
+    factor of the armed keys instead of growing until the far deadlines come up."""
+    heap = ExpiryHeap()
+    for k in range(50_000):
+        heap.set(k, 86_400.0 + k)
+        heap.cancel(k)
+    heap.set(-1, 10.0)
+    assert len(heap) == 1
+    assert heap.heap_size <= 2 * 1 + 1024 + 1
+    assert heap.next_deadline() == 10.0
+    assert heap.pop_due(1e9) == [-1]
