@@ -20,6 +20,7 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server import logs
+from entitynet.server.pingframe import lone_ping_ms
 
 if TYPE_CHECKING:
     from entitynet.server.app import _Conn
@@ -126,10 +127,14 @@ class ReadingMixin:
             data = b""  # closed under us (a revoked token, shutdown) or reset by the peer
         if not data:
             if conn.decoder.mid_frame:
-                logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid, buffered=conn.decoder.buffered)
+                logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid,
+                           buffered=conn.decoder.buffered)
             self._hand_off(conn, None)
             return
-        conn.decoder.receive_data(data)
+        dec = conn.decoder
+        if not dec.mid_frame and (ms := lone_ping_ms(data)) is not None and self._pong_now(conn, P.Ping(ms)):
+            return  # the lock step's PING: answered without the deframer (entitynet.server.pingframe)
+        dec.receive_data(data)
         try:
             while (msgs := self._next_to_feed(conn)) is not None:
                 start = 0 if self._asks_token(conn, msgs) else self._feed_slices(conn, msgs, 0)
