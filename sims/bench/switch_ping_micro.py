@@ -54,9 +54,12 @@ def _until_pong(s: socket.socket) -> None:
         pass
 
 
-def one_run(port: int, digest: str, proc: psutil.Process, rounds: int, sub_every: int, viewers: int = 30,
-            publishers: int = 4) -> dict[str, float]:
-    """`rounds` lock-step rounds over fresh connections; the server's CPU per round trip in µs."""
+def one_run(port: int, digest: str, proc: psutil.Process, rounds: int, sub_every: int, entities: int = 0,
+            viewers: int = 30, publishers: int = 4) -> dict[str, float]:
+    """`rounds` lock-step rounds over fresh connections; the server's CPU per round trip in µs. With
+    `entities`, every round first publishes each of them once (spread over the publishers, each in one of 20
+    cells; every viewer subscribes to 4 of those cells, so that each UPDATE reaches 6 viewers, about `bench
+    e2e`'s fan-out), so that the viewers' PINGs find states queued, as in a loaded tick."""
     hello = P.encode_frame([P.Hello(P.PROTOCOL_VERSION, "micro", digest)])
     socks = [socket.create_connection(("127.0.0.1", port), timeout=10.0) for _ in range(publishers + viewers)]
     try:
@@ -67,13 +70,18 @@ def one_run(port: int, digest: str, proc: psutil.Process, rounds: int, sub_every
             while not any(isinstance(m, P.Welcome) for m in _recv_frame(s)):
                 pass
         pubs, views = socks[:publishers], socks[publishers:]
+        if entities:
+            for i, s in enumerate(views):
+                s.sendall(P.encode_frame([P.Subscribe(tuple((i + k) % 20 for k in range(4)), ()), P.Ping(0)]))
+                _until_pong(s)
         t0 = proc.cpu_times()
         w0 = time.perf_counter()
         trips = 0
         for r in range(rounds):
             ping = P.encode_frame([P.Ping(r + 1)])
-            for s in pubs:
-                s.sendall(ping)
+            for k, s in enumerate(pubs):
+                mine = [P.Publish(e, r + 1, (e % 20,), 10_000, b"p" * 40) for e in range(k, entities, publishers)]
+                s.sendall((P.encode_frame(mine) if mine else b"") + ping)
             for s in pubs:
                 _until_pong(s)
             for i, s in enumerate(views):
@@ -104,10 +112,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=600)
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--sub-every", type=int, default=0, help="a SUBSCRIBE difference with the PING every N rounds")
+    ap.add_argument("--entities", type=int, default=0, help="entities published every round (0: the idle barrier)")
     ap.add_argument("--env", action="append", default=[], help="KEY=VALUE for the server (repeatable)")
     a = ap.parse_args(argv)
-    if not 1 <= a.rounds <= 100_000 or not 1 <= a.reps <= 20:
-        ap.error("--rounds must be 1-100000 and --reps 1-20")
+    if not 1 <= a.rounds <= 100_000 or not 1 <= a.reps <= 20 or not 0 <= a.entities <= 10_000:
+        ap.error("--rounds must be 1-100000, --reps 1-20 and --entities 0-10000")
     from entitynet.topology_cache import bundled_topology
     from sims.bench.switch_systems import free_port, wait_port
 
@@ -124,13 +133,14 @@ def main(argv: list[str] | None = None) -> int:
                                   str(port), "--open"], cwd=a.tree, env=env, stdout=log, stderr=subprocess.STDOUT)
             try:
                 wait_port(port, p, log=Path(tmp) / "server.log")
-                runs.append(one_run(port, topo.digest, psutil.Process(p.pid), a.rounds, a.sub_every))
+                runs.append(one_run(port, topo.digest, psutil.Process(p.pid), a.rounds, a.sub_every, a.entities))
             finally:
                 p.terminate()
                 p.wait(10)
                 log.close()
     med = statistics.median(r["server_us_per_round_trip"] for r in runs)
-    print(json.dumps({"tree": a.tree, "sub_every": a.sub_every, "median_server_us_per_round_trip": round(med, 2),
+    print(json.dumps({"tree": a.tree, "sub_every": a.sub_every, "entities": a.entities,
+                      "median_server_us_per_round_trip": round(med, 2),
                       "runs": [{k: round(v, 2) for k, v in r.items()} for r in runs]}))
     return 0
 
