@@ -1,7 +1,8 @@
 """The trio shell around the switchboard core: listeners, per-connection reader and writer, timers.
 
 Reading: bytes -> FrameDecoder (TCP) or one WebSocket message -> decode_payload -> `Switchboard.receive`. A
-decode error queues the numbered ERROR and closes that connection only.
+decode error queues the numbered ERROR and closes that connection only. Plain TCP is read by one task for every
+connection (entitynet.server.readhub), TLS and WebSocket by a task each (entitynet.server.reading).
 
 Writing (slow-consumer policy): the core coalesces into each client's outbox (one pending state per entity),
 so memory per client is bounded by the entities it can see, whatever the client does. Every `flush_interval`

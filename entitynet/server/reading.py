@@ -6,6 +6,8 @@ FrameDecoder (TCP) or one WebSocket message -> decode_payload -> `Switchboard.re
 numbered ERROR and closes that connection only. A frame is fed to the core in slices (a SUBSCRIBE or QUERY, whose
 cost grows with the entities in its cells, ends a slice), and the other clients are served between slices once
 they add up to `FEED_YIELD_S` of work, so one client's big frame never keeps the others waiting for long.
+Plain-TCP connections are read by one task for all (the read hub, entitynet.server.readhub) as long as their
+frames need no await, and by their own task while one does; TLS and WebSocket by their own tasks.
 """
 
 from __future__ import annotations
