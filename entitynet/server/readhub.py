@@ -26,6 +26,11 @@ import trio
 #: a pass over the ready connections yields to the other tasks (the flusher, timers) once it took this long;
 #: the connections not served yet are still ready (level-triggered) and are reported again by the next poll
 PASS_YIELD_S = 0.002
+#: a pass that took less than this polls again at once; a longer one goes back to trio first. Why: under load
+#: (the standard switch load's PUBLISH frames) polling again at once kept the hub reading ahead of the flusher,
+#: and more states were routed only to be replaced in the outboxes before they were written: the server's CPU
+#: per delivery rose (docs/switch.md, "One read hub"); a lock step's PINGs take tens of microseconds a pass
+REPOLL_BELOW_S = 0.0005
 #: at most this many ready connections per poll (the rest are reported by the next one)
 MAX_EVENTS = 512
 
@@ -65,10 +70,11 @@ class ReadHub:
             while True:
                 await trio.lowlevel.wait_readable(epfd)
                 began = time.perf_counter()
-                # poll again after a pass before going back to trio: what arrived meanwhile (clients of a lock
-                # step send one after the other) costs a system call instead of a pass through the scheduler
+                # after a cheap pass, poll again before going back to trio: what arrived meanwhile (clients of
+                # a lock step send one PING after the other) costs a system call instead of a scheduler pass
                 while events := ep.poll(0, MAX_EVENTS):
                     self.passes += 1
+                    pass_began = time.perf_counter()
                     for fd, _mask in events:
                         conn = by_fd.get(fd)
                         if conn is None:
@@ -77,6 +83,8 @@ class ReadHub:
                         if time.perf_counter() - began >= PASS_YIELD_S:
                             await trio.lowlevel.checkpoint()
                             began = time.perf_counter()
+                    if time.perf_counter() - pass_began >= REPOLL_BELOW_S:
+                        break  # real work (PUBLISH frames): trio's turn, so the flusher and timers get theirs
         finally:
             trio.lowlevel.notify_closing(epfd)
             ep.close()
