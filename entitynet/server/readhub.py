@@ -27,9 +27,9 @@ import trio
 #: the connections not served yet are still ready (level-triggered) and are reported again by the next poll
 PASS_YIELD_S = 0.002
 #: a pass that took less than this polls again at once; a longer one goes back to trio first. Why: under load
-#: (the standard switch load's PUBLISH frames) polling again at once kept the hub reading ahead of the flusher,
-#: and more states were routed only to be replaced in the outboxes before they were written: the server's CPU
-#: per delivery rose (docs/switch.md, "One read hub"); a lock step's PINGs take tens of microseconds a pass
+#: (the standard switch load's PUBLISH frames) polling again at once measured a higher CPU per delivery, likely
+#: because the hub read ahead of the flusher and more states were routed only to be replaced in the outboxes
+#: (docs/switch.md, "One read hub"); a lock step's PINGs take tens of microseconds a pass
 REPOLL_BELOW_S = 0.0005
 #: at most this many ready connections per poll (the rest are reported by the next one)
 MAX_EVENTS = 512

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import socket
 import statistics
 import struct
@@ -106,6 +107,7 @@ def one_run(port: int, digest: str, proc: psutil.Process, rounds: int, sub_every
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Start a fresh server per repetition (from `--tree` with `--python`), run the rounds, print the JSON."""
     ap = argparse.ArgumentParser(prog="python -m sims.bench.switch_ping_micro", description=__doc__.split("\n\n")[0])
     ap.add_argument("--tree", default=str(Path(__file__).parents[2]), help="checkout whose server runs")
     ap.add_argument("--python", default=sys.executable, help="that checkout's interpreter")
@@ -121,8 +123,6 @@ def main(argv: list[str] | None = None) -> int:
     from sims.bench.switch_systems import free_port, wait_port
 
     topo, artifact = bundled_topology(lambda m: print(m, file=sys.stderr), with_pvs=True)
-    import os
-
     env = {**os.environ, "PYTHONPATH": a.tree, **dict(kv.split("=", 1) for kv in a.env)}
     runs = []
     with tempfile.TemporaryDirectory(prefix="entitynet-ping-micro-") as tmp:
