@@ -48,7 +48,10 @@ class ReadHub:
         return len(self._by_fd)
 
     def add(self, conn: Any) -> None:
-        """Serve `conn` (its `fd`) from the hub until `discard`. Registered once, level-triggered."""
+        """Serve `conn` (its `fd`) from the hub until `discard`. Registered once, level-triggered. A no-op once
+        the hub has stopped: the server is stopping, and the connection's task is being cancelled with it."""
+        if self._ep.closed:
+            return
         self._ep.register(conn.fd, select.EPOLLIN)
         self._by_fd[conn.fd] = conn
 
@@ -58,7 +61,7 @@ class ReadHub:
             del self._by_fd[conn.fd]
             try:
                 self._ep.unregister(conn.fd)
-            except OSError:  # already closed: the kernel dropped it from the set with the descriptor
+            except (OSError, ValueError):  # the descriptor closed (the kernel dropped it), or the hub stopped
                 pass
 
     async def run(self) -> None:

@@ -107,3 +107,23 @@ async def test_the_hub_alone_serves_ready_descriptors_and_closes_its_set_when_ca
     assert a.recv(10) == b"z"
     a.close()
     b.close()
+
+
+async def test_a_stopped_hub_takes_no_connection_and_lets_go_of_one_quietly():
+    a, b = socket.socketpair()
+
+    class C:
+        fd = a.fileno()
+
+    hub = ReadHub(lambda conn: None)
+    conn = C()
+    hub.add(conn)
+    async with trio.open_nursery() as n:
+        n.start_soon(hub.run)
+        await trio.testing.wait_all_tasks_blocked()
+        n.cancel_scope.cancel()  # the server stopping: the hub closes its set
+    hub.discard(conn)  # a reader task's `finally` after the hub stopped
+    hub.add(conn)  # one that was handing back
+    assert len(hub) == 0
+    a.close()
+    b.close()
