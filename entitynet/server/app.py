@@ -1,7 +1,8 @@
 """The trio shell around the switchboard core: listeners, per-connection reader and writer, timers.
 
 Reading: bytes -> FrameDecoder (TCP) or one WebSocket message -> decode_payload -> `Switchboard.receive`. A
-decode error queues the numbered ERROR and closes that connection only.
+decode error queues the numbered ERROR and closes that connection only. Plain TCP is read by one task for every
+connection (entitynet.server.readhub), TLS and WebSocket by a task each (entitynet.server.reading).
 
 Writing (slow-consumer policy): the core coalesces into each client's outbox (one pending state per entity),
 so memory per client is bounded by the entities it can see, whatever the client does. Every `flush_interval`
@@ -33,6 +34,7 @@ from dataclasses import dataclass
 import trio
 import trio_websocket
 
+from entitynet import protocol as P
 from entitynet.server import compiled, fdlimit, logs
 from entitynet.server.config import ConfigError, ServerConfig, check_flush_policy, check_ports
 from entitynet.server.http import HttpLimits, HttpServer, Router
@@ -40,6 +42,7 @@ from entitynet.server.listen import Listeners
 from entitynet.server.metrics import Metrics, metrics_handler
 from entitynet.server.pacing import Pacer
 from entitynet.server.peers import peer_address, throttle_key
+from entitynet.server.readhub import ReadHub
 from entitynet.server.reading import ReadingMixin
 from entitynet.server.stall import StallClock
 from entitynet.server.tokens import TokenWatch
@@ -63,6 +66,10 @@ class _Conn:
     stalled: float = 0.0  # ... and has observed no progress for this long (entitynet.server.stall)
     dirty_since: float | None = None
     closed: bool = False
+    # plain TCP: the frame decoder, and the hand-over between the read hub and the reader task (reading.py)
+    decoder: P.FrameDecoder | None = None
+    handoff: trio.Event | None = None  # set by the hub when the task must take over ...
+    pending: tuple | BaseException | None = None  # ... with this: (frame, where to go on), a bug, or None: end
 
 
 def switch_config_from(config: ServerConfig) -> SwitchConfig:
@@ -149,6 +156,7 @@ class Server(ReadingMixin, WritingMixin):
         self._tick_idle = True  # ... while it is the long idle tick
         self.cluster = None  # the ClusterLink when config.cluster is set
         self.gc = None  # gcpolicy.FullCollections when config.gc_full_every is set
+        self.hub: ReadHub | None = None  # the plain-TCP connections' reader, while `run` runs
         self.pacer: Pacer | None = None  # wake-up pacing when config.pace is set (entitynet/server/pacing.py)
 
     # ------------------------------------------------------------------------------------------ lifecycle
@@ -162,6 +170,8 @@ class Server(ReadingMixin, WritingMixin):
         try:
             async with trio.open_nursery() as nursery:
                 self._nursery = nursery
+                self.hub = ReadHub(self._hub_ready)  # before the listeners: it reads their TCP clients
+                nursery.start_soon(self.hub.run)
                 self.http = self._http_server()
                 listen = Listeners(cfg, self.ssl, self.admission, tcp_handler=self._handle_tcp,
                                    ws_handler=self._handle_ws, http=self.http,
@@ -237,7 +247,7 @@ class Server(ReadingMixin, WritingMixin):
                 # a small kernel queue keeps the backlog of a slow reader in the outbox, where a newer state
                 # replaces an older one, instead of megabytes of stale states in the socket buffer
                 stream.socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.config.sndbuf)
-        await self._serve(conn, self._read_fd if conn.fd is not None else self._read_tcp)
+        await self._serve(conn, self._read_plain if conn.fd is not None else self._read_tcp)
 
     async def _handle_ws(self, request) -> None:
         if self._stopping:

@@ -6,6 +6,8 @@ FrameDecoder (TCP) or one WebSocket message -> decode_payload -> `Switchboard.re
 numbered ERROR and closes that connection only. A frame is fed to the core in slices (a SUBSCRIBE or QUERY, whose
 cost grows with the entities in its cells, ends a slice), and the other clients are served between slices once
 they add up to `FEED_YIELD_S` of work, so one client's big frame never keeps the others waiting for long.
+Plain-TCP connections are read by one task for all (the read hub, entitynet.server.readhub) as long as their
+frames need no await, and by their own task while one does; TLS and WebSocket by their own tasks.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import trio_websocket
 
 from entitynet import protocol as P
 from entitynet.server import logs
+from entitynet.server.pingframe import lone_ping_ms
 
 if TYPE_CHECKING:
     from entitynet.server.app import _Conn
@@ -33,21 +36,34 @@ FEED_YIELD_S = 0.0005
 class ReadingMixin:
     """Inbound half of `Server`; uses its `sb`, `config`, `tokens`, `metrics`, `clock` and the writing half."""
 
-    async def _feed(self, conn: _Conn, msgs: list[P.Message]) -> None:
-        """Feed one frame to the core in slices, serving the other clients between slices: a slice ends after
-        `feed_slice` messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells),
-        and the others are served once the slices since the last yield took `FEED_YIELD_S`.
+    async def _feed(self, conn: _Conn, msgs: list[P.Message], start: int = 0) -> None:
+        """Feed one frame (from message `start` on) to the core in slices, serving the other clients between
+        slices once they took `FEED_YIELD_S` (`_feed_slices`).
         A HELLO whose token the core will check is looked up first, off the loop (entitynet.server.tokens), and
         the answer handed over for the first slice, which the core handles without a task switch."""
-        sb = self.sb
-        tokens, first = self.tokens, msgs[0] if msgs else None
-        looked_up, answer = False, None
-        if tokens is not None and type(first) is P.Hello and sb.asks_token(conn.cid, first, self.clock()):
-            looked_up, answer = True, await tokens.lookup(first.token)
-            if sb.outbox(conn.cid) is None:
+        answer = None
+        if start == 0 and self._asks_token(conn, msgs):
+            answer = (msgs[0].token, await self.tokens.lookup(msgs[0].token))
+            if self.sb.outbox(conn.cid) is None:
                 return  # it went away (or its handshake timed out) while the store was read
+        while (start := self._feed_slices(conn, msgs, start, answer)) is not None:
+            await trio.lowlevel.checkpoint()  # the others' frames and the flusher run here
+            answer = None
+
+    def _asks_token(self, conn: _Conn, msgs: list[P.Message]) -> bool:
+        """Whether this frame opens with a HELLO whose token must be looked up in the store first (an await)."""
+        return (self.tokens is not None and bool(msgs) and type(msgs[0]) is P.Hello
+                and self.sb.asks_token(conn.cid, msgs[0], self.clock()))
+
+    def _feed_slices(self, conn: _Conn, msgs: list[P.Message], start: int,
+                     answer: tuple[str, object] | None = None) -> int | None:
+        """Feed slices of one frame from message `start` on, synchronously: a slice ends after `feed_slice`
+        messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells). Returns None
+        when the frame is done (or the connection is closing), else where to go on once the others were served:
+        the slices since `start` took `FEED_YIELD_S`. `answer` is a looked-up token for the first slice."""
+        sb = self.sb
         step = self.config.feed_slice
-        start, n = 0, len(msgs)
+        n = len(msgs)
         began = time.perf_counter()
         while start < n:
             end = start
@@ -59,9 +75,10 @@ class ReadingMixin:
                     break
             before = sb.stats["updates_in"]
             part = msgs[start:end] if start or end < n else msgs
-            if start == 0 and looked_up:
-                with tokens.answering(first.token, answer):
+            if answer is not None:
+                with self.tokens.answering(*answer):
                     sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
+                answer = None
             else:
                 sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
             if sb.stats["updates_in"] != before:  # a PING or SUBSCRIBE frame costs no Prometheus call
@@ -74,11 +91,11 @@ class ReadingMixin:
                     sb.written_out(conn.cid)  # all of it went: no flusher wake-up for this client
             self._note_news()
             if ob is None or ob.close_after:
-                return
+                return None
             start = end
             if start < n and time.perf_counter() - began >= FEED_YIELD_S:
-                await trio.lowlevel.checkpoint()  # the others' frames and the flusher run here
-                began = time.perf_counter()
+                return start
+        return None
 
     def _reject(self, conn: _Conn, err: P.ProtocolError) -> None:
         logs.event("protocol error", logging.INFO, cid=conn.cid, peer=conn.peer, code=int(err.code),
@@ -86,41 +103,92 @@ class ReadingMixin:
         self.sb.protocol_error(conn.cid, err)
         self._try_write(conn)
 
-    async def _read_fd(self, conn: _Conn) -> None:
-        """The plain-TCP reader: wait until the socket is readable, then one `os.read` on its descriptor.
+    def _next_to_feed(self, conn: _Conn) -> list[P.Message] | None:
+        """The connection's next whole frame that must be fed to the core, or None when no whole frame is
+        buffered; frames that are one PING are answered on the way (`_pong_now`). Raises ProtocolError."""
+        dec = conn.decoder
+        while (msgs := dec.next_messages()) is not None:
+            if len(msgs) != 1 or type(msgs[0]) is not P.Ping or not self._pong_now(conn, msgs[0]):
+                return msgs
+        return None
 
-        Why not `receive_some`: trio's socket wrapper first tries the read (an EAGAIN system call and a raised
-        exception whenever the client has nothing more to say, as after every PING of a lock step) and, after a
-        read that succeeds, passes through the scheduler once more (a checkpoint); per small frame that was most
-        of an idle server's CPU (`docs/e2e.md`). Waiting first costs nothing when bytes are already queued (the
-        poll reports them at once), and it is the checkpoint that lets the other clients run between reads."""
-        dec = P.FrameDecoder(self.sb.config.codec)
-        fd, size = conn.fd, self.config.read_size
-        wait = trio.lowlevel.wait_readable
-        while True:
-            try:
-                await wait(fd)
-                data = os.read(fd, size)
-            except BlockingIOError:
-                continue  # readable was reported but the bytes went elsewhere: wait again
-            except (trio.ClosedResourceError, OSError):
-                data = b""  # closed under us (a revoked token, shutdown) or reset by the peer
-            if not data:
-                if dec.mid_frame:
-                    logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid, buffered=dec.buffered)
-                return
-            dec.receive_data(data)
-            try:
-                while (msgs := dec.next_messages()) is not None:
-                    if len(msgs) == 1 and type(msgs[0]) is P.Ping and self._pong_now(conn, msgs[0]):
-                        continue
-                    await self._feed(conn, msgs)
-            except P.ProtocolError as err:
-                self._reject(conn, err)
-                return
-            ob = self.sb.outbox(conn.cid)
-            if ob is None or ob.close_after:
-                return
+    def _closing(self, conn: _Conn) -> bool:
+        ob = self.sb.outbox(conn.cid)
+        return ob is None or ob.close_after
+
+    def _hub_ready(self, conn: _Conn) -> None:
+        """The read hub's call for a readable plain-TCP connection (entitynet.server.readhub): one `os.read`,
+        and its frames fed to the core right here, synchronously. The connection goes to its own task
+        (`_read_plain`) when a frame must await there (a token to look up, a big frame that yields between
+        slices: `conn.pending` says where to go on) or when it ended (`conn.pending` None)."""
+        try:
+            data = os.read(conn.fd, self.config.read_size)
+        except BlockingIOError:
+            return  # readable was reported but the bytes went elsewhere: the next poll tells
+        except OSError:
+            data = b""  # closed under us (a revoked token, shutdown) or reset by the peer
+        if not data:
+            if conn.decoder.mid_frame:
+                logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid,
+                           buffered=conn.decoder.buffered)
+            self._hand_off(conn, None)
+            return
+        dec = conn.decoder
+        if not dec.mid_frame and (ms := lone_ping_ms(data)) is not None and self._pong_now(conn, P.Ping(ms)):
+            return  # the lock step's PING: answered without the deframer (entitynet.server.pingframe)
+        dec.receive_data(data)
+        try:
+            while (msgs := self._next_to_feed(conn)) is not None:
+                start = 0 if self._asks_token(conn, msgs) else self._feed_slices(conn, msgs, 0)
+                if start is not None:
+                    self._hand_off(conn, (msgs, start))
+                    return
+                if self._closing(conn):
+                    self._hand_off(conn, None)
+                    return
+        except P.ProtocolError as err:
+            self._reject(conn, err)
+            self._hand_off(conn, None)
+        except Exception as exc:  # a bug: raised in the connection's own task, as a reader task would have
+            self._hand_off(conn, exc)
+
+    def _hand_off(self, conn: _Conn, work: tuple[list[P.Message], int] | BaseException | None) -> None:
+        """Take the connection out of the hub and wake its task with `work`."""
+        self.hub.discard(conn)
+        conn.pending = work
+        if conn.handoff is not None:
+            conn.handoff.set()
+
+    async def _read_plain(self, conn: _Conn) -> None:
+        """The plain-TCP reader task: the connection is served by the read hub (`_hub_ready`) while its frames
+        go through without an await; this task takes over when one must await, catches up on what the
+        decoder holds (in order: the hub does not read the socket meanwhile), and hands it back.
+
+        Why not a task reading its own socket: per small frame that costs a pass through trio's scheduler and
+        an `epoll_ctl` (trio's interest is one-shot), and in a lock step every client sends one at once; the
+        hub serves all ready sockets in one wake-up (entitynet.server.readhub, docs/switch.md)."""
+        conn.decoder = P.FrameDecoder(self.sb.config.codec)
+        try:
+            while True:
+                conn.handoff = trio.Event()
+                self.hub.add(conn)
+                await conn.handoff.wait()
+                work, conn.pending = conn.pending, None
+                if work is None:
+                    return
+                if isinstance(work, BaseException):
+                    raise work
+                try:
+                    await self._feed(conn, *work)
+                    while not self._closing(conn) and (msgs := self._next_to_feed(conn)) is not None:
+                        await self._feed(conn, msgs)
+                except P.ProtocolError as err:
+                    self._reject(conn, err)
+                    return
+                if self._closing(conn):
+                    return
+        finally:
+            self.hub.discard(conn)
 
     def _pong_now(self, conn: _Conn, ping: P.Ping) -> bool:
         """Answer a frame that is one PING right here, when the core says the PONG overtakes nothing

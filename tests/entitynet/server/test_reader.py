@@ -1,7 +1,7 @@
-"""The plain-TCP reader (`Server._read_fd`) and the PINGs it answers itself (`Server._pong_now`), over real
-loopback sockets: a lock step's PING gets its PONG with nothing left for the flusher, a PING behind pending
-states comes with them, bytes in any split still make frames, and a peer that resets or vanishes mid-frame
-costs only its own connection."""
+"""The plain-TCP reader (the read hub's `Server._hub_ready`, and `Server._read_plain`) and the PINGs it answers
+itself (`Server._pong_now`), over real loopback sockets: a lock step's PING gets its PONG with nothing left for
+the flusher, a PING behind pending states comes with them, bytes in any split still make frames, and a peer that
+resets or vanishes mid-frame costs only its own connection."""
 
 from __future__ import annotations
 
