@@ -80,9 +80,8 @@ class ReadHub:
                     pass_began = time.perf_counter()
                     for fd, _mask in events:
                         conn = by_fd.get(fd)
-                        if conn is None:
-                            continue  # discarded earlier in this pass
-                        ready(conn)
+                        if conn is not None:  # (else discarded earlier in this pass)
+                            ready(conn)
                         if time.perf_counter() - began >= PASS_YIELD_S:
                             await trio.lowlevel.checkpoint()
                             began = time.perf_counter()

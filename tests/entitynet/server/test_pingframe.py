@@ -37,7 +37,7 @@ def test_every_ping_our_encoder_writes_is_read_alike():
 
 def test_hostile_near_misses_fall_back():
     ping = P.encode_frame([P.Ping(300)])
-    over = struct.pack(">I", 11) + b"\x91\x92\x0f\xcf" + (P.MAX_INT + 1).to_bytes(8, "big")
+    over = struct.pack(">I", 12) + b"\x91\x92\x0f\xcf" + (P.MAX_INT + 1).to_bytes(8, "big")
     signed = struct.pack(">I", 6) + b"\x91\x92\x0f\xd1\x01\x2c"  # 300 as int16: valid, but not canonical
     cases = [b"", ping[:-1], ping + ping, ping + b"\x00", over, signed,
              struct.pack(">I", 4) + b"\x91\x92\x0f\xc3",  # true: a bool, refused by the codec
@@ -47,6 +47,7 @@ def test_hostile_near_misses_fall_back():
     for data in cases:
         assert lone_ping_ms(data) is None, data
     assert reference(signed) == 300  # the reference still takes it: the shell falls back to it
+    assert reference(over) is None  # above 2**53 with a right length: the codec refuses it, and so must the recogniser
 
 
 @given(st.binary(max_size=20))
