@@ -250,7 +250,7 @@ class NatsClient:
         while True:
             if fd is None:
                 data = await stream.receive_some(262144)
-            else:  # plain TCP: wait, then one read (as the server reads a connection handed to its own task: `Server._read_plain`)
+            else:  # plain TCP: wait, then one read (as `Server._read_plain` does)
                 try:
                     await wait(fd)
                     data = os.read(fd, 262144)
