@@ -16,6 +16,11 @@ from sims.workers.local import LocalWorkers
 from sims.workers.sim import SAME_NOTE, WorkerSim
 from tests.sims.engine.test_routes import grid
 
+#: the timeout of the tests that silence a worker (SIGSTOP): long enough that a worker which is only slow (the
+#: 2-core CI machine running the suite: at 0.5 s both workers of a run were once declared dead in its first
+#: ticks) is not taken for the silenced one, short enough to wait out once per test
+SILENT_TIMEOUT_S = 3.0
+
 
 def config() -> SimConfig:
     return SimConfig(entities=16, viewers=4, connections=2, tick_hz=2.0, subscribe="radius", radius=400.0,
@@ -109,13 +114,13 @@ def test_when_every_worker_is_gone_the_run_ends_and_says_so(topo):
 
 def test_a_worker_too_slow_for_the_timeout_is_declared_dead_and_told_so(topo):
     link = LocalWorkers(2, topo, None)
-    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=0.5)
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=SILENT_TIMEOUT_S)
     try:
         sim.start()
         os.kill(link.pids[1], signal.SIGSTOP)  # alive but silent: only the timeout can tell
         sim.step()
         (death,) = sim.deaths
-        assert death["worker"] == 1 and "no answer to tick 1 within 0.5 s" in death["why"]
+        assert death["worker"] == 1 and f"no answer to tick 1 within {SILENT_TIMEOUT_S:g} s" in death["why"]
         os.kill(link.pids[1], signal.SIGCONT)
         for _ in range(3):
             sim.step()  # its late answer is stray; the run goes on with worker 0 alone
@@ -132,7 +137,7 @@ def test_an_entity_that_leaves_the_world_in_the_tick_its_worker_dies_is_unpublis
     silent in that very tick, never sends its UNPUBLISH: the coordinator sends it in its stead, or the server
     keeps a ghost of an entity that no longer exists until its validity runs out."""
     link = LocalWorkers(2, topo, None)
-    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=0.5)
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=SILENT_TIMEOUT_S)
     sw = LocalSwitch(sim)
     try:
         sw.exchange(*sim.start())
