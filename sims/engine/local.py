@@ -8,6 +8,8 @@ frames encoded and decoded, one flush per tick, expiry when the core's deadline 
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 from entitynet import protocol as P
 from entitynet.switchboard import Switchboard, SwitchConfig
 from sims.engine.message_cache import MessageCache
@@ -65,17 +67,22 @@ class LocalSwitch:
         """Drain every dirty outbox and hand each viewer's messages (with their encoded size, for the byte
         counts) to `Sim.deliver`; publishers' outboxes are drained and dropped."""
         self.messages.clear()
+        for i, encoded in self.drained():
+            msgs = self.messages.decode(P.payload_from_encoded(encoded))
+            for enc, m in zip(encoded, msgs, strict=True):
+                self.sim.deliver(i, m, len(enc))
+
+    def drained(self) -> Iterator[tuple[int, list[bytes]]]:
+        """Drain every dirty outbox, in connection order: (viewer, its encoded messages) for each viewer with
+        news; publishers' outboxes are drained and dropped."""
         for cid in sorted(self.sb.take_dirty()):
             ob = self.sb.outbox(cid)
             if ob is None:
                 continue
             encoded = ob.drain()
             i = self.viewer_of.get(cid)
-            if i is None or not encoded:
-                continue
-            msgs = self.messages.decode(P.payload_from_encoded(encoded))
-            for enc, m in zip(encoded, msgs, strict=True):
-                self.sim.deliver(i, m, len(enc))
+            if i is not None and encoded:
+                yield i, encoded
 
     def eid_to_agent(self) -> dict[int, int]:
         """The switchboard's opaque entity id -> the simulation's agent id, so truth can be compared with

@@ -24,14 +24,8 @@ def _run(sim: Sim, take, seconds: float = 30.0) -> dict:
     sw = LocalSwitch(sim)
 
     def flush(now: float) -> None:
-        for cid in sorted(sw.sb.take_dirty()):
-            ob = sw.sb.outbox(cid)
-            if ob is None:
-                continue
-            encoded = ob.drain()
-            i = sw.viewer_of.get(cid)
-            if i is not None and encoded:
-                take(i, P.payload_from_encoded(encoded))
+        for i, encoded in sw.drained():
+            take(i, P.payload_from_encoded(encoded))
 
     sw.flush = flush
     sw.exchange(*sim.start())
