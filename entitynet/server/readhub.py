@@ -12,6 +12,11 @@ re-registers it once it has caught up: frames of one connection are still handle
 
 The hub knows nothing of frames or the core: `ready` is the server's (entitynet.server.reading). TLS and
 WebSocket connections keep their own reader tasks and streams.
+
+A registered connection's socket is closed by the server only (`Server._close`), after its scope is cancelled
+and its reader task has taken it out of the set: a descriptor closed from outside drops out of the epoll set
+without an event (trio's `notify_closing` wakes only trio's own waiters), so nothing would end that connection,
+and its number, free again, would be the next accepted socket's.
 """
 
 from __future__ import annotations
