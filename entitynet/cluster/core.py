@@ -210,26 +210,31 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
             return True
         owners = self._owners(now)
         if any(owners[self.region_of[cell]] == self.shard for cell in cells):
+            if self._in_band_of_quiet_shard(cells, owners, now):
+                return self._hold(c, msg, now)  # a dying neighbour may still show it (roaming.py)
             self.hold_since.pop(c.cid, None)
             return True
         target = owners[self.region_of[cells[0]]]
         if self.address_of(target) is None:
             self.hold_since.pop(c.cid, None)
             return True  # nowhere to send it: serve it here
-        since = self.hold_since.get(c.cid, now)
-        if self._quiet(target, now) or not self._heard_since(target, since):
+        if self._quiet(target, now) or not self._heard_since(target, self.hold_since.get(c.cid, now)):
             # its owner has not been heard since this client came (a client failing over arrives after its shard
             # died) or has gone quiet (dying?): sending the client there could cost it a failover, serving it
             # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
             # moment the owner is heard or decided (`_retry_held`): at most a heartbeat for a client that merely
             # started on the wrong shard, and no round trip to a dead shard for one failing over
-            self.stats["admissions_deferred"] += 1
-            if msg is not None:
-                self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
-                self.hold_since.setdefault(c.cid, now)
-            return False
+            return self._hold(c, msg, now)
         self.hold_since.pop(c.cid, None)
         self._redirect(c, target)
+        return False
+
+    def _hold(self, c: Any, msg: Any, now: float) -> bool:
+        """Hold a first PUBLISH until `_retry_held` judges it again (False: not admitted now)."""
+        self.stats["admissions_deferred"] += 1
+        if msg is not None:
+            self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
+            self.hold_since.setdefault(c.cid, now)
         return False
 
     def _redirect(self, c: Any, shard: int) -> None:

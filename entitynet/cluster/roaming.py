@@ -99,8 +99,8 @@ def region_bands(cell_region: Sequence[int], adjacency: Sequence[Sequence[int]],
 
 
 class PublisherRoamingMixin:
-    """Uses `sb`, `shard`, `region_of`, `_owners`, `_redirect` and `stats` of `ClusterCore`; `init_publisher_roaming`
-    is called from its constructor."""
+    """Uses `sb`, `shard`, `region_of`, `_owners`, `_quiet`, `_redirect` and `stats` of `ClusterCore`;
+    `init_publisher_roaming` is called from its constructor."""
 
     def init_publisher_roaming(self, adjacency: Sequence[Sequence[int]] | None, margin: int, linger_s: float) -> None:
         """The bands (None without an adjacency) and the time bound; bad values raise ValueError."""
@@ -121,6 +121,18 @@ class PublisherRoamingMixin:
             near = self._bands[mine].any(axis=0) if mine else np.zeros(self._bands.shape[1], dtype=bool)
             self._near = (key, near.tolist())
         return self._near[1]
+
+    def _in_band_of_quiet_shard(self, cells: tuple[int, ...], owners: list[int], now: float) -> bool:
+        """Whether a quiet (dying?) shard may be serving an entity in `cells` from within its band: a client
+        failing over from it must not be shown here beside the copy it still publishes, so its first PUBLISH
+        is held (`admit`) until that shard is heard again or declared dead."""
+        bands = self._bands
+        if bands is None:
+            return False
+        for r, s in enumerate(owners):
+            if s != self.shard and self._quiet(s, now) and any(bands[r, cell] for cell in cells):
+                return True
+        return False
 
     def _roam_publisher(self, c: Any, e: Any, now: float) -> None:
         """After a local entity's new state: REDIRECT its connection when all its entities are out of our

@@ -206,3 +206,38 @@ def test_region_bands_walk_the_adjacency():
     bands = region_bands([0, 0, 1, 1, 1], [[1], [0, 2], [1, 3], [2, 4], [3]], 3)
     assert bands.tolist() == [[True, True, True, True, False], [True, True, True, True, True]]
     assert region_bands([0, 1], [[1], [0]], 1).tolist() == [[True, False], [False, True]]
+
+
+def test_a_client_failing_over_from_a_neighbour_that_served_it_is_held_until_that_neighbour_is_decided():
+    """Shard 1 serves a publisher in cell 49 (region 0, in its band) and dies; the client fails over to shard 0,
+    whose region holds it. Admitted at once it would be shown beside shard 1's copy until shard 1 is declared
+    dead, so its first PUBLISH waits for that (and is then served without a new PUBLISH)."""
+    bus = banded_bus()
+    a, b = bus.sbs
+    on_a = join(a)
+    a.receive(on_a, [P.Subscribe((49,), ())], 0.5)
+    bus.run(0.5)
+    viewer = Seen(a, on_a)
+    p = join(b, now=0.5)
+    step(bus, p, 1, 50, 0.9, sb_index=1)
+    assert not of(step(bus, p, 2, 49, 1.0, sb_index=1), P.Redirect)  # one cell into region 0: served by b
+    viewer.read()
+    assert list(viewer.visible.values()) == [(49,)]
+    bus.down = {1}
+    q = join(a, now=2.2)  # b quiet (unheard for 1 s), not yet dead
+    a.receive(q, [pub(1, 3, (49,))], 2.2)
+    bus.run(2.2)
+    viewer.read()
+    assert a.counts()["entities"] == 1 and bus.cores[0].stats["admissions_deferred"] >= 1  # only b's copy
+    bus.run(3.1)  # b declared dead: its copy leaves, the held PUBLISH is served here
+    viewer.read()
+    assert list(viewer.visible.values()) == [(49,)] and viewer.updates[-1] == 3
+    assert not of(recv(a, q), P.Redirect)
+
+
+def test_a_client_near_a_live_neighbour_is_admitted_at_once():
+    bus = banded_bus()
+    a = bus.sbs[0]
+    p = join(a, now=0.6)
+    a.receive(p, [pub(1, 1, (49,))], 0.6)
+    assert a.counts()["entities"] == 1 and bus.cores[0].stats["admissions_deferred"] == 0
