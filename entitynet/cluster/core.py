@@ -210,7 +210,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
             return True
         owners = self._owners(now)
         if any(owners[self.region_of[cell]] == self.shard for cell in cells):
-            if self._in_band_of_quiet_shard(cells, owners, now):
+            if self._in_band_of_unsure_shard(cells, owners, now, self.hold_since.get(c.cid, now)):
                 return self._hold(c, msg, now)  # a dying neighbour may still show it (roaming.py)
             self.hold_since.pop(c.cid, None)
             return True

@@ -99,7 +99,7 @@ def region_bands(cell_region: Sequence[int], adjacency: Sequence[Sequence[int]],
 
 
 class PublisherRoamingMixin:
-    """Uses `sb`, `shard`, `region_of`, `_owners`, `_quiet`, `_redirect` and `stats` of `ClusterCore`;
+    """Uses `sb`, `shard`, `region_of`, `_owners`, `_quiet`, `_heard_since`, `_redirect` and `stats` of `ClusterCore`;
     `init_publisher_roaming` is called from its constructor."""
 
     def init_publisher_roaming(self, adjacency: Sequence[Sequence[int]] | None, margin: int, linger_s: float) -> None:
@@ -122,15 +122,18 @@ class PublisherRoamingMixin:
             self._near = (key, near.tolist())
         return self._near[1]
 
-    def _in_band_of_quiet_shard(self, cells: tuple[int, ...], owners: list[int], now: float) -> bool:
-        """Whether a quiet (dying?) shard may be serving an entity in `cells` from within its band: a client
-        failing over from it must not be shown here beside the copy it still publishes, so its first PUBLISH
-        is held (`admit`) until that shard is heard again or declared dead."""
+    def _in_band_of_unsure_shard(self, cells: tuple[int, ...], owners: list[int], now: float, since: float) -> bool:
+        """Whether another shard may still be serving an entity in `cells` from within its band while we cannot
+        tell it is alive: quiet (dying?), or not heard since the client came (a client failing over arrives
+        before its shard is quiet). Admitted, it would be shown beside the copy that shard still publishes, so
+        its first PUBLISH is held (`admit`) until that shard is heard or declared dead: at most a heartbeat for
+        a client that starts near a border (a REDIRECTed one is beyond the band of the shard it left)."""
         bands = self._bands
         if bands is None:
             return False
         for r, s in enumerate(owners):
-            if s != self.shard and self._quiet(s, now) and any(bands[r, cell] for cell in cells):
+            if (s != self.shard and (self._quiet(s, now) or not self._heard_since(s, since))
+                    and any(bands[r, cell] for cell in cells)):
                 return True
         return False
 
