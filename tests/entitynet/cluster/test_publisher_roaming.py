@@ -40,6 +40,15 @@ class Seen:
         assert len(self.visible) <= 1, f"one publisher shown twice: {self.visible}"
 
 
+def watch(bus: Bus, i: int, cells: tuple[int, ...]) -> Seen:
+    """A viewer on shard i subscribed to `cells` at t=0.5 (NATS interest and snapshot settled)."""
+    sb = bus.sbs[i]
+    cid = join(sb)
+    sb.receive(cid, [P.Subscribe(cells, ())], 0.5)
+    bus.run(0.5)
+    return Seen(sb, cid)
+
+
 def banded_bus(**kw) -> Bus:
     kw.setdefault("cell_adjacency", LINE)
     b = Bus(2, **kw)
@@ -71,12 +80,7 @@ def start(bus: Bus, i: int, cell: int, now: float) -> int:
 def test_a_publisher_dithering_on_the_border_is_not_redirected_and_every_viewer_sees_each_state():
     bus = banded_bus()
     a, b = bus.sbs
-    on_b = join(b)
-    b.receive(on_b, [P.Subscribe((49, 50), ())], 0.5)  # the owner of region 1 watches both sides of the border
-    on_a = join(a)
-    a.receive(on_a, [P.Subscribe((49, 50), ())], 0.5)
-    bus.run(0.5)
-    viewers = [Seen(b, on_b), Seen(a, on_a)]
+    viewers = [watch(bus, 1, (49, 50)), watch(bus, 0, (49, 50))]  # both sides of the border, from both shards
     p = start(bus, 0, 49, 0.5)
     for v in viewers:
         v.read()  # (unread, an UPDATE would be coalesced with the next one of the same entity)
@@ -95,11 +99,8 @@ def test_a_publisher_dithering_on_the_border_is_not_redirected_and_every_viewer_
 
 def test_a_publisher_moving_deep_into_another_region_is_redirected_at_once_and_shown_once():
     bus = banded_bus()
-    a, b = bus.sbs
-    on_b = join(b)
-    b.receive(on_b, [P.Subscribe((50, 51), ())], 0.5)
-    bus.run(0.5)
-    viewer = Seen(b, on_b)
+    b = bus.sbs[1]
+    viewer = watch(bus, 1, (50, 51))
     p = start(bus, 0, 49, 0.5)  # (a first PUBLISH outside the regions would be REDIRECTed before it is served)
     assert not of(step(bus, p, 2, 50, 1.5), P.Redirect)  # one cell over: served by a, b's viewer sees the mirror
     viewer.read()
@@ -145,11 +146,8 @@ def test_without_an_adjacency_a_publisher_is_redirected_as_soon_as_it_is_out():
 
 def test_a_shard_dying_while_serving_a_neighbours_entity():
     bus = banded_bus()
-    a, b = bus.sbs
-    on_b = join(b)
-    b.receive(on_b, [P.Subscribe((50,), ())], 0.5)
-    bus.run(0.5)
-    viewer = Seen(b, on_b)
+    b = bus.sbs[1]
+    viewer = watch(bus, 1, (50,))
     p = start(bus, 0, 49, 0.5)
     step(bus, p, 2, 50, 1.5)  # in region 1, served by shard 0
     viewer.read()
@@ -221,11 +219,8 @@ def test_a_client_failing_over_from_a_neighbour_that_served_it_is_held_until_tha
     whose region holds it. Admitted at once it would be shown beside shard 1's copy until shard 1 is declared
     dead, so its first PUBLISH waits for that (and is then served without a new PUBLISH)."""
     bus = banded_bus()
-    a, b = bus.sbs
-    on_a = join(a)
-    a.receive(on_a, [P.Subscribe((49,), ())], 0.5)
-    bus.run(0.5)
-    viewer = Seen(a, on_a)
+    a = bus.sbs[0]
+    viewer = watch(bus, 0, (49,))
     p = start(bus, 1, 50, 0.5)
     assert not of(step(bus, p, 2, 49, 1.5, sb_index=1), P.Redirect)  # one cell into region 0: served by b
     viewer.read()

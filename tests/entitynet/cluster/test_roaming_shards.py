@@ -10,16 +10,9 @@ from entitynet import protocol as P
 from tests.entitynet.server_helpers import Raw
 
 from .shard_helpers import N_CELLS, shards, two_regions, until
+from .test_shards import _view
 
 LINE = [[c for c in (i - 1, i + 1) if 0 <= c < N_CELLS] for i in range(N_CELLS)]
-
-
-async def _view(server, *cells: int) -> Raw:
-    v = await Raw.connect(server)
-    await v.send(P.Subscribe(tuple(cells), ()))
-    await v.send(P.Ping(1))
-    await v.expect(P.Pong)
-    return v
 
 
 async def _until_seq(w: Raw, seq: int, visible: dict[int, tuple], log: list) -> None:
