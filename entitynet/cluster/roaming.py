@@ -24,6 +24,7 @@ owns. Without the adjacency (a map given without its topology) a publisher is re
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
 from typing import Any
 
@@ -67,31 +68,39 @@ class CameraRoamingMixin:
         return target
 
 
-def region_bands(cell_region: Sequence[int], adjacency: Sequence[Sequence[int]], margin: int) -> np.ndarray:
-    """(regions, cells) bool: the cells within `margin - 1` hops of each region (the region itself included),
-    by a breadth-first walk of the cell adjacency. Raises ValueError on an adjacency that does not fit the map
-    (another length, a neighbour that is not a cell), so a bad table is refused at start, never half used."""
+def region_bands(cell_region: Sequence[int], adjacency: Sequence[Sequence[int]], margin: int,
+                 regions: int | None = None) -> np.ndarray:
+    """(regions, cells) bool: the cells within `margin - 1` hops of each region (the region itself included), by
+    a breadth-first walk of the cell adjacency; `regions` rows (the map's count, which a region without cells may
+    exceed). Raises ValueError on an adjacency that does not fit the map (another length, a neighbour that is
+    not a cell), so a bad table is refused at start, never half used."""
     n = len(cell_region)
     if isinstance(margin, bool) or not isinstance(margin, int) or margin < 1:
         raise ValueError(f"publisher margin must be a whole number of cells >= 1, got {margin!r}")
-    if len(adjacency) != n:
-        raise ValueError(f"cell adjacency has {len(adjacency)} cells, the cluster map {n}")
+    try:
+        size = len(adjacency)
+    except TypeError:
+        raise ValueError("cell adjacency must be a list of neighbour lists, one per cell") from None
+    if size != n:
+        raise ValueError(f"cell adjacency has {size} cells, the cluster map {n}")
     nbrs: list[list[int]] = []
     for c, row in enumerate(adjacency):
         try:
-            cells = [int(x) for x in row]
-        except (TypeError, ValueError):
+            cells = [operator.index(x) for x in row]  # whole numbers only: 2.5 is no cell
+        except TypeError:
             raise ValueError(f"cell adjacency of cell {c} is not a list of cells") from None
         if any(not 0 <= x < n for x in cells):
             raise ValueError(f"cell adjacency of cell {c} names a cell outside the map")
         nbrs.append(cells)
-    k = int(max(cell_region, default=-1)) + 1
+    k = int(max(cell_region, default=-1)) + 1 if regions is None else regions
     bands = np.zeros((k, n), dtype=bool)
     for r in range(k):
         band = bands[r]
         frontier = [c for c in range(n) if cell_region[c] == r]
         band[frontier] = True
         for _ in range(margin - 1):
+            if not frontier:
+                break  # (a huge margin: the walk ends where the graph does)
             nxt = [x for c in frontier for x in nbrs[c] if not band[x]]
             band[nxt] = True
             frontier = nxt
@@ -107,7 +116,8 @@ class PublisherRoamingMixin:
         if not (isinstance(linger_s, int | float) and linger_s >= 0 and linger_s != float("inf")):
             raise ValueError(f"publisher linger must be a finite number of seconds >= 0, got {linger_s!r}")
         self.publisher_linger_s = float(linger_s)
-        self._bands = None if adjacency is None else region_bands(self.region_of, adjacency, margin)
+        self._bands = None if adjacency is None else region_bands(self.region_of, adjacency, margin,
+                                                                       self.regions.shards)
         self._near: tuple[tuple[int, ...], list[bool]] | None = None  # (owners, cell -> within our band)
         self.out_since: dict[int, float] = {}  # cid -> since when all its entities are out of our regions
 

@@ -194,6 +194,9 @@ def test_gone_publishers_are_forgotten():
     ([*LINE[:-1], [-1]], 2, 30.0, "outside the map"),
     ([*LINE[:-1], None], 2, 30.0, "not a list"),
     ([*LINE[:-1], ["x"]], 2, 30.0, "not a list"),
+    ([*LINE[:-1], [98.0]], 2, 30.0, "not a list"),
+    ([*LINE[:-1], [math.inf]], 2, 30.0, "not a list"),
+    (7, 2, 30.0, "one per cell"),
     (LINE, 0, 30.0, "margin"),
     (LINE, True, 30.0, "margin"),
     (LINE, 2.5, 30.0, "margin"),
@@ -212,6 +215,17 @@ def test_region_bands_walk_the_adjacency():
     bands = region_bands([0, 0, 1, 1, 1], [[1], [0, 2], [1, 3], [2, 4], [3]], 3)
     assert bands.tolist() == [[True, True, True, True, False], [True, True, True, True, True]]
     assert region_bands([0, 1], [[1], [0]], 1).tolist() == [[True, False], [False, True]]
+    assert region_bands([0, 1, 1], [[1], [0, 2], [1]], 10**9).tolist() == [[True] * 3, [True] * 3]
+    assert region_bands([0, 0], [[1], [0]], 2, regions=3).tolist() == [[True, True], [False, False], [False, False]]
+
+
+def test_a_region_without_cells_has_an_empty_band():
+    """A map whose last region got no cells (regions.shards beyond the largest region in use): no IndexError."""
+    regions = two_regions(2)
+    regions.cell_region[:] = 0  # region 1 owns nothing
+    core = ClusterCore(make(), regions, 1, "h:1", now=0.0, inbox="_INBOX.1", cell_adjacency=LINE)
+    assert core._near_cells(core._owners(0.0)) == [False] * N_CELLS
+    assert not core._in_band_of_unsure_shard((10,), [0, 1], 0.0, 0.0)
 
 
 def test_a_client_failing_over_from_a_neighbour_that_served_it_is_held_until_that_neighbour_is_decided():
