@@ -23,8 +23,9 @@ Ownership and failover: shard k owns region k while it is alive; a region whose 
 which every survivor computes alike from the same heartbeats. A dead shard's mirrored entities are dropped at
 once; its clients reconnect to another shard they know and re-publish.
 
-Roaming: a client whose entities have all left this shard's regions is sent REDIRECT (owner shard, address) once;
-a client with no entities (a viewer) whose subscribed cells lie mostly in another shard's regions likewise.
+Roaming: a client whose entities have all left this shard's regions, and the band around them or for a while, is
+sent REDIRECT (owner shard, address) once (roaming.py: the hysteresis); a client with no entities (a viewer) whose
+subscribed cells lie mostly in another shard's regions likewise.
 The shell (entitynet.cluster.link) moves bytes: `on_message` in, `take_out()` publications and
 `interest_changes()` SUB/UNSUB out, `tick(now)` at `next_deadline()`.
 """
@@ -41,7 +42,12 @@ import msgpack
 from entitynet import protocol as P
 from entitynet.cluster.failover import HEARTBEAT, ClusterFailoverMixin, Peer
 from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
-from entitynet.cluster.roaming import CameraRoamingMixin
+from entitynet.cluster.roaming import (
+    PUBLISHER_LINGER_S,
+    PUBLISHER_MARGIN_CELLS,
+    CameraRoamingMixin,
+    PublisherRoamingMixin,
+)
 
 log = logging.getLogger("entitynet.cluster")
 
@@ -57,14 +63,18 @@ def _unpack(data: bytes) -> Any:
     return msgpack.unpackb(data, raw=False, strict_map_key=False, use_list=True)
 
 
-class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin):
+class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin, PublisherRoamingMixin):
     """Cluster logic of one shard; installs itself as the switchboard's `cluster` hook (queries by identity
-    across shards in `queries.py`; liveness, ownership and failover in `failover.py`)."""
+    across shards in `queries.py`; liveness, ownership and failover in `failover.py`; roaming with its
+    hysteresis in `roaming.py`: `cell_adjacency` (cell -> neighbour cells) gives publishers their border band)."""
+
+    max_redirect_entities = MAX_REDIRECT_ENTITIES
 
     def __init__(self, sb: Any, regions: Any, shard: int, address: str, *, now: float, inbox: str,
                  heartbeat_s: float = 0.5, dead_after_s: float = 2.0, follow_ttl_s: float = 6.0,
                  query_wait_s: float = 0.5, follow_wait_s: float = 1.0, redirect_viewers: bool = True,
-                 wake: Any = None):
+                 wake: Any = None, cell_adjacency: Any = None, publisher_margin_cells: int = PUBLISHER_MARGIN_CELLS,
+                 publisher_linger_s: float = PUBLISHER_LINGER_S):
         if not 0 <= shard < regions.shards:
             raise ValueError(f"shard {shard} is not one of the map's {regions.shards} regions")
         self.sb = sb
@@ -111,6 +121,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
         # judged again as soon as the owner is decided (declared dead, or heard again)
         self.held: dict[int, dict[int, tuple[Any, float]]] = {}
         self.hold_since: dict[int, float] = {}  # cid -> when its first PUBLISH was held
+        self.init_publisher_roaming(cell_adjacency, publisher_margin_cells, publisher_linger_s)
 
     # ------------------------------------------------------------------------------------------ switchboard hooks
     def _pub(self, subject: str, payload: bytes, reply: str | None = None) -> None:
@@ -199,39 +210,32 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
             return True
         owners = self._owners(now)
         if any(owners[self.region_of[cell]] == self.shard for cell in cells):
+            if self._in_band_of_unsure_shard(cells, owners, now, self.hold_since.get(c.cid, now)):
+                return self._hold(c, msg, now)  # a dying neighbour may still show it (roaming.py)
             self.hold_since.pop(c.cid, None)
             return True
         target = owners[self.region_of[cells[0]]]
         if self.address_of(target) is None:
             self.hold_since.pop(c.cid, None)
             return True  # nowhere to send it: serve it here
-        since = self.hold_since.get(c.cid, now)
-        if self._quiet(target, now) or not self._heard_since(target, since):
+        if self._quiet(target, now) or not self._heard_since(target, self.hold_since.get(c.cid, now)):
             # its owner has not been heard since this client came (a client failing over arrives after its shard
             # died) or has gone quiet (dying?): sending the client there could cost it a failover, serving it
             # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
             # moment the owner is heard or decided (`_retry_held`): at most a heartbeat for a client that merely
             # started on the wrong shard, and no round trip to a dead shard for one failing over
-            self.stats["admissions_deferred"] += 1
-            if msg is not None:
-                self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
-                self.hold_since.setdefault(c.cid, now)
-            return False
+            return self._hold(c, msg, now)
         self.hold_since.pop(c.cid, None)
         self._redirect(c, target)
         return False
 
-    def _roam_publisher(self, c: Any, e: Any, now: float) -> None:
-        if not e.cells or len(c.entities) > MAX_REDIRECT_ENTITIES:
-            return
-        owners = self._owners(now)
-        region_of = self.region_of
-        me = self.shard
-        for eid in c.entities.values():
-            other = self.sb.entities.get(eid)
-            if other is not None and any(owners[region_of[cell]] == me for cell in other.cells):
-                return  # something of this connection is still ours
-        self._redirect(c, owners[region_of[e.cells[0]]])
+    def _hold(self, c: Any, msg: Any, now: float) -> bool:
+        """Hold a first PUBLISH until `_retry_held` judges it again (False: not admitted now)."""
+        self.stats["admissions_deferred"] += 1
+        if msg is not None:
+            self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
+            self.hold_since.setdefault(c.cid, now)
+        return False
 
     def _redirect(self, c: Any, shard: int) -> None:
         """The client's entities leave now; the REDIRECT itself waits in `redirects` until the shell has
@@ -437,6 +441,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin)
                 self._declare_dead(p, now)
         if now >= self._next_hb:
             self._heartbeat_out(now)
+            self._forget_gone_publishers()
         self._retry_held(now)
         if now >= self._next_interest:  # the whole set now and then: a shard that started late learns it
             self._next_interest = now + 2.0

@@ -37,6 +37,11 @@ class ClusterConfig:
     heartbeat_s: float = 0.5
     dead_after_s: float = 2.0
     redirect_viewers: bool = True  # a client without entities whose cells lie mostly elsewhere moves there
+    # cell -> neighbour cells (topology.regions.cell_adjacency): publishers near a border are served on here
+    # within a band of `publisher_margin_cells` and for `publisher_linger_s` (roaming.py); None: no band
+    cell_adjacency: Any = None
+    publisher_margin_cells: int = 2
+    publisher_linger_s: float = 30.0
 
 
 class ClusterLink:
@@ -110,7 +115,10 @@ class ClusterLink:
             inbox = nc.new_inbox(self._on_msg)
             self.core = ClusterCore(server.sb, cfg.regions, cfg.shard, address, now=clock(), inbox=inbox,
                                     heartbeat_s=cfg.heartbeat_s, dead_after_s=cfg.dead_after_s,
-                                    redirect_viewers=cfg.redirect_viewers, wake=self._poke)
+                                    redirect_viewers=cfg.redirect_viewers, wake=self._poke,
+                                    cell_adjacency=cfg.cell_adjacency,
+                                    publisher_margin_cells=cfg.publisher_margin_cells,
+                                    publisher_linger_s=cfg.publisher_linger_s)
             self.core.extra_counts = lambda: {"nats_in": nc.received, "nats_out": nc.published,
                                               "nats_writes": nc.writes, "nats_dropped": nc.dropped,
                                               "nats_reconnects": nc.reconnects}

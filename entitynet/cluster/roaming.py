@@ -1,5 +1,7 @@
-"""Viewers roam by their camera (a mixin of `ClusterCore`): a viewer whose client says where its camera is
-(CAMERA) is REDIRECTed to the shard whose region holds the camera, not by where its subscribed cells lie.
+"""Roaming with hysteresis (mixins of `ClusterCore`): viewers by their camera, publishers by a border band.
+
+Viewers: a viewer whose client says where its camera is (CAMERA) is REDIRECTed to the shard whose region holds
+the camera, not by where its subscribed cells lie.
 
 Why the camera and not the cells: from near a border a PVS reaches deep into both regions, so a vote of cells
 flips with every step along the border; the camera's position is one point with one region
@@ -8,12 +10,28 @@ cross it back and forth, so a shard hands a viewer on only once its camera is `c
 another shard's area (the region at the camera and at that distance in the four axis directions all belong to
 one other shard). Coming back costs the same margin the other way: a band twice the margin wide around every
 border in which no viewer is moved, so a camera on a border is redirected once, not back and forth.
+
+Publishers: a REDIRECT costs a connection, a handshake and a re-publish (and a LEAVE and a new id at every viewer),
+and an entity random-walking near a border crossed it back and forth (400 REDIRECTs in a full `bench cluster` at
+4 shards). So a connection whose entities have all left this shard's regions is served on here while any of
+their cells lies within `publisher_margin_cells - 1` cell hops (the cell adjacency graph) of a region this shard
+owns, and for at most `publisher_linger_s` after they left: the bound on how far and how long a neighbour may
+serve an entity. Nothing is lost meanwhile: a shard publishes its entities' states to the subjects of their
+cells wherever those lie (as for a proxy's fleet), and the region's owner subscribes to the cells its viewers
+watch, so they see the entity as a mirror; snapshots, QUERY by cells and FOLLOW ask every shard for what it
+owns. Without the adjacency (a map given without its topology) a publisher is redirected as soon as it is out.
 """
 
 from __future__ import annotations
 
+import operator
+from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
+PUBLISHER_MARGIN_CELLS = 2  # redirected once no cell of its entities is ours or next to ours
+PUBLISHER_LINGER_S = 30.0  # ... or once they have been out of our regions this long, wherever they are
 CAMERA_MARGIN_M = 24.0  # a view-grid column or so: deep enough that GPS-like jitter on a border cannot bounce
 
 
@@ -48,3 +66,112 @@ class CameraRoamingMixin:
             if rr is None or owners[rr] != target:
                 return self.shard  # within the margin of a border: stay
         return target
+
+
+def region_bands(cell_region: Sequence[int], adjacency: Sequence[Sequence[int]], margin: int,
+                 regions: int | None = None) -> np.ndarray:
+    """(regions, cells) bool: the cells within `margin - 1` hops of each region (the region itself included), by
+    a breadth-first walk of the cell adjacency; `regions` rows (the map's count, which a region without cells may
+    exceed). Raises ValueError on an adjacency that does not fit the map (another length, a neighbour that is
+    not a cell), so a bad table is refused at start, never half used."""
+    n = len(cell_region)
+    if isinstance(margin, bool) or not isinstance(margin, int) or margin < 1:
+        raise ValueError(f"publisher margin must be a whole number of cells >= 1, got {margin!r}")
+    try:
+        size = len(adjacency)
+    except TypeError:
+        raise ValueError("cell adjacency must be a list of neighbour lists, one per cell") from None
+    if size != n:
+        raise ValueError(f"cell adjacency has {size} cells, the cluster map {n}")
+    nbrs: list[list[int]] = []
+    for c, row in enumerate(adjacency):
+        try:
+            cells = [operator.index(x) for x in row]  # whole numbers only: 2.5 is no cell
+        except TypeError:
+            raise ValueError(f"cell adjacency of cell {c} is not a list of cells") from None
+        if any(not 0 <= x < n for x in cells):
+            raise ValueError(f"cell adjacency of cell {c} names a cell outside the map")
+        nbrs.append(cells)
+    k = int(max(cell_region, default=-1)) + 1 if regions is None else regions
+    bands = np.zeros((k, n), dtype=bool)
+    for r in range(k):
+        band = bands[r]
+        frontier = [c for c in range(n) if cell_region[c] == r]
+        band[frontier] = True
+        for _ in range(margin - 1):
+            if not frontier:
+                break  # (a huge margin: the walk ends where the graph does)
+            nxt = [x for c in frontier for x in nbrs[c] if not band[x]]
+            band[nxt] = True
+            frontier = nxt
+    return bands
+
+
+class PublisherRoamingMixin:
+    """Uses `sb`, `shard`, `region_of`, `_owners`, `_quiet`, `_heard_since`, `_redirect` and `stats` of `ClusterCore`;
+    `init_publisher_roaming` is called from its constructor."""
+
+    def init_publisher_roaming(self, adjacency: Sequence[Sequence[int]] | None, margin: int, linger_s: float) -> None:
+        """The bands (None without an adjacency) and the time bound; bad values raise ValueError."""
+        if not (isinstance(linger_s, int | float) and linger_s >= 0 and linger_s != float("inf")):
+            raise ValueError(f"publisher linger must be a finite number of seconds >= 0, got {linger_s!r}")
+        self.publisher_linger_s = float(linger_s)
+        self._bands = None if adjacency is None else region_bands(self.region_of, adjacency, margin,
+                                                                       self.regions.shards)
+        self._near: tuple[tuple[int, ...], list[bool]] | None = None  # (owners, cell -> within our band)
+        self.out_since: dict[int, float] = {}  # cid -> since when all its entities are out of our regions
+
+    def _near_cells(self, owners: list[int]) -> list[bool] | None:
+        """Cell -> within the band of a region this shard owns now (recomputed when ownership changes)."""
+        if self._bands is None:
+            return None
+        key = tuple(owners)
+        if self._near is None or self._near[0] != key:
+            mine = [r for r, s in enumerate(owners) if s == self.shard]
+            near = self._bands[mine].any(axis=0) if mine else np.zeros(self._bands.shape[1], dtype=bool)
+            self._near = (key, near.tolist())
+        return self._near[1]
+
+    def _in_band_of_unsure_shard(self, cells: tuple[int, ...], owners: list[int], now: float, since: float) -> bool:
+        """Whether another shard may still be serving an entity in `cells` from within its band while we cannot
+        tell it is alive: quiet (dying?), or not heard since the client came (a client failing over arrives
+        before its shard is quiet). Admitted, it would be shown beside the copy that shard still publishes, so
+        its first PUBLISH is held (`admit`) until that shard is heard or declared dead: at most a heartbeat for
+        a client that starts near a border (a REDIRECTed one is beyond the band of the shard it left)."""
+        bands = self._bands
+        if bands is None:
+            return False
+        for r, s in enumerate(owners):
+            if (s != self.shard and (self._quiet(s, now) or not self._heard_since(s, since))
+                    and any(bands[r, cell] for cell in cells)):
+                return True
+        return False
+
+    def _roam_publisher(self, c: Any, e: Any, now: float) -> None:
+        """After a local entity's new state: REDIRECT its connection when all its entities are out of our
+        regions and beyond the band (or out for `publisher_linger_s`). A fleet (> `max_redirect_entities`)
+        stays where it is."""
+        if not e.cells or len(c.entities) > self.max_redirect_entities:
+            return
+        owners = self._owners(now)
+        region_of = self.region_of
+        me = self.shard
+        entities = self.sb.entities
+        cells = [cell for eid in c.entities.values() if (x := entities.get(eid)) is not None for cell in x.cells]
+        if any(owners[region_of[cell]] == me for cell in cells):
+            self.out_since.pop(c.cid, None)  # something of this connection is still ours
+            return
+        since = self.out_since.setdefault(c.cid, now)
+        near = self._near_cells(owners)
+        if near is not None and now - since < self.publisher_linger_s and any(near[cell] for cell in cells):
+            self.stats["publishers_in_band"] += 1  # served on here: a state of an entity just over the border
+            return
+        self._redirect(c, owners[region_of[e.cells[0]]])
+        if c.cid in self.redirected:
+            del self.out_since[c.cid]
+
+    def _forget_gone_publishers(self) -> None:
+        """Drop the out-of-region times of connections that are gone (called now and then from `tick`)."""
+        clients = self.sb.clients
+        for cid in [x for x in self.out_since if x not in clients]:
+            del self.out_since[cid]

@@ -52,7 +52,7 @@ def cluster_config_from(args: argparse.Namespace):
     from entitynet.cluster.link import ClusterConfig
     from entitynet.cluster.nats_client import parse_servers
     from topology import artifact
-    from topology.regions import RegionError, RegionMap, build_regions
+    from topology.regions import RegionError, RegionMap, build_regions, cell_adjacency
 
     try:
         parse_servers(args.cluster)
@@ -79,7 +79,8 @@ def cluster_config_from(args: argparse.Namespace):
     dead_after = DEAD_AFTER if args.dead_after is None else args.dead_after
     return ClusterConfig(args.cluster, args.shard, regions, address=args.advertise,
                          token=args.nats_token or os.environ.get("ENTITYNET_NATS_TOKEN"), tls=tls,
-                         heartbeat_s=min(0.5, dead_after / 4), dead_after_s=dead_after)
+                         heartbeat_s=min(0.5, dead_after / 4), dead_after_s=dead_after,
+                         cell_adjacency=[sorted(a) for a in cell_adjacency(topo)])  # publishers' border band
 
 
 def check_cluster_only(args: argparse.Namespace) -> None:

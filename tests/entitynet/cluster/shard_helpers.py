@@ -29,14 +29,15 @@ def shards(nats_urls: str, regions: RegionMap, n: int | None = None, redirect_vi
 
 
 @contextlib.asynccontextmanager
-async def shards_on(urls: list[str], regions: RegionMap, redirect_viewers: bool = False, **kw):
-    """Shard i connects to NATS at urls[i]."""
+async def shards_on(urls: list[str], regions: RegionMap, redirect_viewers: bool = False,
+                    cluster_kw: dict | None = None, **kw):
+    """Shard i connects to NATS at urls[i]; `cluster_kw` goes to every shard's ClusterConfig."""
     kw.setdefault("switch", {"grace_s": 0.2})
     async with trio.open_nursery() as nursery:
         servers = []
         for i, nats_urls in enumerate(urls):
             cc = ClusterConfig(nats_urls, i, regions, heartbeat_s=0.1, dead_after_s=0.6,
-                               redirect_viewers=redirect_viewers)
+                               redirect_viewers=redirect_viewers, **(cluster_kw or {}))
             servers.append(await nursery.start(_serve_scoped, config(n_cells=N_CELLS, cluster=cc, **kw)))
         await wait_peers(servers)
         try:
