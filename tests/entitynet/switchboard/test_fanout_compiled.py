@@ -106,3 +106,42 @@ def test_compiled_take_states_matches_the_reference():
         assert outbox.Outbox.take_states is outbox.Outbox.take_states_py
     finally:
         outbox.use_compiled(was)
+
+
+class _Attrs:
+    """An instance whose `__dict__` is a split-table dict (keys shared with the class's other instances)."""
+
+    def __init__(self) -> None:
+        self.a = b"a"
+        self.b = b"b"
+
+
+def _dict_shapes() -> list[dict]:
+    """Dicts of every shape the compiled store's prefetch reads (it looks into dict internals to find the index
+    slot and the entry ahead of each store): empty, small, with 1-, 2- and 4-byte index tables, with deleted
+    entries, keyed by str (another entry layout), mixed keys, and a split-table instance dict."""
+    big = {k: b"v" for k in range(50_000)}  # over 2**15 slots: 4-byte indices
+    holes = {k: b"v" for k in range(300)}
+    for k in range(0, 300, 3):
+        del holes[k]
+    return [{}, {7: b"x"}, {k: b"v" for k in range(100)}, {k * 1024: b"v" for k in range(200)}, big, holes,
+            {"s" + str(k): b"v" for k in range(20)}, {1: b"v", "one": b"v", (1, 2): b"v", 2.5: b"v"},
+            _Attrs().__dict__]
+
+
+@pytest.mark.skipif(outbox.COMPILED is None, reason="the compiled fan-out was not built")
+@pytest.mark.parametrize("key", [0, 1, 5, 1023, 1024, 49_999, 50_000, -1, -2, 2**61 - 1, 2**61, 2**64 + 3, -(2**70)])
+def test_compiled_store_with_prefetch_matches_the_reference_on_every_dict_shape(key):
+    shapes_a, shapes_b = _dict_shapes(), _dict_shapes()
+    many_a = tuple(shapes_a * 5)  # longer than every prefetch distance, each dict met several times
+    many_b = tuple(shapes_b * 5)
+    outbox.fan_out_to_py(many_a, key, b"new")
+    outbox.COMPILED.fan_out_to(many_b, key, b"new")
+    for a, b in zip(shapes_a, shapes_b, strict=True):
+        assert a == b and list(a) == list(b)
+    for n in range(0, 20):  # every length around the prefetch distances
+        a = tuple({k: b"o" for k in range(n)} for _ in range(n))
+        b = tuple({k: b"o" for k in range(n)} for _ in range(n))
+        outbox.fan_out_to_py(a, key, b"n")
+        outbox.COMPILED.fan_out_to(b, key, b"n")
+        assert a == b
