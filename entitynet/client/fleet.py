@@ -83,10 +83,14 @@ class FleetCore:
     """Players in slots (a removed player's slot goes to a later add; `order` keeps the order of the adds),
     stepped together."""
 
-    def __init__(self, capacity: int = 64, *, vectorised: bool = True) -> None:
+    def __init__(self, capacity: int = 64, *, vectorised: bool = True, min_rows: int = 0) -> None:
         """`vectorised=False`: every fix and every tick through the entity's `Player`, one by one (the
-        per-entity baseline `bench sim` measures the arrays against, and what a fleet of one does)."""
+        per-entity baseline `bench sim` measures the arrays against, and what a fleet of one does).
+        `min_rows`: a step with fewer fixes the arrays could take gives them to the Players (`few_rows`: the
+        vectorised fix has a fixed cost of a few hundred numpy calls; a small fleet's caller sets it); the
+        timers stay in arrays."""
         self.vectorised = vectorised
+        self.min_rows = int(min_rows)
         self.players: list[Player | None] = []
         self.geo: Geometry | None = None
         self._near = NearTables()
@@ -211,6 +215,9 @@ class FleetCore:
                             good[k] = False  # (the scalar `feed` rejects it)
             why = np.where(fast, WHY["bad_fix"], self.slow[due])
             rows = np.flatnonzero(fast & good)
+            if len(rows) < self.min_rows:
+                why[rows] = WHY["few_rows"]
+                rows = rows[:0]
             if len(rows):
                 why[rows], pub[rows] = fast_fixes(self, due[rows], x[rows], y[rows], now, acc * acc,
                                                   None if vel is None else vel[rows])

@@ -21,11 +21,12 @@ from entitynet.client.state import PATH_W, RECENT
 W = PATH_W  # the widest path a row holds in arrays
 
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_refresh`'s
-# eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
+# eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix), then
+# fixes of a step with fewer rows than the fleet core's `min_rows` (the arrays' fixed cost is not worth it)
 SCALAR_WHY = ("no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
               "near_consistency", "reacquire", "reach_jump", "filter",
               "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
-              "bad_fix", "not_vectorised")
+              "bad_fix", "not_vectorised", "few_rows")
 WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
 
 
