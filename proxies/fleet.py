@@ -7,6 +7,13 @@ fix would. `tick(now)` moves every vehicle, feeds its position to its `entitynet
 a-priori path, its stops as known halts) every `fix_interval` seconds and returns what the players publish;
 vehicles whose data is older than `stale_after`, or that reached the end of their route on the map, leave.
 
+One client core for the fleet: every vehicle's Player is a row of one `entitynet.client.fleet.FleetCore` (added
+when the vehicle is placed, removed when it leaves), and `tick` steps them together: the motion's fixes with
+their Doppler velocity, and the timers, over arrays; a Player is called only where something happens, as the
+simulator's fleet does. `core="player"` turns the arrays off (one `feed` or `tick` per vehicle, the per-entity
+path the tests compare with: the same messages, payload bytes included). A GTFS-rt position (`fix`) has its own
+time, so it goes to its vehicle's Player directly.
+
 Clocks: the producer's times are mapped to ours by the offset `received - ResponseTimestamp` with the smallest
 value seen lately (the answer with the least latency tells the offset best, as NTP does), so a service that
 answers several seconds late does not shift every ETA by its latency.
@@ -22,11 +29,16 @@ import numpy as np
 
 from entitynet.client import FixRejected, Path, Player, netview
 from entitynet.client.entities import entity_type
+from entitynet.client.fleet import FleetCore
 from entitynet.client.motion import NetworkModel
 from entitynet.protocol import Publish, Unpublish
 from proxies.eta_motion import EtaMotion, Limits
 from proxies.routes import RouteBook, TransitRoute
 from proxies.siri_xml import Call
+
+# fewer motion fixes in a tick than this go to the vehicles' Players, not the arrays (`FleetCore.min_rows`):
+# the vectorised fix costs a few ms a call whatever its rows, a Player's fix about 80 us (docs/transit.md)
+MIN_ROWS = 32
 
 
 @dataclass
@@ -54,7 +66,8 @@ class Counters:
 @dataclass
 class Vehicle:
     """One proxied vehicle: its trip and route, the ETA motion that moves it and the Player that
-    publishes it as an honest client would."""
+    publishes it as an honest client would (a row of the fleet's client core, at `slot`: read it here, change
+    it through `FleetCore.player(slot)`)."""
     ref: str
     trip: str
     route: TransitRoute
@@ -63,6 +76,7 @@ class Vehicle:
     player: Player
     index_of: dict[int, int]  # trip stop index -> route stop index
     last_data: float
+    slot: int  # its row in the fleet's client core
     last_fix: float = -math.inf
     still_s: float | None = None  # path coordinate of the last fix fed while standing at a stop, else None
     next_check: float = -math.inf  # a fix found needless is not looked at again before this time
@@ -70,13 +84,16 @@ class Vehicle:
 
 
 class Fleet:
-    """The proxy core (sans-IO): tracker answers in, PUBLISH/UNPUBLISH out, one Player per vehicle
-    (see the module docstring for the clock mapping and when vehicles leave)."""
+    """The proxy core (sans-IO): tracker answers in, PUBLISH/UNPUBLISH out, one Player per vehicle in one
+    fleet core (see the module docstring for the clock mapping, the core and when vehicles leave)."""
 
     def __init__(self, topo, book: RouteBook, *, fix_interval: float = 2.0, stale_after: float = 300.0,
                  granularity: float = 60.0, threshold: float = 8.0, accuracy: float = 3.0,
                  first_entity: int = 1, entry_horizon: float = 20.0, quiet_drift: float = 2.0,
-                 quiet_refresh: float = 6.0) -> None:
+                 quiet_refresh: float = 6.0, core: str = "fleet", min_rows: int = MIN_ROWS) -> None:
+        if core not in ("fleet", "player"):
+            raise ValueError(f"core must be 'fleet' or 'player', got {core!r}")
+        self.core = FleetCore(vectorised=core == "fleet", min_rows=min_rows)
         self.topo = topo
         self.net = netview(topo)
         self.book = book
@@ -158,7 +175,8 @@ class Fleet:
         player = Player(self.topo, self._next_entity, et, route=route.edges, stops=stops,
                         accuracy=self.accuracy, threshold=self.threshold)
         self._next_entity += 1
-        return Vehicle(ref, trip, route, player.entity, motion, player, self._index_of(route), 0.0)
+        return Vehicle(ref, trip, route, player.entity, motion, player, self._index_of(route), 0.0,
+                       self.core.add(player))
 
     def _index_of(self, route: TransitRoute) -> dict[int, int]:
         """Trip stop index -> route stop index, once per route object (shared: read only)."""
@@ -317,7 +335,7 @@ class Fleet:
         if veh is None or t <= veh.last_fix:
             return
         try:
-            self.pending.extend(veh.player.feed(x, y, t, self.accuracy, speed=speed, heading=heading))
+            self.pending.extend(self.core.player(veh.slot).feed(x, y, t, self.accuracy, speed=speed, heading=heading))
         except FixRejected:
             return
         veh.last_fix = t
@@ -368,10 +386,16 @@ class Fleet:
         return (x - gx) ** 2 + (y - gy) ** 2 < self.quiet_drift ** 2
 
     def tick(self, now: float, *, motion_fixes: bool = True) -> list[Publish | Unpublish]:
-        """Move every vehicle to `now`; returns what to send. `motion_fixes=False` when a GTFS-rt position
-        feed provides the fixes (the motion then only fills the gaps between positions)."""
+        """Move every vehicle to `now`; returns what to send (the vehicles' messages in the order they came, as
+        the core steps them). `motion_fixes=False` when a GTFS-rt position feed provides the fixes (the motion
+        then only fills the gaps between positions). A wall clock stepping back holds the time still."""
+        now = max(now, self.core.last_now)
         out = self.pending
         self.pending = []
+        order = self.core.order
+        left: list[tuple[int, list[Unpublish]]] = []  # (order, messages) of the vehicles leaving now
+        due: list[int] = []
+        fixes: list[tuple[float, float, float, float]] = []
         for ref in list(self.vehicles):
             veh = self.vehicles[ref]
             if now - veh.last_data > self.stale_after or veh.motion.finished:
@@ -379,22 +403,26 @@ class Fleet:
                     self.counters.retired_done += 1
                 else:
                     self.counters.retired_stale += 1
-                out.extend(self._retire(ref))
+                left.append((int(order[veh.slot]), self._retire(ref)))
                 continue
             gap = self.fix_interval if not veh.positions else max(self.fix_interval, self.position_gap)
             if motion_fixes and now - veh.last_fix >= gap and now >= veh.next_check:
                 if self._idle(veh, now):
-                    veh.next_check = now + gap  # the same cadence as the fixes it stands for
-                    out.extend(veh.player.tick(now))
+                    veh.next_check = now + gap  # the same cadence as the fixes it stands for (its timers run)
                     continue
-                x, y, v, heading = self.position(veh, now)
-                msgs = veh.player.feed(x, y, now, self.accuracy, speed=v, heading=heading, speed_accuracy=0.3)
+                due.append(veh.slot)
+                fixes.append(self.position(veh, now))
                 veh.last_fix = now
                 veh.still_s = veh.motion.s if veh.motion.standing else None
-                self.counters.fixes += 1
-            else:
-                msgs = veh.player.tick(now)
-            out.extend(msgs)
+        self.counters.fixes += len(due)
+        f = np.array(fixes, dtype=float).reshape(len(fixes), 4)
+        stepped, _rejected = self.core.step(now, due, f[:, 0], f[:, 1], self.accuracy, speed=f[:, 2],
+                                            heading=f[:, 3], speed_accuracy=0.3)
+        msgs = [(int(order[slot]), m) for slot, m in stepped]
+        if left:  # (a vehicle leaving has no row any more: its messages go where its row's were)
+            msgs = sorted(msgs + left, key=lambda om: om[0])
+        for _o, m in msgs:
+            out.extend(m)
         self.counters.publishes += sum(1 for m in out if isinstance(m, Publish))
         return out
 
@@ -403,7 +431,7 @@ class Fleet:
         if veh is None:
             return []
         self.counters.stops_served_retired += veh.motion.stops_served
-        return veh.player.leave()
+        return self.core.remove(veh.slot)
 
     def stops_served(self) -> int:
         """Stops the fleet's vehicles came to stand at, those that have left included (the demo's summary

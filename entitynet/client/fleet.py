@@ -26,7 +26,8 @@ forth. What the fleet core keeps besides is derived from the row (after a scalar
 also at the vectorised fix's commit), never state: per slot the earliest time a tick can speak (`deadline`),
 whether the next fix may take the arrays (`fast`, or `slow`: why not), and the columns of the published ghost
 and of the entity's options (immutable values, read again when the ghost or the Player changes: `_refresh`).
-`player(slot)` hands the Player out. Doppler velocities are not taken (the fleet feeds positions).
+`player(slot)` hands the Player out. A fix may come with the receiver's Doppler velocity (`speed`, `heading`:
+a proxy's vehicles report one); the arrays fold it in as `NetworkTracker.fuse_velocity` does (fleet_fix.py).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from entitynet.client.fixes import FixRejected
+from entitynet.client.fixes import FixRejected, velocity
 from entitynet.client.fleet_fix import SCALAR_WHY, WHY, fast_fixes
 from entitynet.client.fleet_kernels import Geometry, compiled
 from entitynet.client.fleet_near import NearTables
@@ -82,18 +83,22 @@ class FleetCore:
     """Players in slots (a removed player's slot goes to a later add; `order` keeps the order of the adds),
     stepped together."""
 
-    def __init__(self, capacity: int = 64, *, vectorised: bool = True) -> None:
+    def __init__(self, capacity: int = 64, *, vectorised: bool = True, min_rows: int = 0) -> None:
         """`vectorised=False`: every fix and every tick through the entity's `Player`, one by one (the
-        per-entity baseline `bench sim` measures the arrays against, and what a fleet of one does)."""
+        per-entity baseline `bench sim` measures the arrays against, and what a fleet of one does).
+        `min_rows`: a step with fewer fixes the arrays could take gives them to the Players (`few_rows`: the
+        vectorised fix has a fixed cost of a few hundred numpy calls; a small fleet's caller sets it); the
+        timers stay in arrays."""
         self.vectorised = vectorised
+        self.min_rows = int(min_rows)
         self.players: list[Player | None] = []
         self.geo: Geometry | None = None
         self._near = NearTables()
         self.net = None
         self.last_now = -math.inf
         self.counters = {"vector_fixes": 0, "vector_near": 0, "vector_best_on": 0, "vector_hysteresis": 0,
-                         "vector_trims": 0, "vector_extends": 0, "vector_publishes": 0, "scalar_fixes": 0,
-                         "scalar_ticks": 0}
+                         "vector_trims": 0, "vector_extends": 0, "vector_publishes": 0, "vector_velocity": 0,
+                         "scalar_fixes": 0, "scalar_ticks": 0}
         # why each scalar fix was scalar (the first reason that held, in `SCALAR_WHY`'s order of tests)
         self.scalar_why: dict[str, int] = dict.fromkeys(SCALAR_WHY, 0)
         self.rec = Record(max(int(capacity), 1), fleet=True)
@@ -167,10 +172,12 @@ class FleetCore:
 
     # ---- one tick ------------------------------------------------------------------------------------------
     def step(self, now: float, due: Sequence[int] | np.ndarray, x: np.ndarray, y: np.ndarray, accuracy: float,
-             idle: Sequence[int] = ()) -> tuple[list[tuple[int, list[Publish | Unpublish]]], int]:
+             idle: Sequence[int] = (), *, speed: np.ndarray | None = None, heading: np.ndarray | None = None,
+             speed_accuracy: float = 0.5) -> tuple[list[tuple[int, list[Publish | Unpublish]]], int]:
         """Time `now` for every live slot: the slots in `due` take the fix (x[i], y[i]) (`feed` then `tick`),
-        the others `tick` (except those in `idle`). Returns ([(slot, messages)] in the order the slots' players
-        were added, `order`), rejected fixes)."""
+        the others `tick` (except those in `idle`). `speed[i]`, `heading[i]`: the fix's Doppler velocity as
+        `Player.feed` takes it (NaN: not reported, `feed`'s None). Returns ([(slot, messages)] in the order the
+        slots' players were added, `order`), rejected fixes)."""
         if not math.isfinite(now):
             raise ValueError(f"now must be finite, got {now!r}")
         if now < self.last_now:
@@ -188,13 +195,32 @@ class FleetCore:
         pub = np.zeros(len(due), dtype=np.int64)
         acc = float(accuracy)
         why = np.full(len(due), WHY["not_vectorised"], dtype=np.int64)
+        spd = hdg = None
+        if speed is not None:
+            spd = [None if v != v else v for v in np.asarray(speed, dtype=float).tolist()]
+            hdg = [None if v != v else v for v in np.asarray(heading, dtype=float).tolist()] if heading is not None \
+                else [None] * len(spd)
         if len(due) and math.isfinite(acc) and acc > 0.0 and self.vectorised:
             fast = self.fast[due] & self.alive[due]
             good = np.isfinite(x) & np.isfinite(y) & (now > self.last_t[due])
+            vel = None
+            if spd is not None:  # (the velocity as `feed` makes it, per fix: one `velocity` call each)
+                vel = np.zeros((len(due), 4))
+                for k, v in enumerate(spd):
+                    if v is not None:
+                        try:
+                            vel[k, :3] = velocity(v, hdg[k], speed_accuracy)
+                            vel[k, 3] = 1.0
+                        except FixRejected:
+                            good[k] = False  # (the scalar `feed` rejects it)
             why = np.where(fast, WHY["bad_fix"], self.slow[due])
             rows = np.flatnonzero(fast & good)
+            if len(rows) < self.min_rows:
+                why[rows] = WHY["few_rows"]
+                rows = rows[:0]
             if len(rows):
-                why[rows], pub[rows] = fast_fixes(self, due[rows], x[rows], y[rows], now, acc * acc)
+                why[rows], pub[rows] = fast_fixes(self, due[rows], x[rows], y[rows], now, acc * acc,
+                                                  None if vel is None else vel[rows])
                 done[rows] = why[rows] == 0
         self.counters["vector_fixes"] += int(done.sum())
         for code, count in enumerate(np.bincount(why[~done], minlength=len(SCALAR_WHY) + 1).tolist()):
@@ -240,7 +266,11 @@ class FleetCore:
             else:
                 self.counters["scalar_fixes"] += 1
                 try:
-                    msgs = p.feed(float(x[k]), float(y[k]), now, acc) + p.tick(now)
+                    if spd is None:
+                        msgs = p.feed(float(x[k]), float(y[k]), now, acc) + p.tick(now)
+                    else:
+                        msgs = p.feed(float(x[k]), float(y[k]), now, acc, speed=spd[k], heading=hdg[k],
+                                      speed_accuracy=speed_accuracy) + p.tick(now)
                 except FixRejected:
                     rejected += 1
                     msgs = []

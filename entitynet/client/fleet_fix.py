@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from entitynet.client.fleet_kernels import extend_rows, ghost_s_speed, hypot_py, interval_rows, kf_update
+from entitynet.client.fleet_kernels import extend_rows, fuse_rows, ghost_s_speed, hypot_py, interval_rows, kf_update
 from entitynet.client.fleet_near import near_fixes, s_of_rows
 from entitynet.client.rules import GAP_INTERVALS, MIN_INTERVALS
 from entitynet.client.state import PATH_W, RECENT
@@ -21,17 +21,21 @@ from entitynet.client.state import PATH_W, RECENT
 W = PATH_W  # the widest path a row holds in arrays
 
 # why a fix went to the scalar path: codes 1.. of the vectorised fix's tests (in their order), then of `_refresh`'s
-# eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix)
+# eligibility (`fast` false), then a fix the arrays never look at (not finite, or not after the last fix), then
+# fixes of a step with fewer rows than the fleet core's `min_rows` (the arrays' fixed cost is not worth it)
 SCALAR_WHY = ("no_segments", "near_area", "near_switch", "near_best_on", "near_reacquire",
               "near_consistency", "reacquire", "reach_jump", "filter",
               "reversal", "unplaced", "area", "unpublished", "baseline_model", "path_or_ring_wide", "other_net",
-              "bad_fix", "not_vectorised")
+              "bad_fix", "not_vectorised", "few_rows")
 WHY = {w: k + 1 for k, w in enumerate(SCALAR_WHY)}
 
 
 # ---- the vectorised fix --------------------------------------------------------------------------------
-def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float) -> tuple[np.ndarray, np.ndarray]:
+def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: float,
+               vel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """`Player.feed` at `t` for slots `sl` where the fix ends in the usual update (fleet.py's docstring):
+    `vel` (or None): per row (vx, vy, variance, 1 where the fix has a Doppler velocity, else 0) as `velocity`
+    makes it, folded in after the path's upkeep as `NetworkTracker.fuse_velocity` does (`fuse_rows`).
     commits those rows and returns per row 0 (done here) or the `SCALAR_WHY` code (1..) of the first test
     that leaves it to the scalar path, and per row done here the publish `decide` asks for: 0 none, else
     j with `fleet.PUBLISH_WHY[abs(j) - 1]` (j < 0: a reposition), or 10 + j for a stop unless the ghost halts
@@ -135,6 +139,10 @@ def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: 
         core.counters["vector_extends"] += len(ext)
     else:
         ok &= ~extend
+    nv_track = nv  # (`track` sets the peak speed before the velocity is folded in)
+    if vel is not None and vel[:, 3].any():
+        new = list(fuse_rows(geo, vel, rs[:, -1], pe, pd, pc, pn, has_route, core.kacc[sl], ns, *new[1:]))
+        ns, nv = new[0], new[1]
     rx = np.concatenate([core.rx[sl][:, 1:], px[:, None]], axis=1)
     ry = np.concatenate([core.ry[sl][:, 1:], py[:, None]], axis=1)
     rr_n = np.minimum(core.rr_n[sl] + 1, RECENT)
@@ -180,6 +188,8 @@ def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: 
     core.counters["vector_near"] += int((ok & near_rows).sum())
     core.counters["vector_best_on"] += int((ok & retried).sum())
     core.counters["vector_hysteresis"] += int((ok & (pend_e != -1)).sum())  # (an area not entered yet too)
+    if vel is not None:
+        core.counters["vector_velocity"] += int((ok & (vel[:, 3] > 0.0)).sum())
     w = np.flatnonzero(ok)
     c = sl[w]
     core.last_t[c] = t
@@ -206,7 +216,7 @@ def fast_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, t: float, r: 
             paths[slot] = None  # the row's path changed: its `Path` is built again when asked
     core.kt[c] = t
     vs = w[vpeak_set[w]]
-    core.vpeak[sl[vs]] = nv[vs]
+    core.vpeak[sl[vs]] = nv_track[vs]
     core.vpeak_t[sl[vs]] = t
     core.rev[c] = rev[w]
     core.rs[c] = rs[w]

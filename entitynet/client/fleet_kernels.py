@@ -18,6 +18,7 @@ import numpy as np
 from entitynet.client.kinematics import A_EPS
 from entitynet.client.limits import HORIZON
 from entitynet.client.network import NetView
+from entitynet.client.tracker import DOPPLER_MOVING
 
 try:  # the compiled kernels, where pip built them (setup.py; optional): entitynet/client/_fleet.pyx
     from entitynet.client import _fleet as COMPILED  # type: ignore[attr-defined]
@@ -236,6 +237,37 @@ def kf_update(z, t, r, s, v, a, p00, p01, p02, p11, p12, p22, kt, q, accel) -> t
         k0, k1, k2 = p00 / sden, p01 / sden, p02 / sden
     return (s + k0 * y, v + k1 * y, a + k2 * y, p00 - k0 * p00, p01 - k0 * p01, p02 - k0 * p02,
             p11 - k1 * p01, p12 - k1 * p02, p22 - k2 * p02, sden)
+
+
+def fuse_rows(geo: Geometry, vel: np.ndarray, s: np.ndarray, pe: np.ndarray, pd: np.ndarray, cum: np.ndarray,
+              n: np.ndarray, has_route: np.ndarray, accel: np.ndarray, *kf: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`NetworkTracker.fuse_velocity` then `Kinematic1D.update_speed` element-wise on an edge: rows with a
+    velocity (`vel[:, 3]`, its (vx, vy, variance) in `vel[:, :3]`) at path coordinate `s` (the last fix's) fold
+    in its component along the path (the chord from s - 1 to s + 1 m); a moving one mostly across the path, or
+    against an a-priori route, is left out, as is a row whose chord or innovation variance is not > 0. `kf`:
+    (s, v, a, p00, p01, p02, p11, p12, p22); returns them updated (the same operations, in the same order)."""
+    fs, fv, fa, p00, p01, p02, p11, p12, p22 = kf
+    length = cum[np.arange(len(s)), n]
+    hx, hy = geo.path_xy(np.minimum(s + 1.0, length), pe, pd, cum, n)
+    bx, by = geo.path_xy(np.maximum(s - 1.0, 0.0), pe, pd, cum, n)
+    vx, vy, rv = (np.ascontiguousarray(vel[:, j]) for j in range(3))
+    norm = hypot_py(hx - bx, hy - by)
+    with np.errstate(all="ignore"):
+        along = (vx * (hx - bx) + vy * (hy - by)) / norm
+    speed = hypot_py(vx, vy)
+    across = (speed >= DOPPLER_MOVING) & ((np.abs(along) < 0.7 * speed) | (has_route & (along < 0.0)))
+    sden = p11 + rv
+    use = (vel[:, 3] > 0.0) & (norm > 0.0) & ~across & (sden > 0.0)
+    if not use.any():
+        return kf
+    y = along - fv
+    with np.errstate(all="ignore"):
+        k0, k1, k2 = p01 / sden, p11 / sden, p12 / sden
+    acc = use & (accel != 0)
+    return (np.where(use, fs + k0 * y, fs), np.where(use, fv + k1 * y, fv), np.where(acc, fa + k2 * y, fa),
+            np.where(use, p00 - k0 * p01, p00), np.where(use, p01 - k0 * p11, p01),
+            np.where(acc, p02 - k0 * p12, p02), np.where(use, p11 - k1 * p11, p11),
+            np.where(acc, p12 - k1 * p12, p12), np.where(acc, p22 - k2 * p12, p22))
 
 
 def extend_rows(players, net, sl: np.ndarray, ext: np.ndarray, need: np.ndarray, pe: np.ndarray, pd: np.ndarray,

@@ -14,10 +14,8 @@ body is not in the last published, unexpired occupation.
 from __future__ import annotations
 
 import json
-import math
 import random
 import time
-import zlib
 from collections import Counter
 from pathlib import Path as FsPath
 
@@ -25,8 +23,9 @@ import numpy as np
 
 from entitynet.client.player import Player
 from entitynet.client.rules import OWN_ESTIMATE
-from entitynet.protocol import Publish
 from sims.bench.dr_data import MAIN_PEDESTRIANS, SAMPLE, SHARED, Entity, car_trace, pedestrians, vehicles
+from sims.bench.dr_fleet import run_fleet, split_summary
+from sims.bench.dr_samples import Samples
 from sims.bench.report import pyplot
 from sims.mobility import gps
 
@@ -40,82 +39,26 @@ def run_entity(topo, ent: Entity, model: str, threshold: float, acc: dict,
                noisy: bool = True, player=None, doppler: float | None = None) -> None:
     """Feed one entity's fixes to a player (`noisy`: 5 m GPS on the truth; else the truth are the fixes) and
     add its updates, errors and occupation to `acc`. `doppler`: the fixes also carry the receiver's Doppler
-    velocity, the truth's plus Gaussian noise of this RMS per axis (m/s)."""
+    velocity, the truth's plus Gaussian noise of this RMS per axis (m/s). (A dataset's network rows step
+    together through the fleet core instead: `dr_fleet.run_fleet`.)"""
     p = player() if player is not None else Player(
         topo if ent.cells is not None else None, 1, ent.etype, model=model, route=ent.route,
         stops=getattr(ent, "stops", ()) if model == "network" else (), threshold=threshold)
-    if noisy:
-        fix_idx = np.arange(0, len(ent.t), int(round(1.0 / SAMPLE)))
-        # the same noise for every model and threshold: differences are the models', not the dice's
-        fixes = gps(ent.xy[fix_idx], np.random.default_rng(zlib.crc32(ent.name.encode())))
-        is_fix = np.zeros(len(ent.t), bool)
-        is_fix[fix_idx] = True
-        fix_of = {int(i): k for k, i in enumerate(fix_idx)}
-        ts = ent.t
-        txy = ent.xy
-        if doppler:
-            vel = np.gradient(ent.xy, ent.t, axis=0)[fix_idx]
-            vel = vel + np.random.default_rng(zlib.crc32(ent.name.encode()) + 1).normal(0.0, doppler, vel.shape)
-            speeds = np.hypot(vel[:, 0], vel[:, 1]).tolist()
-            headings = np.degrees(np.arctan2(vel[:, 0], vel[:, 1])).tolist()
-    else:  # a real trace: its fixes are the reference; sample between them by interpolation
-        t = np.arange(ent.t[0], ent.t[-1], SAMPLE)
-        txy = np.column_stack([np.interp(t, ent.t, ent.xy[:, 0]), np.interp(t, ent.t, ent.xy[:, 1])])
-        fix_samples = np.searchsorted(t, ent.t).clip(0, len(t) - 1)
-        is_fix = np.zeros(len(t), bool)
-        is_fix[fix_samples] = True
-        fixes = txy[fix_samples]
-        fix_of = {int(i): k for k, i in enumerate(fix_samples)}
-        ts = t
-    last: Publish | None = None
-    errs = np.full(len(ts), np.nan)
-    occ_bad = 0
-    occ_n = 0
-    pub_cells = 0
-    true_cells = 0
-    updates = 0
-    wrong = checked = 0
-    for i in range(len(ts)):
-        now = float(ts[i])
-        if is_fix[i]:
-            k = fix_of[i]
-            fx, fy = fixes[k]
-            if doppler and noisy:
-                out = p.feed(float(fx), float(fy), now, speed=speeds[k], heading=headings[k], speed_accuracy=doppler)
+    smp = Samples(ent, model, noisy, doppler)
+    for i in range(len(smp.ts)):
+        now = float(smp.ts[i])
+        if smp.is_fix[i]:
+            k = smp.fix_of[i]
+            fx, fy = smp.fixes[k]
+            if smp.doppler:
+                out = p.feed(float(fx), float(fy), now, speed=smp.speeds[k], heading=smp.headings[k],
+                             speed_accuracy=doppler)
             else:
                 out = p.feed(float(fx), float(fy), now)
         else:
             out = p.tick(now)
-        for m in out:
-            if isinstance(m, Publish):
-                updates += 1
-                last = m
-        if p.ghost is not None:
-            gx, gy = p.ghost.xy_at(now)
-            errs[i] = math.hypot(gx - txy[i, 0], gy - txy[i, 1])
-        if ent.cells is not None and last is not None:
-            occ_n += 1
-            truth = ent.cells[i]
-            valid = now < p.pub_t + last.validity_ms / 1000.0
-            if not valid or not truth.issubset(last.cells):
-                occ_bad += 1
-            pub_cells += len(last.cells) if valid else 0
-            true_cells += len(truth)
-        if ent.edge is not None and is_fix[i] and ent.edge_ok[i] and model == "network":
-            inf = p.inferred
-            if inf is not None and inf[0] == "edge":
-                checked += 1
-                wrong += inf[1] != ent.edge[i]
-    acc["updates"] += updates
-    acc["minutes"] += (ts[-1] - ts[0]) / 60.0
-    acc["errs"].append(errs[~np.isnan(errs)])
-    acc["occ_bad"] += occ_bad
-    acc["occ_n"] += occ_n
-    acc["pub_cells"] += pub_cells
-    acc["true_cells"] += true_cells
-    acc["wrong"] += wrong
-    acc["checked"] += checked
-    acc["reasons"].update(p.stats)
+        smp.observe(i, now, out, p)
+    smp.add_to(acc, p)
 
 
 def oracle_updates_per_min(ents: list[Entity], threshold: float, vmax: float = 14.0) -> float:
@@ -259,6 +202,7 @@ def run(args, progress) -> dict:
     results: dict = {}
 
     datasets: dict[str, list[Entity]] = {}
+    split: dict[str, Counter] = {}  # per dataset: the network rows' fixes in arrays and not (`run_fleet`)
     if (SHARED / "hsl-gtfs-2022-02.zip").exists():
         datasets["vehicles"] = vehicles(topo, 6 if quick else 36, rng, progress)
     else:
@@ -272,8 +216,11 @@ def run(args, progress) -> dict:
         for model in ("periodic", "fpw", "fvw", "network"):
             for th in ((5.0,) if model == "periodic" else thresholds):
                 acc = _new_acc()
-                for ent in ents:
-                    run_entity(topo, ent, model, th, acc)
+                if model == "network":  # (as the simulator steps them: one fleet core)
+                    run_fleet(topo, ents, th, acc, split=split.setdefault(name, Counter()))
+                else:
+                    for ent in ents:
+                        run_entity(topo, ent, model, th, acc)
                 row = _row(name, model, th if model != "periodic" else None, acc)
                 if model == "network" and acc["checked"]:
                     row["wrong_edge_rate"] = round(acc["wrong"] / acc["checked"], 4)
@@ -314,7 +261,10 @@ def run(args, progress) -> dict:
         aided = {}
         for model in ("fpw", "fvw", "network"):
             acc = _new_acc()
-            for ent in datasets["vehicles"]:
+            if model == "network":
+                run_fleet(topo, datasets["vehicles"], 5.0, acc, doppler=DOPPLER,
+                          split=split.setdefault("vehicles_doppler", Counter()))
+            for ent in datasets["vehicles"] if model != "network" else ():
                 run_entity(topo, ent, model, 5.0, acc, doppler=DOPPLER)
             row = _row("vehicles", model, 5.0, acc)
             aided[model] = {k: row[k] for k in ("updates_per_entity_min", "error_mean_m", "error_p95_m",
@@ -341,8 +291,8 @@ def run(args, progress) -> dict:
     held = {}
     for seed in HELD_OUT_SEEDS[:1] if quick else HELD_OUT_SEEDS:
         acc = _new_acc()
-        for ent in pedestrians(topo, 6 if quick else MAIN_PEDESTRIANS, random.Random(seed), held_out=f"s{seed} "):
-            run_entity(topo, ent, "network", 5.0, acc)
+        run_fleet(topo, pedestrians(topo, 6 if quick else MAIN_PEDESTRIANS, random.Random(seed), held_out=f"s{seed} "),
+                  5.0, acc, split=split.setdefault("pedestrians_held_out", Counter()))
         row = _row("pedestrians", "network", 5.0, acc)
         held[str(seed)] = {k: row[k] for k in ("occupation_error", "updates_per_entity_min", "error_p95_m",
                                                "cells_published_per_true_cell")}
@@ -355,6 +305,12 @@ def run(args, progress) -> dict:
     fps, nfix = (fps_v, nfix_v) if fps_v else (fps_p, nfix_p)
     results["fixes_per_s"] = round(fps, 1)
     results["fixes_per_s_by_dataset"] = {"vehicles": round(fps_v, 1), "pedestrians": round(fps_p, 1)}
+    # the network rows went through the fleet core: the share of their fixes it decided in arrays, and why
+    # the others went to the Players (issue 22: "say what share of fixes take the scalar path")
+    results["fleet_fixes_in_arrays"] = {name: split_summary(c) for name, c in split.items()}
+    for name, c in results["fleet_fixes_in_arrays"].items():
+        progress(f"dr: {name} through the fleet core: {c['fixes']} fixes, {c['in_arrays']} in arrays, "
+                 f"scalar by reason {c['scalar_by_reason']}")
     results["table"] = table
     progress(f"dr: fixes_per_s {fps:.0f} over {nfix} fixes")
     params = {"thresholds_m": list(thresholds), "gps_noise_rms_m": 5.0, "fix_rate_hz": 1.0,

@@ -51,8 +51,22 @@ def _twins(topo, n: int, seed: int):
     return out
 
 
-def _run(topo, n: int = 12, seed: int = 1, ticks: int = 240):
-    """Drive both sides; returns (per-tick messages per entity for each side, the core, the players)."""
+def _doppler(rng, path: Path, s: float, v: float) -> tuple[float, float]:
+    """A receiver's (speed, heading) for truth speed v at s: along the way with noise, now and then a random
+    course (across the way, or against it), a standing one without a course (NaN: `feed`'s None)."""
+    u = rng.random()
+    if v == 0.0 and u < 0.5:
+        return 0.0, math.nan
+    (x0, y0), (x1, y1) = path.xy(max(s - 1.0, 0.0)), path.xy(min(s + 1.0, path.length))
+    heading = math.degrees(math.atan2(x1 - x0, y1 - y0)) + (180.0 if v < 0.0 else 0.0)
+    if u < 0.15:
+        heading = float(rng.uniform(0.0, 360.0))
+    return max(abs(v) + float(rng.normal(0.0, 0.3)), 0.0), (heading + float(rng.normal(0.0, 4.0))) % 360.0
+
+
+def _run(topo, n: int = 12, seed: int = 1, ticks: int = 240, doppler: bool = False):
+    """Drive both sides; returns (per-tick messages per entity for each side, the core, the players).
+    `doppler`: the fixes come with the receiver's velocity (`_doppler`; one with a speed but no course, refused)."""
     ents = _twins(topo, n, seed)
     rng = np.random.default_rng(seed + 100)
     core = FleetCore(capacity=4)  # grows while adding
@@ -64,7 +78,7 @@ def _run(topo, n: int = 12, seed: int = 1, ticks: int = 240):
     got_a, got_b = [], []
     for k in range(ticks):
         t = 0.5 * (k + 1)
-        due_b, xs, ys = [], [], []
+        due_b, xs, ys, sp, hd = [], [], [], [], []
         a_out, b_out = {}, {}
         for i in sorted(alive):
             if removed_at.get(i) == t:
@@ -88,16 +102,24 @@ def _run(topo, n: int = 12, seed: int = 1, ticks: int = 240):
                 x, y = x + float(rng.normal(0.0, 3.0)), y + float(rng.normal(0.0, 3.0))
                 if i == 4 and k == 101:
                     x = math.nan  # a bad fix: refused by both, nothing else lost
+                speed, heading = _doppler(rng, ents[i][2], s[i], ents[i][3]) if doppler else (math.nan, math.nan)
+                if doppler and i == 6 and k == 61:
+                    speed, heading = 3.0, math.nan  # a speed without its course: refused by both
                 try:
-                    a_out[i] = p.feed(x, y, t, 4.0) + p.tick(t)
+                    a_out[i] = p.feed(x, y, t, 4.0, speed=None if speed != speed else speed,
+                                      heading=None if heading != heading else heading, speed_accuracy=0.3)
+                    a_out[i] += p.tick(t)
                 except FixRejected:
                     a_out[i] = []
                 due_b.append(slots[i])
                 xs.append(x)
                 ys.append(y)
+                sp.append(speed)
+                hd.append(heading)
             else:
                 a_out[i] = p.tick(t)
-        res, _rej = core.step(t, due_b, np.array(xs), np.array(ys), 4.0)
+        vel = dict(speed=np.array(sp), heading=np.array(hd), speed_accuracy=0.3) if doppler else {}
+        res, _rej = core.step(t, due_b, np.array(xs), np.array(ys), 4.0, **vel)
         b_out.update({ents[sl][1].entity: m for sl, m in res})
         got_a.append({i: m for i, m in a_out.items() if m})
         got_b.append({i: m for i, m in b_out.items() if m})
@@ -110,11 +132,12 @@ AREA = area_square()
 @pytest.mark.parametrize(("topo", "share"), [(cross(arm=100.0), 0.25), (parallel(gap=12.0, length=300.0), 0.25),
                                              (chain(), 0.1), (AREA, 0.25)],
                          ids=["cross", "parallel", "chain", "area"])
-@pytest.mark.parametrize("seed", [1, 2])
-def test_fleet_core_publishes_what_each_player_publishes(topo, share, seed):
+@pytest.mark.parametrize(("seed", "doppler"), [(1, False), (2, False), (3, True), (4, True)])
+def test_fleet_core_publishes_what_each_player_publishes(topo, share, seed, doppler):
     """`share`: the least fraction of fixes the arrays must carry (in the area map every way ends at the
-    area: only fixes beyond the switch margin, outside the area, are decided in arrays)."""
-    got_a, got_b, core, ents = _run(topo, seed=seed)
+    area: only fixes beyond the switch margin, outside the area, are decided in arrays). `doppler`: the fixes
+    carry the receiver's velocity (as a proxy's vehicles do), folded in by the arrays too."""
+    got_a, got_b, core, ents = _run(topo, seed=seed, doppler=doppler)
     for k, (a, b) in enumerate(zip(got_a, got_b, strict=True)):
         assert a == b, f"tick {k}: per-entity {a} != fleet {b}"
     c = core.counters
@@ -124,6 +147,7 @@ def test_fleet_core_publishes_what_each_player_publishes(topo, share, seed):
     # `_best_on` and the hysteresis between ways (or before an area's entry), in arrays too
     assert c["vector_best_on"] > 0 and c["vector_hysteresis"] > 0, c
     assert c["vector_publishes"] > 0  # (decided in arrays, built by the Player)
+    assert (c["vector_velocity"] > 0) == doppler, c  # (the velocity folded in by the arrays)
     stats: dict[str, int] = {}
     for e in ents:  # (stats change only in scalar calls: the fleet's players hold them)
         for key, v in e[1].stats.items():
