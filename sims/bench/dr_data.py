@@ -10,6 +10,7 @@ depends on.
 from __future__ import annotations
 
 import json
+import os
 import random
 from datetime import datetime
 from pathlib import Path as FsPath
@@ -21,7 +22,9 @@ from entitynet.client.path import Path
 from sims.mobility import KINDS, area_walk, profile_for, random_walk, vehicle_halts
 from topology.raw import PEDESTRIAN, TRAM, VEHICLE
 
-SHARED = FsPath(__file__).resolve().parents[3] / "shared" / "data"
+#: ../shared/data beside the clone (as CI has it); ENTITYNET_SHARED overrides it (a worktree elsewhere), as for the
+#: proxy bench and the tests
+SHARED = FsPath(os.environ.get("ENTITYNET_SHARED") or FsPath(__file__).resolve().parents[3] / "shared") / "data"
 SAMPLE = 0.5  # truth (and receiver error) sampling step (s)
 MAIN_PEDESTRIANS = 32  # the full bench's walkers (a quarter of them in the largest pedestrian areas)
 
