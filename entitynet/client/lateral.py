@@ -21,6 +21,7 @@ and to `ring_distance(...) <= r`):
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Container
 
 from entitynet.client.placement import Placer, ring_distance
@@ -29,6 +30,12 @@ try:  # the compiled candidate loop, where pip built it (setup.py; optional)
     from entitynet.client import _lateral as _COMPILED  # type: ignore[attr-defined]
 except ImportError:  # the pure reference
     _COMPILED = None
+try:  # the candidate loop over C tables of the map, the whole `way_cells` (setup.py; optional)
+    from entitynet.client._waytable import WayTable as _WayTable  # type: ignore[import-not-found]
+except ImportError:
+    _WayTable = None
+if os.environ.get("ENTITYNET_PURE_PYTHON"):  # the pure references only
+    _COMPILED = _WayTable = None
 
 #: the largest query radius (m) that `edges_near` and `way_cells` answer from the one bucket holding the
 #: position (each bucket also lists the edges whose boxes reach within WIDE + 1 m of it): about two thirds of the
@@ -48,7 +55,7 @@ BAND = 1e-9
 class NearIndex:
     """One placer's neighbourhood queries for the lateral cover (shared by every entity on that placer)."""
 
-    __slots__ = ("placer", "rows", "wide", "size", "_rings", "_ways")
+    __slots__ = ("placer", "rows", "wide", "size", "_rings", "_ways", "_table")
 
     def __init__(self, placer: Placer) -> None:
         self.placer = placer
@@ -73,6 +80,7 @@ class NearIndex:
                     wide.setdefault((gx, gy), []).append(row)
         self.wide = {key: tuple(rows) for key, rows in wide.items()}
         self._rings: dict[int, tuple[tuple[float, float, float, float, float], ...]] = {}
+        self._table = None  # the `_waytable.WayTable` of `wide` and the ways, built on the first query
 
     def edges_near(self, x: float, y: float, r: float) -> list[int]:
         """`Placer.edges_near(x, y, r)`: the edges whose boxes meet the closed box of half-size r, in edge
@@ -105,7 +113,13 @@ class NearIndex:
         `skip`: edges that are no candidates; `only`: the edges that may be (None: any)."""
         x0, y0, x1, y1 = x - r, y - r, x + r, y + r
         if r <= WIDE:  # the widened bucket of the position (`edges_near`)
-            rows = self.wide.get((math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE)), ())
+            key = (math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE))
+            if _WayTable is not None and _COMPILED is not None:
+                table = self._table
+                if table is None:
+                    table = self._table = _WayTable(self.wide, self._ways, self.placer.net)
+                return table.way_cells(key, x, y, dx, dy, r, back, ahead, skip, only)
+            rows = self.wide.get(key, ())
             if _COMPILED is not None:
                 return _COMPILED.way_cells(_COMPILED.wide_candidates(rows, x0, y0, x1, y1), x, y, dx, dy, r,
                                            back, ahead, skip, only)
