@@ -11,10 +11,39 @@ Python's bit for bit. The same IEEE operations in the same order (no multiply-ad
 `-ffp-contract=off`). tests/entitynet/client/test_waytable.py holds `py_hypot` equal to `math.hypot` on hard and
 random inputs, and `WayTable.way_cells` equal to the pure loop."""
 
+from cpython.long cimport PyLong_FromDouble
 from cpython.mem cimport PyMem_Free, PyMem_Malloc
 from libc.math cimport INFINITY, NAN, fabs, frexp, isinf, isnan, ldexp, sqrt
 
-from entitynet.client._bisect cimport bisect_right_c
+cimport cython
+from libc.math cimport floor as c_floor
+
+from entitynet.client._bisect cimport bisect_right, bisect_right_c
+
+cdef double WIDE_SIZE = 20.0  # lateral.WIDE_SIZE (a test holds them equal)
+
+
+@cython.boundscheck(True)
+@cython.wraparound(True)
+cdef inline Py_ssize_t _bisect_left(list a, double x):
+    """`bisect.bisect_left` over a list of floats (a NaN x compares false: lo ends at hi... as in the module)."""
+    cdef Py_ssize_t lo = 0, hi = len(a), mid
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if <double>a[mid] < x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+cdef object _floor(double v):
+    """`math.floor(v)` of a float: the int, or the same error for NaN and the infinities."""
+    if v != v:
+        raise ValueError("cannot convert float NaN to integer")
+    if isinf(v):
+        raise OverflowError("cannot convert float infinity to integer")
+    return PyLong_FromDouble(c_floor(v))
 
 
 cdef double py_hypot_c(double a, double b) noexcept nogil:
@@ -82,6 +111,11 @@ cdef double py_hypot_c(double a, double b) noexcept nogil:
     return (h + x / (2.0 * h)) / scale
 
 
+def wide_size():
+    """The widened buckets' size this module keys by (lateral.WIDE_SIZE: a test holds them equal)."""
+    return WIDE_SIZE
+
+
 def py_hypot(double a, double b):
     """`math.hypot(a, b)` computed in C (for the tests that hold the two equal)."""
     return py_hypot_c(a, b)
@@ -106,12 +140,13 @@ cdef class WayTable:
     cdef double *gy
     cdef double *gcum
     cdef list edge_obj  # per slot: the edge id as the Python int the `skip` / `only` tests look up
+    cdef long *edge_id  # per slot: the edge id
 
     def __cinit__(self):
         self.rows = NULL
         self.box = self.seg = self.pa = self.pb = self.length = self.gx = self.gy = self.gcum = NULL
         self.seg_off = self.piece_off = self.geom_lo = self.geom_hi = NULL
-        self.pc = NULL
+        self.pc = self.edge_id = NULL
 
     def __init__(self, dict wide, dict ways, net):
         cdef dict slot_of = {}
@@ -134,6 +169,7 @@ cdef class WayTable:
         self.pb = <double *>_alloc((n_piece + 1) * sizeof(double))
         self.pc = <long *>_alloc((n_piece + 1) * sizeof(long))
         self.length = <double *>_alloc((m + 1) * sizeof(double))
+        self.edge_id = <long *>_alloc((m + 1) * sizeof(long))
         self.geom_lo = <Py_ssize_t *>_alloc((m + 1) * sizeof(Py_ssize_t))
         self.geom_hi = <Py_ssize_t *>_alloc((m + 1) * sizeof(Py_ssize_t))
         self.gx = <double *>_alloc((n_geom + 1) * sizeof(double))
@@ -148,6 +184,7 @@ cdef class WayTable:
             w = order[i]
             e = w.edge
             self.edge_obj.append(e)
+            self.edge_id[i] = e
             self.length[i] = w.length
             self.geom_lo[i], self.geom_hi[i] = net.geom_off[e], net.geom_off[e + 1]
             for s in w.segs:
@@ -180,6 +217,7 @@ cdef class WayTable:
         PyMem_Free(self.pb)
         PyMem_Free(self.pc)
         PyMem_Free(self.length)
+        PyMem_Free(self.edge_id)
         PyMem_Free(self.geom_lo)
         PyMem_Free(self.geom_hi)
         PyMem_Free(self.gx)
@@ -211,6 +249,52 @@ cdef class WayTable:
                   skip, only):
         """`NearIndex.way_cells` for r <= WIDE: the rows of the widened bucket `key` (that of (x, y)), their
         box test against the box of half-size r, then `_way_cells_py`'s loop, term for term."""
+        return self._cells(key, x, y, dx, dy, r, back, ahead, skip, only, NULL, 0)
+
+    def path_cells(self, path, double s, double r, double back, double ahead, only):
+        """`NearIndex.path_cells` for r <= WIDE: the points at s and a metre either side (`Path.xy`), the path's
+        edges in [s - back, s + ahead] and the one at s as C ids to skip (`_edges_between`, `Path.locate`), then
+        `way_cells` of the position's widened bucket."""
+        cdef list cum = path.cum, edges = path.edges
+        cdef Py_ssize_t n = len(edges), k0, k1, k, m = 0
+        cdef double length, sh = s + 1.0, sb = s - 1.0, lo = s - back, hi = s + ahead
+        cdef long ids[64]
+        cdef double x, y, hx, hy, bx, by
+        if n == 0 or len(cum) != n + 1:
+            raise ValueError("a path needs an edge and a cumulative length at each end of each")
+        length = cum[n]
+        xy = path.xy
+        x, y = xy(s)
+        hx, hy = xy(length if length < sh else sh)  # min(s + 1.0, path.length), as the builtin chooses
+        bx, by = xy(0.0 if 0.0 > sb else sb)  # max(s - 1.0, 0.0)
+        skip = None
+        if lo == lo and hi == hi:  # `_edges_between`: none for a NaN bound
+            k0 = _bisect_left(cum, lo) - 1
+            k1 = bisect_right(cum, hi, 0, len(cum))
+            k0 = k0 if k0 > 0 else 0
+            k1 = k1 if k1 < n else n
+            if k1 - k0 >= 64:  # more than the C buffer: a set, as the reference builds
+                skip = {edges[k][0] for k in range(k0, k1)}
+            else:
+                for k in range(k0, k1):
+                    ids[m] = edges[k][0]
+                    m += 1
+        k = bisect_right(cum, s, 0, len(cum)) - 1  # `Path.locate(s)`'s edge
+        if k < 0:
+            k = 0
+        elif k >= n:
+            k = n - 1
+        if skip is None:
+            ids[m] = edges[k][0]
+            m += 1
+        else:
+            skip.add(edges[k][0])
+        key = (_floor(x / WIDE_SIZE), _floor(y / WIDE_SIZE))
+        return self._cells(key, x, y, hx - bx, hy - by, r, back, ahead, skip, only, ids, m)
+
+    cdef list _cells(self, key, double x, double y, double dx, double dy, double r, double back, double ahead,
+                     skip, only, const long *skip_ids, Py_ssize_t n_skip):
+        """The loop of `way_cells`; `skip` a container of edge ids, or None and the ids in `skip_ids`."""
         cdef list out = []
         hit = self.buckets.get(key)
         if hit is None:
@@ -222,7 +306,7 @@ cdef class WayTable:
         cdef const double *bx
         cdef const double *sg
         cdef bint found, seen
-        cdef long c
+        cdef long c, ei
         cdef long got[64]
         cdef list extra = None
         for q in range(first, first + n):
@@ -231,7 +315,19 @@ cdef class WayTable:
             if bx[0] > x1 or bx[2] < x0 or bx[1] > y1 or bx[3] < y0:
                 continue
             e = self.edge_obj[i]
-            if e in skip or (only is not None and e not in only):
+            if skip is not None:
+                if e in skip:
+                    continue
+            else:
+                ei = self.edge_id[i]
+                seen = False
+                for g in range(n_skip):
+                    if skip_ids[g] == ei:
+                        seen = True
+                        break
+                if seen:
+                    continue
+            if only is not None and e not in only:
                 continue
             best_d = INFINITY
             found = False

@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import math
 import os
+from bisect import bisect_left, bisect_right
 from collections.abc import Container
 
+from entitynet.client.path import Path
 from entitynet.client.placement import Placer, ring_distance
 
 try:  # the compiled candidate loop, where pip built it (setup.py; optional)
@@ -130,6 +132,25 @@ class NearIndex:
         return (_way_cells_py if _COMPILED is None else _COMPILED.way_cells)(cand, x, y, dx, dy, r, back, ahead,
                                                                              skip, only)
 
+    def path_cells(self, path: Path, s: float, r: float, back: float, ahead: float,
+                   only: Container[int] | None) -> list[int]:
+        """The cells of the other ways within `r` of the point at `s` on `path` (`way_cells` in the path's
+        direction there), each covered `back` behind to `ahead` on; the path's own edges are no candidates
+        where the occupation runs (from `back` behind to `ahead` on) nor the edge at `s`: one the path reaches
+        only further on (it loops back along the parallel way) still is. Compiled as a whole where the C
+        tables are built and r <= WIDE (`_waytable.WayTable.path_cells`)."""
+        if r <= WIDE and _WayTable is not None and _COMPILED is not None:
+            table = self._table
+            if table is None:
+                table = self._table = _WayTable(self.wide, self._ways, self.placer.net)
+            return table.path_cells(path, s, r, back, ahead, only)
+        x, y = path.xy(s)
+        hx, hy = path.xy(min(s + 1.0, path.length))
+        bx, by = path.xy(max(s - 1.0, 0.0))
+        skip = _edges_between(path, s - back, s + ahead)
+        skip.add(path.locate(s)[0])  # the edge it is on
+        return self.way_cells(x, y, hx - bx, hy - by, r, back, ahead, skip, only)
+
     def within_ring(self, area: int, x: float, y: float, r: float) -> bool:
         """`ring_distance(placer.ring(area), x, y) <= r`, decided from squared distances where rounding
         cannot change the answer."""
@@ -191,6 +212,17 @@ class _Way:
             return x1, y1
         t = 0.0 if seg <= 0.0 else (offset - c0) / seg
         return x0 + t * ddx, y0 + t * ddy
+
+
+def _edges_between(path: Path, lo: float, hi: float) -> set[int]:
+    """The path's edges k (undirected ids) with cum[k + 1] >= lo and cum[k] <= hi: cum never decreases, so
+    they are one run of indices, found by two bisections (a NaN bound: none, as the comparisons say)."""
+    if lo != lo or hi != hi:
+        return set()
+    cum, edges = path.cum, path.edges
+    k0 = bisect_left(cum, lo) - 1  # the first k with cum[k + 1] >= lo
+    k1 = bisect_right(cum, hi)  # past the last k with cum[k] <= hi
+    return {edges[k][0] for k in range(k0 if k0 > 0 else 0, k1 if k1 < len(edges) else len(edges))}
 
 
 def _way_cells_py(cand: list, x: float, y: float, dx: float, dy: float, r: float, back: float, ahead: float,

@@ -130,3 +130,74 @@ def test_more_cells_than_the_c_buffer():
         assert got == _pure(idx, *args)
         longest = max(longest, len(got))
     assert longest > 64
+
+
+def test_the_table_keys_by_the_indexs_bucket_size():
+    assert waytable.wide_size() == WIDE_SIZE
+
+
+def _paths(net, rng):
+    from entitynet.client.path import Path, follow
+
+    paths = [Path(net, [(e, d)]) for e in range(net.n_edges) for d in (1, -1)]
+    for p in list(paths):
+        more = follow(net, p.edges[-1], ALL, rng.uniform(0.0, 150.0), max_edges=3)
+        if more:
+            paths.append(p.extended(more))
+    return paths
+
+
+def _pure_path(idx, path, s, r, back, ahead, only):
+    """`NearIndex.path_cells`'s pure lines: the points, `_edges_between` and the edge at s, then `_pure`."""
+    x, y = path.xy(s)
+    hx, hy = path.xy(min(s + 1.0, path.length))
+    bx, by = path.xy(max(s - 1.0, 0.0))
+    skip = lateral._edges_between(path, s - back, s + ahead)
+    skip.add(path.locate(s)[0])
+    return _pure(idx, x, y, hx - bx, hy - by, r, back, ahead, skip, only)
+
+
+def _answer(fn, *args):
+    try:
+        return fn(*args)
+    except (ValueError, OverflowError) as exc:
+        return type(exc).__name__
+
+
+@pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0),
+                                  area_square()])
+def test_path_cells_gives_the_pure_answer(topo):
+    """`WayTable.path_cells` against the pure lines on every edge both ways and paths of several edges, at
+    random coordinates, the path's vertices and ends and beyond, and at NaN, infinities and -0.0 (whose
+    bucket key raises as `math.floor` does), with reaches of none, usual and NaN."""
+    net = netview(topo)
+    rng = random.Random(17)
+    idx = near_index(Placer(net, ALL))
+    table = _table(idx)
+    for p in _paths(net, rng):
+        coords = [rng.uniform(-5.0, p.length + 5.0) for _ in range(12)] + list(p.cum)
+        coords += [-0.0, math.nextafter(p.length, math.inf), math.inf, -math.inf, math.nan]
+        for s in coords:
+            r = rng.choice([0.0, 10.0, WIDE])
+            back, ahead = rng.choice([(5.0, 30.0), (0.0, 0.0), (10.83, 15.0), (math.nan, 5.0), (5.0, math.inf)])
+            only = rng.choice([None, frozenset({0, 2})])
+            args = (p, s, r, back, ahead, only)
+            assert _answer(table.path_cells, *args) == _answer(_pure_path, idx, *args), (p, s, back, ahead)
+
+
+def test_path_cells_skips_a_long_run_of_the_paths_edges():
+    """More of the path's own edges in reach than the C buffer holds (65 short edges): they go to a set."""
+    from tests.entitynet.client_fixtures import make_topology
+
+    nodes = {f"N{i}": (2.0 * i, 0.0) for i in range(70)} | {"P": (0.0, 4.0), "Q": (140.0, 4.0)}
+    edges = [(f"N{i}", f"N{i + 1}") for i in range(69)] + [("P", "Q")]
+    net = netview(make_topology(nodes, edges, junction_radius=0.5, street_cell_max=15.0))
+    from entitynet.client.path import Path
+
+    path = Path(net, [(e, 1) for e in range(69)])
+    idx = near_index(Placer(net, ALL))
+    table = _table(idx)
+    for s in (0.0, 20.0, 70.0, 137.0):
+        args = (path, s, WIDE, 200.0, 200.0, None)
+        assert table.path_cells(*args) == _pure_path(idx, *args)
+        assert table.path_cells(*args)  # the parallel way's cells, the path's own skipped
