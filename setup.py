@@ -19,6 +19,7 @@ else:
          Extension("entitynet.client._columns", ["entitynet/client/_columns.pyx"], optional=True),
          Extension("entitynet.client._lateral", ["entitynet/client/_lateral.pyx"], optional=True),
          Extension("entitynet.client._waytable", ["entitynet/client/_waytable.pyx"], optional=True),
+         Extension("entitynet.client._payload", ["entitynet/client/_payload.pyx"], optional=True),
          Extension("entitynet.client._geom", ["entitynet/client/_geom.pyx"], optional=True),
          Extension("entitynet.client._occupy", ["entitynet/client/_occupy.pyx"], optional=True),
          Extension("entitynet.client._fleet", ["entitynet/client/_fleet.pyx"], optional=True),

@@ -384,3 +384,21 @@ cdef void *_alloc(size_t size) except NULL:
     if p == NULL:
         raise MemoryError()
     return p
+
+
+def areas_near(dict grid, double bucket, double x, double y, double r):
+    """`Placer.areas_near`'s bucket walk over its built grid `grid` of (area, bx0, by0, bx1, by1) rows (buckets
+    of `bucket` metres, the 1 m pad): the areas whose boxes are within r of (x, y), sorted."""
+    cdef set out = set()
+    cdef double bx0, by0, bx1, by1
+    cdef tuple row
+    for gx in range(_floor((x - r - 1.0) / bucket), _floor((x + r + 1.0) / bucket) + 1):
+        for gy in range(_floor((y - r - 1.0) / bucket), _floor((y + r + 1.0) / bucket) + 1):
+            rows = grid.get((gx, gy))
+            if rows is None:
+                continue
+            for row in rows:
+                bx0, by0, bx1, by1 = row[1], row[2], row[3], row[4]
+                if bx0 - r <= x and x <= bx1 + r and by0 - r <= y and y <= by1 + r:
+                    out.add(row[0])
+    return sorted(out)

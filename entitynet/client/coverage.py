@@ -215,7 +215,7 @@ class Coverage:
         if only is not None:
             return out
         x, y = path.xy(s)
-        for area in placer.areas_near(x, y, lateral):  # an area next to the way: maybe inside it
+        for area in near.areas_near(x, y, lateral):  # an area next to the way: maybe inside it
             if near.within_ring(area, x, y, lateral):
                 c = net.area_cell[area]
                 if c not in out:

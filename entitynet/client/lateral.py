@@ -26,7 +26,7 @@ from bisect import bisect_left, bisect_right
 from collections.abc import Container
 
 from entitynet.client.path import Path
-from entitynet.client.placement import Placer, ring_distance
+from entitynet.client.placement import AREA_BUCKET, Placer, ring_distance
 
 try:  # the compiled candidate loop, where pip built it (setup.py; optional)
     from entitynet.client import _lateral as _COMPILED  # type: ignore[attr-defined]
@@ -34,10 +34,11 @@ except ImportError:  # the pure reference
     _COMPILED = None
 try:  # the candidate loop over C tables of the map, the whole `way_cells` (setup.py; optional)
     from entitynet.client._waytable import WayTable as _WayTable  # type: ignore[import-not-found]
+    from entitynet.client._waytable import areas_near as _areas_near  # type: ignore[import-not-found]
 except ImportError:
-    _WayTable = None
+    _WayTable = _areas_near = None
 if os.environ.get("ENTITYNET_PURE_PYTHON"):  # the pure references only
-    _COMPILED = _WayTable = None
+    _COMPILED = _WayTable = _areas_near = None
 
 #: the largest query radius (m) that `edges_near` and `way_cells` answer from the one bucket holding the
 #: position (each bucket also lists the edges whose boxes reach within WIDE + 1 m of it): about two thirds of the
@@ -150,6 +151,14 @@ class NearIndex:
         skip = _edges_between(path, s - back, s + ahead)
         skip.add(path.locate(s)[0])  # the edge it is on
         return self.way_cells(x, y, hx - bx, hy - by, r, back, ahead, skip, only)
+
+    def areas_near(self, x: float, y: float, r: float) -> list[int]:
+        """`Placer.areas_near(x, y, r)`, its bucket walk compiled (`_waytable.areas_near`) once the placer's
+        grid is built (its first call builds it)."""
+        grid = self.placer._area_rows
+        if grid is None or _areas_near is None:
+            return self.placer.areas_near(x, y, r)
+        return _areas_near(grid, AREA_BUCKET, x, y, r)
 
     def within_ring(self, area: int, x: float, y: float, r: float) -> bool:
         """`ring_distance(placer.ring(area), x, y) <= r`, decided from squared distances where rounding

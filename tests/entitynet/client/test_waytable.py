@@ -201,3 +201,25 @@ def test_path_cells_skips_a_long_run_of_the_paths_edges():
         args = (path, s, WIDE, 200.0, 200.0, None)
         assert table.path_cells(*args) == _pure_path(idx, *args)
         assert table.path_cells(*args)  # the parallel way's cells, the path's own skipped
+
+
+def test_areas_near_gives_the_placers_answer():
+    """`NearIndex.areas_near` (compiled once the placer's grid is built) is `Placer.areas_near`, at random
+    points, the rings' vertices and box corners, for radii of none to wide, and the same error for NaN and the
+    infinities."""
+    net = netview(area_square())
+    rng = random.Random(21)
+    placer = Placer(net, ALL)
+    idx = near_index(placer)
+    placer.areas_near(0.0, 0.0, 1.0)  # builds the grid
+    pts = [(rng.uniform(-150.0, 250.0), rng.uniform(-150.0, 250.0)) for _ in range(400)]
+    for (_i, bx0, by0, bx1, by1) in [row for rows in placer._area_rows.values() for row in rows]:
+        pts += [(bx0, by0), (bx1, by1), (bx0 - 10.0, by0), (bx1 + 10.0, by1), (math.nextafter(bx0 - 10.0, 0.0), by0)]
+    for x, y in pts:
+        for r in (0.0, 10.0, 25.0, 80.0):
+            assert idx.areas_near(x, y, r) == placer.areas_near(x, y, r), (x, y, r)
+    for x, y, r in [(math.nan, 0.0, 10.0), (0.0, math.inf, 10.0), (0.0, 0.0, math.nan), (-0.0, -0.0, 0.0)]:
+        assert _answer(idx.areas_near, x, y, r) == _answer(placer.areas_near, x, y, r)
+    if lateral._areas_near is not None:
+        x, y = pts[0]
+        assert waytable.areas_near(placer._area_rows, 100.0, x, y, 10.0) == placer.areas_near(x, y, 10.0)
