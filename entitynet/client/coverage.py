@@ -15,7 +15,7 @@ from collections.abc import Callable
 from entitynet.client.entities import EntityType
 from entitynet.client.hold import PlacementHold, cells_under
 from entitynet.client.kinematics import advance
-from entitynet.client.lateral import _edges_between, near_index  # noqa: F401 (re-exported for the tests)
+from entitynet.client.lateral import near_index
 from entitynet.client.modes import AREA
 from entitynet.client.motion import AreaModel, Model, NetworkModel
 from entitynet.client.network import NetView

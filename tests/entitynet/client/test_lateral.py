@@ -13,8 +13,7 @@ from pathlib import Path as FilePath
 import pytest
 
 from entitynet.client import lateral, netview
-from entitynet.client.coverage import _edges_between
-from entitynet.client.lateral import near_index
+from entitynet.client.lateral import _edges_between, near_index
 from entitynet.client.path import Path
 from entitynet.client.placement import Placer
 from tests.entitynet.client_fixtures import ALL, area_square, cross, make_topology, parallel
