@@ -1,6 +1,7 @@
 """Builds the optional compiled hot loops with Cython: the fan-out (entitynet/switchboard/_fanout.pyx), the flush
 loop (entitynet/server/_flushloop.pyx) and the client state's field accessors (entitynet/client/_columns.pyx),
-the lateral cover's candidate loop (entitynet/client/_lateral.pyx), `Path.xy` (entitynet/client/_geom.pyx), the
+the lateral cover's candidate loop (entitynet/client/_lateral.pyx, and over C tables _waytable.pyx), the
+payload's quantisation (entitynet/client/_payload.pyx), `Path.xy` (entitynet/client/_geom.pyx), the
 cell occupation (entitynet/client/_occupy.pyx), the fleet core's kernels (entitynet/client/_fleet.pyx) and the
 codec's PUBLISH loop (entitynet/protocol/_decode.pyx); everything else is in pyproject.toml. Optional on purpose:
 without a C compiler the build goes on and the pure-Python paths (the references, `entitynet.switchboard.outbox`
