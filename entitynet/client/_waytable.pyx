@@ -139,6 +139,7 @@ cdef class WayTable:
     cdef double *gx
     cdef double *gy
     cdef double *gcum
+    cdef dict slot_of  # edge id -> its slot
     cdef list edge_obj  # per slot: the edge id as the Python int the `skip` / `only` tests look up
     cdef long *edge_id  # per slot: the edge id
 
@@ -150,6 +151,7 @@ cdef class WayTable:
 
     def __init__(self, dict wide, dict ways, net):
         cdef dict slot_of = {}
+        self.slot_of = slot_of
         cdef list order = []
         for e in sorted(ways):
             slot_of[e] = len(order)
@@ -249,7 +251,24 @@ cdef class WayTable:
                   skip, only):
         """`NearIndex.way_cells` for r <= WIDE: the rows of the widened bucket `key` (that of (x, y)), their
         box test against the box of half-size r, then `_way_cells_py`'s loop, term for term."""
-        return self._cells(key, x, y, dx, dy, r, back, ahead, skip, only, NULL, 0)
+        hit = self.buckets.get(key)
+        if hit is None:
+            return []
+        cdef Py_ssize_t first = hit[0], n = hit[1]
+        return self._cells(self.rows + first, n, True, x, y, dx, dy, r, back, ahead, skip, only, NULL, 0)
+
+    def edges_cells(self, edges, double x, double y, double dx, double dy, double r, double back, double ahead,
+                    skip, only):
+        """`way_cells`' loop over the given edges (`NearIndex.edges_near`'s answer for r > WIDE), no box test."""
+        cdef Py_ssize_t n = len(edges), k = 0
+        cdef Py_ssize_t *slots = <Py_ssize_t *>_alloc((n + 1) * sizeof(Py_ssize_t))
+        try:
+            for e in edges:
+                slots[k] = self.slot_of[e]
+                k += 1
+            return self._cells(slots, n, False, x, y, dx, dy, r, back, ahead, skip, only, NULL, 0)
+        finally:
+            PyMem_Free(slots)
 
     def path_cells(self, path, double s, double r, double back, double ahead, only):
         """`NearIndex.path_cells` for r <= WIDE: the points at s and a metre either side (`Path.xy`), the path's
@@ -289,17 +308,19 @@ cdef class WayTable:
             m += 1
         else:
             skip.add(edges[k][0])
-        key = (_floor(x / WIDE_SIZE), _floor(y / WIDE_SIZE))
-        return self._cells(key, x, y, hx - bx, hy - by, r, back, ahead, skip, only, ids, m)
-
-    cdef list _cells(self, key, double x, double y, double dx, double dy, double r, double back, double ahead,
-                     skip, only, const long *skip_ids, Py_ssize_t n_skip):
-        """The loop of `way_cells`; `skip` a container of edge ids, or None and the ids in `skip_ids`."""
-        cdef list out = []
-        hit = self.buckets.get(key)
+        hit = self.buckets.get((_floor(x / WIDE_SIZE), _floor(y / WIDE_SIZE)))
         if hit is None:
-            return out
-        cdef Py_ssize_t first = hit[0], n = hit[1], q, i, g, p, n_out = 0
+            return []
+        return self._cells(self.rows + <Py_ssize_t>hit[0], hit[1], True, x, y, hx - bx, hy - by, r, back, ahead,
+                           skip, only, ids, m)
+
+    cdef list _cells(self, const Py_ssize_t *slots, Py_ssize_t n, bint box, double x, double y, double dx,
+                     double dy, double r, double back, double ahead, skip, only, const long *skip_ids,
+                     Py_ssize_t n_skip):
+        """The loop of `way_cells` over `n` slots (`box`: those whose boxes miss the box of half-size r
+        skipped); `skip` a container of edge ids, or None and the ids in `skip_ids`."""
+        cdef list out = []
+        cdef Py_ssize_t q, i, g, p, n_out = 0
         cdef double x0 = x - r, y0 = y - r, x1 = x + r, y1 = y + r
         cdef double best_d, bu, bc0, bsl, u, dd, ax, ay, sdx, sdy, l2, offset, length, h, b, lo, hi
         cdef double hx0, hy0, bx0, by0
@@ -309,10 +330,10 @@ cdef class WayTable:
         cdef long c, ei
         cdef long got[64]
         cdef list extra = None
-        for q in range(first, first + n):
-            i = self.rows[q]
+        for q in range(n):
+            i = slots[q]
             bx = self.box + 4 * i
-            if bx[0] > x1 or bx[2] < x0 or bx[1] > y1 or bx[3] < y0:
+            if box and (bx[0] > x1 or bx[2] < x0 or bx[1] > y1 or bx[3] < y0):
                 continue
             e = self.edge_obj[i]
             if skip is not None:

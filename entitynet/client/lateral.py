@@ -28,7 +28,7 @@ from collections.abc import Container
 from entitynet.client.path import Path
 from entitynet.client.placement import AREA_BUCKET, Placer, ring_distance
 
-try:  # the compiled candidate loop, where pip built it (setup.py; optional)
+try:  # the compiled ring distance, where pip built it (setup.py; optional)
     from entitynet.client import _lateral as _COMPILED  # type: ignore[attr-defined]
 except ImportError:  # the pure reference
     _COMPILED = None
@@ -114,24 +114,26 @@ class NearIndex:
         covered from `back` metres behind its projected point to `ahead` metres on in the direction (dx, dy)
         (an edge running against it: the other way round), clamped to the edge; in edge order, without repeats.
         `skip`: edges that are no candidates; `only`: the edges that may be (None: any)."""
+        if _WayTable is not None:  # the compiled loop over the C tables
+            if r <= WIDE:
+                return self._waytable().way_cells((math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE)), x, y, dx,
+                                                  dy, r, back, ahead, skip, only)
+            return self._waytable().edges_cells(self.edges_near(x, y, r), x, y, dx, dy, r, back, ahead, skip, only)
         x0, y0, x1, y1 = x - r, y - r, x + r, y + r
         if r <= WIDE:  # the widened bucket of the position (`edges_near`)
-            key = (math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE))
-            if _WayTable is not None and _COMPILED is not None:
-                table = self._table
-                if table is None:
-                    table = self._table = _WayTable(self.wide, self._ways, self.placer.net)
-                return table.way_cells(key, x, y, dx, dy, r, back, ahead, skip, only)
-            rows = self.wide.get(key, ())
-            if _COMPILED is not None:
-                return _COMPILED.way_cells(_COMPILED.wide_candidates(rows, x0, y0, x1, y1), x, y, dx, dy, r,
-                                           back, ahead, skip, only)
+            rows = self.wide.get((math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE)), ())
             cand = [w for e, bx0, by0, bx1, by1, w in rows if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
         else:
             ways = self._ways
             cand = [ways[e] for e in self.edges_near(x, y, r)]
-        return (_way_cells_py if _COMPILED is None else _COMPILED.way_cells)(cand, x, y, dx, dy, r, back, ahead,
-                                                                             skip, only)
+        return _way_cells_py(cand, x, y, dx, dy, r, back, ahead, skip, only)
+
+    def _waytable(self):
+        """The `_waytable.WayTable` of `wide` and the ways, built on first use."""
+        table = self._table
+        if table is None:
+            table = self._table = _WayTable(self.wide, self._ways, self.placer.net)
+        return table
 
     def path_cells(self, path: Path, s: float, r: float, back: float, ahead: float,
                    only: Container[int] | None) -> list[int]:
@@ -140,11 +142,8 @@ class NearIndex:
         where the occupation runs (from `back` behind to `ahead` on) nor the edge at `s`: one the path reaches
         only further on (it loops back along the parallel way) still is. Compiled as a whole where the C
         tables are built and r <= WIDE (`_waytable.WayTable.path_cells`)."""
-        if r <= WIDE and _WayTable is not None and _COMPILED is not None:
-            table = self._table
-            if table is None:
-                table = self._table = _WayTable(self.wide, self._ways, self.placer.net)
-            return table.path_cells(path, s, r, back, ahead, only)
+        if r <= WIDE and _WayTable is not None:
+            return self._waytable().path_cells(path, s, r, back, ahead, only)
         x, y = path.xy(s)
         hx, hy = path.xy(min(s + 1.0, path.length))
         bx, by = path.xy(max(s - 1.0, 0.0))
@@ -237,7 +236,7 @@ def _edges_between(path: Path, lo: float, hi: float) -> set[int]:
 def _way_cells_py(cand: list, x: float, y: float, dx: float, dy: float, r: float, back: float, ahead: float,
                   skip: Container[int], only: Container[int] | None) -> list[int]:
     """The candidate loop of `NearIndex.way_cells` over the `_Way`s `cand`: the pure reference of the compiled
-    `_lateral.way_cells` (used where pip did not build it)."""
+    `_waytable.WayTable` loop (used where pip did not build it)."""
     out: list[int] = []
     hypot = math.hypot
     for w in cand:

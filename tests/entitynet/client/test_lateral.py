@@ -135,7 +135,7 @@ def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
     cell boundaries, with and without `skip` / `only`, and a direction or none."""
     from entitynet.client import lateral
 
-    if lateral._COMPILED is None:
+    if lateral._WayTable is None:
         pytest.skip("the compiled candidate loop is not built here (the pure one is in use)")
     net = netview(topo)
     rng = random.Random(7)
@@ -150,12 +150,15 @@ def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
                 skip = set(rng.sample(range(net.n_edges), rng.randint(0, 2)))
                 only = rng.choice([None, frozenset({0, 2})])
                 args = (x, y, dx, dy, r, back, ahead, skip, only)
-                assert lateral._COMPILED.way_cells(every, *args) == lateral._way_cells_py(every, *args)
-                rows = idx.wide.get((math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE)), ())
-                box = (x - r, y - r, x + r, y + r)
-                assert lateral._COMPILED.wide_candidates(rows, *box) == [
-                    w for _e, bx0, by0, bx1, by1, w in rows
-                    if not (bx0 > box[2] or bx1 < box[0] or by0 > box[3] or by1 < box[1])]
+                table = idx._waytable()
+                assert table.edges_cells([w.edge for w in every], *args) == lateral._way_cells_py(every, *args)
+                if r <= lateral.WIDE:
+                    rows = idx.wide.get((math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE)), ())
+                    box = (x - r, y - r, x + r, y + r)
+                    cand = [w for _e, bx0, by0, bx1, by1, w in rows
+                            if not (bx0 > box[2] or bx1 < box[0] or by0 > box[3] or by1 < box[1])]
+                    key = (math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE))
+                    assert table.way_cells(key, *args) == lateral._way_cells_py(cand, *args)
 
 
 @pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0)])
@@ -205,7 +208,7 @@ def test_the_compiled_kernels_equal_the_pure_ones_on_hard_inputs():
     ring segments of zero, tiny and infinite length; compared by bit pattern (-0.0 is not 0.0 here)."""
     from entitynet.client import path as path_mod
 
-    if lateral._COMPILED is None or path_mod._COMPILED is None:
+    if lateral._COMPILED is None or lateral._WayTable is None or path_mod._COMPILED is None:
         pytest.skip("the compiled kernels are not built here (the pure ones are in use)")
     hard = [0.0, -0.0, 5e-324, 1e-300, 1e16, -1e16, 1e308, -1e308, math.inf, -math.inf, math.nan]
     rng = random.Random(11)
@@ -220,7 +223,8 @@ def test_the_compiled_kernels_equal_the_pure_ones_on_hard_inputs():
     for _ in range(1500):
         x, y = rng.choice(pts) if rng.random() < 0.7 else (rng.choice(hard), rng.choice(hard))
         args = (x, y, pick(1.0), pick(-0.5), pick(12.5), pick(5.0), pick(30.0), set(), rng.choice([None, {0, 2}]))
-        assert _same(lateral._COMPILED.way_cells, every, *args) == _same(lateral._way_cells_py, every, *args), args
+        assert (_same(idx._waytable().edges_cells, [w.edge for w in every], *args)
+                == _same(lateral._way_cells_py, every, *args)), args
         segs = tuple((pick(rng.uniform(-50, 50)), pick(rng.uniform(-50, 50)), pick(3.0), pick(-4.0),
                       rng.choice([25.0, 1e-300, 5e-324, math.inf, 1e308])) for _ in range(rng.randint(0, 3)))
         assert (_same(lateral._COMPILED.ring_nearest, segs, x, y)
