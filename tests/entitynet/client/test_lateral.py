@@ -130,9 +130,10 @@ def test_within_ring_of_a_large_ring_equals_ring_distance():
 @pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0),
                                   area_square()])
 def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
-    """`_lateral.way_cells` and `wide_candidates` (compiled where pip built them) give what the pure loop
-    `_way_cells_py` and the box test give, for every candidate of every edge, at random points, vertices and
-    cell boundaries, with and without `skip` / `only`, and a direction or none."""
+    """The C tables' loop (`WayTable.edges_cells` and, with the widened bucket's box test, `way_cells`; compiled
+    where pip built them) gives what the pure loop `_way_cells_py` and the box test give, for every candidate of
+    every edge, at random points, vertices and cell boundaries, with and without `skip` / `only`, and a direction
+    or none."""
     from entitynet.client import lateral
 
     if lateral._WayTable is None:
