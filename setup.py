@@ -1,6 +1,7 @@
 """Builds the optional compiled hot loops with Cython: the fan-out (entitynet/switchboard/_fanout.pyx), the flush
 loop (entitynet/server/_flushloop.pyx) and the client state's field accessors (entitynet/client/_columns.pyx),
-the lateral cover's candidate loop (entitynet/client/_lateral.pyx), `Path.xy` (entitynet/client/_geom.pyx), the
+the lateral cover's candidate loop (entitynet/client/_lateral.pyx, and over C tables _waytable.pyx), the
+payload's quantisation (entitynet/client/_payload.pyx), `Path.xy` (entitynet/client/_geom.pyx), the
 cell occupation (entitynet/client/_occupy.pyx), the fleet core's kernels (entitynet/client/_fleet.pyx) and the
 codec's PUBLISH loop (entitynet/protocol/_decode.pyx); everything else is in pyproject.toml. Optional on purpose:
 without a C compiler the build goes on and the pure-Python paths (the references, `entitynet.switchboard.outbox`
@@ -18,6 +19,8 @@ else:
          Extension("entitynet.server._flushloop", ["entitynet/server/_flushloop.pyx"], optional=True),
          Extension("entitynet.client._columns", ["entitynet/client/_columns.pyx"], optional=True),
          Extension("entitynet.client._lateral", ["entitynet/client/_lateral.pyx"], optional=True),
+         Extension("entitynet.client._waytable", ["entitynet/client/_waytable.pyx"], optional=True),
+         Extension("entitynet.client._payload", ["entitynet/client/_payload.pyx"], optional=True),
          Extension("entitynet.client._geom", ["entitynet/client/_geom.pyx"], optional=True),
          Extension("entitynet.client._occupy", ["entitynet/client/_occupy.pyx"], optional=True),
          Extension("entitynet.client._fleet", ["entitynet/client/_fleet.pyx"], optional=True),

@@ -22,5 +22,6 @@ def test_every_compiled_extension_is_optional(monkeypatch):
     assert {e.name for e in exts} == {"entitynet.switchboard._fanout", "entitynet.server._flushloop",
                                       "entitynet.client._columns", "entitynet.client._lateral",
                                       "entitynet.client._geom", "entitynet.client._occupy",
-                                      "entitynet.protocol._decode", "entitynet.client._fleet"}
+                                      "entitynet.protocol._decode", "entitynet.client._fleet",
+                                      "entitynet.client._waytable", "entitynet.client._payload"}
     assert all(e.optional for e in exts)

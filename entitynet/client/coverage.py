@@ -10,7 +10,6 @@ and the published ghost, and changes neither.
 from __future__ import annotations
 
 import math
-from bisect import bisect_left, bisect_right
 from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
@@ -47,17 +46,6 @@ def _wire(occ: Occupation) -> Occupation:
     if v == occ.validity:
         return occ
     return Occupation(occ.cells, v, occ.front_period, occ.aft_period, occ.cover_start, occ.cover_end)
-
-
-def _edges_between(path: Path, lo: float, hi: float) -> set[int]:
-    """The path's edges k (undirected ids) with cum[k + 1] >= lo and cum[k] <= hi: cum never decreases, so
-    they are one run of indices, found by two bisections (a NaN bound: none, as the comparisons say)."""
-    if lo != lo or hi != hi:
-        return set()
-    cum, edges = path.cum, path.edges
-    k0 = bisect_left(cum, lo) - 1  # the first k with cum[k + 1] >= lo
-    k1 = bisect_right(cum, hi)  # past the last k with cum[k] <= hi
-    return {edges[k][0] for k in range(k0 if k0 > 0 else 0, k1 if k1 < len(edges) else len(edges))}
 
 
 def _way_back(net: NetView, back: tuple[int, int], networks: int, distance: float) -> Path:
@@ -222,18 +210,12 @@ class Coverage:
         net, placer = self.net, trk.placer
         near = near_index(placer)
         lateral = self.lateral if lateral is None else lateral
-        x, y = path.xy(s)
-        hx, hy = path.xy(min(s + 1.0, path.length))
-        bx, by = path.xy(max(s - 1.0, 0.0))
         back = self.margin + self.body if behind is None else behind  # a standing walker: both ways
-        # the path's own edges are covered where the occupation runs; one the path reaches only further on
-        # (it loops back along the parallel way) is still a lateral candidate here
-        skip = _edges_between(path, s - back, s + ahead)
-        skip.add(path.locate(s)[0])  # the edge it is on
-        out = near.way_cells(x, y, hx - bx, hy - by, lateral, back, ahead, skip, only)
+        out = near.path_cells(path, s, lateral, back, ahead, only)
         if only is not None:
             return out
-        for area in placer.areas_near(x, y, lateral):  # an area next to the way: maybe inside it
+        x, y = path.xy(s)
+        for area in near.areas_near(x, y, lateral):  # an area next to the way: maybe inside it
             if near.within_ring(area, x, y, lateral):
                 c = net.area_cell[area]
                 if c not in out:

@@ -21,14 +21,24 @@ and to `ring_distance(...) <= r`):
 from __future__ import annotations
 
 import math
+import os
+from bisect import bisect_left, bisect_right
 from collections.abc import Container
 
-from entitynet.client.placement import Placer, ring_distance
+from entitynet.client.path import Path
+from entitynet.client.placement import AREA_BUCKET, Placer, ring_distance
 
-try:  # the compiled candidate loop, where pip built it (setup.py; optional)
+try:  # the compiled ring distance, where pip built it (setup.py; optional)
     from entitynet.client import _lateral as _COMPILED  # type: ignore[attr-defined]
 except ImportError:  # the pure reference
     _COMPILED = None
+try:  # the candidate loop over C tables of the map, the whole `way_cells` (setup.py; optional)
+    from entitynet.client._waytable import WayTable as _WayTable  # type: ignore[import-not-found]
+    from entitynet.client._waytable import areas_near as _areas_near  # type: ignore[import-not-found]
+except ImportError:
+    _WayTable = _areas_near = None
+if os.environ.get("ENTITYNET_PURE_PYTHON"):  # the pure references only
+    _COMPILED = _WayTable = _areas_near = None
 
 #: the largest query radius (m) that `edges_near` and `way_cells` answer from the one bucket holding the
 #: position (each bucket also lists the edges whose boxes reach within WIDE + 1 m of it): about two thirds of the
@@ -48,7 +58,7 @@ BAND = 1e-9
 class NearIndex:
     """One placer's neighbourhood queries for the lateral cover (shared by every entity on that placer)."""
 
-    __slots__ = ("placer", "rows", "wide", "size", "_rings", "_ways")
+    __slots__ = ("placer", "rows", "wide", "size", "_rings", "_ways", "_table")
 
     def __init__(self, placer: Placer) -> None:
         self.placer = placer
@@ -73,6 +83,7 @@ class NearIndex:
                     wide.setdefault((gx, gy), []).append(row)
         self.wide = {key: tuple(rows) for key, rows in wide.items()}
         self._rings: dict[int, tuple[tuple[float, float, float, float, float], ...]] = {}
+        self._table = None  # the `_waytable.WayTable` of `wide` and the ways, built on the first query
 
     def edges_near(self, x: float, y: float, r: float) -> list[int]:
         """`Placer.edges_near(x, y, r)`: the edges whose boxes meet the closed box of half-size r, in edge
@@ -103,18 +114,50 @@ class NearIndex:
         covered from `back` metres behind its projected point to `ahead` metres on in the direction (dx, dy)
         (an edge running against it: the other way round), clamped to the edge; in edge order, without repeats.
         `skip`: edges that are no candidates; `only`: the edges that may be (None: any)."""
+        if _WayTable is not None:  # the compiled loop over the C tables
+            if r <= WIDE:
+                return self._waytable().way_cells((math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE)), x, y, dx,
+                                                  dy, r, back, ahead, skip, only)
+            return self._waytable().edges_cells(self.edges_near(x, y, r), x, y, dx, dy, r, back, ahead, skip, only)
         x0, y0, x1, y1 = x - r, y - r, x + r, y + r
         if r <= WIDE:  # the widened bucket of the position (`edges_near`)
             rows = self.wide.get((math.floor(x / WIDE_SIZE), math.floor(y / WIDE_SIZE)), ())
-            if _COMPILED is not None:
-                return _COMPILED.way_cells(_COMPILED.wide_candidates(rows, x0, y0, x1, y1), x, y, dx, dy, r,
-                                           back, ahead, skip, only)
             cand = [w for e, bx0, by0, bx1, by1, w in rows if not (bx0 > x1 or bx1 < x0 or by0 > y1 or by1 < y0)]
         else:
             ways = self._ways
             cand = [ways[e] for e in self.edges_near(x, y, r)]
-        return (_way_cells_py if _COMPILED is None else _COMPILED.way_cells)(cand, x, y, dx, dy, r, back, ahead,
-                                                                             skip, only)
+        return _way_cells_py(cand, x, y, dx, dy, r, back, ahead, skip, only)
+
+    def _waytable(self):
+        """The `_waytable.WayTable` of `wide` and the ways, built on first use."""
+        table = self._table
+        if table is None:
+            table = self._table = _WayTable(self.wide, self._ways, self.placer.net)
+        return table
+
+    def path_cells(self, path: Path, s: float, r: float, back: float, ahead: float,
+                   only: Container[int] | None) -> list[int]:
+        """The cells of the other ways within `r` of the point at `s` on `path` (`way_cells` in the path's
+        direction there), each covered `back` behind to `ahead` on; the path's own edges are no candidates
+        where the occupation runs (from `back` behind to `ahead` on) nor the edge at `s`: one the path reaches
+        only further on (it loops back along the parallel way) still is. Compiled as a whole where the C
+        tables are built and r <= WIDE (`_waytable.WayTable.path_cells`)."""
+        if r <= WIDE and _WayTable is not None:
+            return self._waytable().path_cells(path, s, r, back, ahead, only)
+        x, y = path.xy(s)
+        hx, hy = path.xy(min(s + 1.0, path.length))
+        bx, by = path.xy(max(s - 1.0, 0.0))
+        skip = _edges_between(path, s - back, s + ahead)
+        skip.add(path.locate(s)[0])  # the edge it is on
+        return self.way_cells(x, y, hx - bx, hy - by, r, back, ahead, skip, only)
+
+    def areas_near(self, x: float, y: float, r: float) -> list[int]:
+        """`Placer.areas_near(x, y, r)`, its bucket walk compiled (`_waytable.areas_near`) once the placer's
+        grid is built (its first call builds it)."""
+        grid = self.placer._area_rows
+        if grid is None or _areas_near is None:
+            return self.placer.areas_near(x, y, r)
+        return _areas_near(grid, AREA_BUCKET, x, y, r)
 
     def within_ring(self, area: int, x: float, y: float, r: float) -> bool:
         """`ring_distance(placer.ring(area), x, y) <= r`, decided from squared distances where rounding
@@ -179,10 +222,21 @@ class _Way:
         return x0 + t * ddx, y0 + t * ddy
 
 
+def _edges_between(path: Path, lo: float, hi: float) -> set[int]:
+    """The path's edges k (undirected ids) with cum[k + 1] >= lo and cum[k] <= hi: cum never decreases, so
+    they are one run of indices, found by two bisections (a NaN bound: none, as the comparisons say)."""
+    if lo != lo or hi != hi:
+        return set()
+    cum, edges = path.cum, path.edges
+    k0 = bisect_left(cum, lo) - 1  # the first k with cum[k + 1] >= lo
+    k1 = bisect_right(cum, hi)  # past the last k with cum[k] <= hi
+    return {edges[k][0] for k in range(k0 if k0 > 0 else 0, k1 if k1 < len(edges) else len(edges))}
+
+
 def _way_cells_py(cand: list, x: float, y: float, dx: float, dy: float, r: float, back: float, ahead: float,
                   skip: Container[int], only: Container[int] | None) -> list[int]:
     """The candidate loop of `NearIndex.way_cells` over the `_Way`s `cand`: the pure reference of the compiled
-    `_lateral.way_cells` (used where pip did not build it)."""
+    `_waytable.WayTable` loop (used where pip did not build it)."""
     out: list[int] = []
     hypot = math.hypot
     for w in cand:

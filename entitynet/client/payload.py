@@ -13,6 +13,7 @@ ghost by *decoding its own payload*, so it extrapolates exactly what every recei
 from __future__ import annotations
 
 import math
+import os
 
 import msgpack
 
@@ -114,6 +115,23 @@ def _encode_network_checked(t0: float, path: Path, s0: float, v: float, a: float
                          tuple(p / 100.0 for p in partsi), stopi / 100.0 if math.isfinite(stop_s) else math.inf,
                          brakei / 1000.0)
     return msgpack.packb(body, use_bin_type=True), ghost
+
+
+encode_network_reference = encode_network  # the pure function (tests hold the compiled one equal to it)
+try:  # the quantisation compiled, where pip built it (setup.py; optional)
+    from entitynet.client import _payload as _COMPILED  # type: ignore[attr-defined]
+except ImportError:
+    _COMPILED = None
+if os.environ.get("ENTITYNET_PURE_PYTHON"):
+    _COMPILED = None
+if _COMPILED is not None:
+    _encode_network_c = _COMPILED.encode_network
+
+    def encode_network(t0: float, path: Path, s0: float, v: float, a: float, vmax: float, etype: int,
+                       parts: tuple[float, ...], stop_s: float, brake: float) -> tuple[bytes, NetworkModel]:
+        """`encode_network_reference`, compiled (_payload.pyx): the same bytes and ghost."""
+        return _encode_network_c(t0, path, s0, v, a, vmax, etype, parts, stop_s, brake, _pack, network_model,
+                                 encode_network_reference, VERSION, KIND_NETWORK)
 
 
 def encode(model: Model) -> bytes:

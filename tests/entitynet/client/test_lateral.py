@@ -13,8 +13,7 @@ from pathlib import Path as FilePath
 import pytest
 
 from entitynet.client import lateral, netview
-from entitynet.client.coverage import _edges_between
-from entitynet.client.lateral import near_index
+from entitynet.client.lateral import _edges_between, near_index
 from entitynet.client.path import Path
 from entitynet.client.placement import Placer
 from tests.entitynet.client_fixtures import ALL, area_square, cross, make_topology, parallel
@@ -131,12 +130,13 @@ def test_within_ring_of_a_large_ring_equals_ring_distance():
 @pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0),
                                   area_square()])
 def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
-    """`_lateral.way_cells` and `wide_candidates` (compiled where pip built them) give what the pure loop
-    `_way_cells_py` and the box test give, for every candidate of every edge, at random points, vertices and
-    cell boundaries, with and without `skip` / `only`, and a direction or none."""
+    """The C tables' loop (`WayTable.edges_cells` and, with the widened bucket's box test, `way_cells`; compiled
+    where pip built them) gives what the pure loop `_way_cells_py` and the box test give, for every candidate of
+    every edge, at random points, vertices and cell boundaries, with and without `skip` / `only`, and a direction
+    or none."""
     from entitynet.client import lateral
 
-    if lateral._COMPILED is None:
+    if lateral._WayTable is None:
         pytest.skip("the compiled candidate loop is not built here (the pure one is in use)")
     net = netview(topo)
     rng = random.Random(7)
@@ -151,12 +151,15 @@ def test_the_compiled_candidate_loop_equals_the_pure_one(topo):
                 skip = set(rng.sample(range(net.n_edges), rng.randint(0, 2)))
                 only = rng.choice([None, frozenset({0, 2})])
                 args = (x, y, dx, dy, r, back, ahead, skip, only)
-                assert lateral._COMPILED.way_cells(every, *args) == lateral._way_cells_py(every, *args)
-                rows = idx.wide.get((math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE)), ())
-                box = (x - r, y - r, x + r, y + r)
-                assert lateral._COMPILED.wide_candidates(rows, *box) == [
-                    w for _e, bx0, by0, bx1, by1, w in rows
-                    if not (bx0 > box[2] or bx1 < box[0] or by0 > box[3] or by1 < box[1])]
+                table = idx._waytable()
+                assert table.edges_cells([w.edge for w in every], *args) == lateral._way_cells_py(every, *args)
+                if r <= lateral.WIDE:
+                    rows = idx.wide.get((math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE)), ())
+                    box = (x - r, y - r, x + r, y + r)
+                    cand = [w for _e, bx0, by0, bx1, by1, w in rows
+                            if not (bx0 > box[2] or bx1 < box[0] or by0 > box[3] or by1 < box[1])]
+                    key = (math.floor(x / lateral.WIDE_SIZE), math.floor(y / lateral.WIDE_SIZE))
+                    assert table.way_cells(key, *args) == lateral._way_cells_py(cand, *args)
 
 
 @pytest.mark.parametrize("topo", [_degenerate(), cross(arm=100.0, street_cell_max=15.0), parallel(gap=6.0)])
@@ -206,7 +209,7 @@ def test_the_compiled_kernels_equal_the_pure_ones_on_hard_inputs():
     ring segments of zero, tiny and infinite length; compared by bit pattern (-0.0 is not 0.0 here)."""
     from entitynet.client import path as path_mod
 
-    if lateral._COMPILED is None or path_mod._COMPILED is None:
+    if lateral._COMPILED is None or lateral._WayTable is None or path_mod._COMPILED is None:
         pytest.skip("the compiled kernels are not built here (the pure ones are in use)")
     hard = [0.0, -0.0, 5e-324, 1e-300, 1e16, -1e16, 1e308, -1e308, math.inf, -math.inf, math.nan]
     rng = random.Random(11)
@@ -221,7 +224,8 @@ def test_the_compiled_kernels_equal_the_pure_ones_on_hard_inputs():
     for _ in range(1500):
         x, y = rng.choice(pts) if rng.random() < 0.7 else (rng.choice(hard), rng.choice(hard))
         args = (x, y, pick(1.0), pick(-0.5), pick(12.5), pick(5.0), pick(30.0), set(), rng.choice([None, {0, 2}]))
-        assert _same(lateral._COMPILED.way_cells, every, *args) == _same(lateral._way_cells_py, every, *args), args
+        assert (_same(idx._waytable().edges_cells, [w.edge for w in every], *args)
+                == _same(lateral._way_cells_py, every, *args)), args
         segs = tuple((pick(rng.uniform(-50, 50)), pick(rng.uniform(-50, 50)), pick(3.0), pick(-4.0),
                       rng.choice([25.0, 1e-300, 5e-324, math.inf, 1e308])) for _ in range(rng.randint(0, 3)))
         assert (_same(lateral._COMPILED.ring_nearest, segs, x, y)
