@@ -192,14 +192,25 @@ class ReadingMixin:
 
     def _pong_now(self, conn: _Conn, ping: P.Ping) -> bool:
         """Answer a frame that is one PING right here, when the core says the PONG overtakes nothing
-        (`Switchboard.quick_pong`); False: feed the frame as usual."""
+        (`Switchboard.quick_pong`); False: feed the frame as usual. On a plain socket, states waiting for the
+        flush go in the same frame, after the PONG (as the usual path orders them): one `writev` instead of the
+        flusher's and the PONG's (a lock step's viewers PING right after the tick's publishes)."""
         if conn.busy or conn.closed:
             return False
-        pong = self.sb.quick_pong(conn.cid, ping, self.clock())
+        sb = self.sb
+        plain = conn.fd is not None
+        pong = sb.quick_pong(conn.cid, ping, self.clock(), states_ok=plain)
         if pong is None:
             return False
         if self.pacer is not None:
             self.pacer.woke()  # input all the same: paced like any frame (`_note_news` does it for those)
+        if plain and len(conn.outbox):
+            taken = conn.outbox.take_states(self._fast_batch - 1, self._sure_fit - 1, self._max_body - len(pong))
+            if taken is None:
+                return False  # more than one frame's worth: the usual path (nothing was taken)
+            self._write_states(conn, taken[0] + 1, pong + taken[1])
+            sb.written_out(conn.cid)  # no flusher wake-up for what went here
+            return True
         head = P.frame_prefix(1, len(pong))
         self.written += 1
         self.frames += 1

@@ -35,16 +35,20 @@ class OutboundMixin:
         (messages queued per waiting client)."""
         return len(self._dirty)
 
-    def quick_pong(self, cid: int, ping: P.Ping, now: float) -> bytes | None:
+    def quick_pong(self, cid: int, ping: P.Ping, now: float, states_ok: bool = False) -> bytes | None:
         """The encoded PONG for a client frame that is one PING, for the shell to write at once, past the
         outbox; None when the frame must be fed as usual (`receive`): the client is not past its handshake or is
         closing, or something is queued for it (then the usual path writes the PONG and that in one frame, replies
-        first). One PING is within any frame's
+        first). With `states_ok`, coalesced states may be pending (no reply, no close): the shell then writes
+        the PONG and those states in one frame, the PONG first, as the usual path would, or feeds the frame as
+        usual when it cannot take them all (`Outbox.take_states`). One PING is within any frame's
         reply bound (`max_replies_per_frame` >= 1), so nothing is counted or refused. Why: a lock step's
         barrier PINGs every client once per tick, and through `receive` and the outbox each cost more than
         the write itself."""
         c = self.clients.get(cid)
-        if c is None or not c.ready or c.closing or c.outbox.close_after or len(c.outbox):
+        if c is None or not c.ready or c.closing or c.outbox.close_after:
+            return None
+        if c.outbox.has_control if states_ok else len(c.outbox):
             return None
         return P.encode_message(P.Pong(ping.client_ms, P.now_ms(max(now, 0.0))))
 

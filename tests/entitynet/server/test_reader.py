@@ -40,6 +40,53 @@ async def test_a_ping_behind_pending_states_comes_in_one_frame_with_them():
         assert [type(m) for m in msgs] == [P.Pong, P.Update]
 
 
+def _count_receive(server) -> list[int]:
+    """Client ids of every frame the core's `receive` is fed from now on (the quick PONG path feeds none)."""
+    fed: list[int] = []
+    receive = server.sb.receive
+
+    def counted(cid, *a, **kw):
+        fed.append(cid)
+        return receive(cid, *a, **kw)
+
+    server.sb.receive = counted
+    return fed
+
+
+async def test_a_lone_ping_behind_pending_states_takes_them_past_the_core_in_one_write():
+    async with running(flush_interval=30.0, flush_min_interval=30.0, latency_budget=30.0) as server:
+        pub, view = await pair(server, cell=2)
+        for e in (1, 2):
+            await pub.send(P.Publish(e, 5, (2,), 10_000, b"x"))
+        await pub.send(P.Ping(1))
+        await pub.expect(P.Pong)
+        await trio.testing.wait_all_tasks_blocked()
+        fed, frames = _count_receive(server), server.frames
+        await view.send(P.Ping(9))
+        msgs = await view.read()
+        assert [type(m) for m in msgs] == [P.Pong, P.Update, P.Update] and msgs[0].client_ms == 9
+        assert fed == [] and server.frames - frames == 1  # answered from its bytes: one frame, one write
+        assert not server.sb.has_news()  # taken and written: nothing left for the flusher
+
+
+async def test_a_ping_behind_more_states_than_one_quick_frame_takes_the_usual_path_in_order():
+    async with running(flush_interval=30.0, flush_min_interval=30.0, latency_budget=30.0) as server:
+        pub, view = await pair(server, cell=2)
+        server._fast_batch = 3  # the quick frame holds the PONG and at most 2 states
+        for e in (1, 2, 3):
+            await pub.send(P.Publish(e, 5, (2,), 10_000, b"x"))
+        await pub.send(P.Ping(1))
+        await pub.expect(P.Pong)
+        await trio.testing.wait_all_tasks_blocked()
+        fed = _count_receive(server)
+        await view.send(P.Ping(9))
+        got = []
+        while len(got) < 4:
+            got += await view.read()
+        assert [type(m) for m in got] == [P.Pong, P.Update, P.Update, P.Update]
+        assert len(fed) == 1  # fed to the core as usual; nothing was taken on the way
+
+
 async def test_frames_split_into_single_bytes_and_many_frames_per_read_both_work():
     async with running() as server:
         pub, view = await pair(server, cell=3)

@@ -52,3 +52,19 @@ def test_written_out_clears_news_only_when_the_outbox_is_empty():
     sb.written_out(cid)
     assert not sb.has_news()
     sb.written_out(999)  # a client that is gone: nothing happens
+
+
+def test_with_states_ok_pending_states_allow_the_pong_but_replies_and_a_close_do_not():
+    sb = make()
+    owner, view = join(sb), join(sb)
+    sb.receive(view, [P.Subscribe((1,), ())], 0.0)
+    sb.outbox(view).drain()
+    sb.receive(owner, [pub(7, 1, (1,))], 0.0)
+    assert sb.quick_pong(view, P.Ping(1), 0.0) is None  # the default: nothing may be pending
+    got = sb.quick_pong(view, P.Ping(1), 0.0, states_ok=True)
+    assert got is not None and len(sb.outbox(view)) == 1  # the UPDATE stays for the shell to take after it
+    sb.receive(view, [P.Ping(2)], 0.0)  # a PONG queued: a reply must not be overtaken
+    assert sb.quick_pong(view, P.Ping(3), 0.0, states_ok=True) is None
+    sb.outbox(view).drain()
+    sb.outbox(view).put_last_word(P.encode_message(P.Error(int(ErrorCode.SLOW_CONSUMER), "x")))  # and a close
+    assert sb.quick_pong(view, P.Ping(4), 0.0, states_ok=True) is None
