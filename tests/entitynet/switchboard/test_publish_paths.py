@@ -12,7 +12,7 @@ bytes in every outbox, the same counters and errors, the same tables, and raise 
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from entitynet import protocol as P
@@ -80,6 +80,9 @@ def _play(steps, compiled: bool):
 @needs_compiled
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(step, min_size=1, max_size=25))
+# found by this test in a full run: repeated cells, then a state without them (occupancy.move raised KeyError on
+# the second leave of a cell, after the two paths had counted the frame differently)
+@example(steps=[("frame", 0, [P.Publish(0, 0, tuple(range(N_CELLS)) * 9, 0, b"x" * 300), P.Publish(0, 1, (), 0, b"")])])
 def test_both_publish_paths_agree_on_hostile_frames(steps):
     fast, pure = on_both_paths(_play, steps)
     assert fast == pure
