@@ -26,6 +26,7 @@ from collections.abc import Callable
 from entitynet import protocol as P
 from entitynet.connection import Connection
 from sims.engine.message_cache import MessageCache
+from sims.engine.viewer_reader import ReaderViewer, ViewerReader
 from sims.engine.viewers import SimViewer
 
 
@@ -34,7 +35,9 @@ class ViewerFleet:
     of every UPDATE that arrives (an external server's ids mapped back to the truth), None for none."""
 
     def __init__(self, viewers: list[SimViewer], now: Callable[[], float],
-                 learn: Callable[[P.Update], None] | None = None) -> None:
+                 learn: Callable[[P.Update], None] | None = None, one_reader: bool = True) -> None:
+        """`one_reader`: the viewers' TCP sockets read by one task (`viewer_reader.ViewerReader`, the default);
+        False: a `Connection` and its tasks per viewer (the reference path)."""
         self.viewers = viewers
         self.now = now
         self.learn = learn
@@ -42,6 +45,7 @@ class ViewerFleet:
         self._sizes: dict[P.Message, int] = {}
         self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
         self.frames_whole = 0  # frames handed to the ghost table whole (the rest went message by message)
+        self.reader = ViewerReader(self.messages.decode, self.on_frame, self.on_message) if one_reader else None
 
     def clear(self) -> None:
         """Forget the tick's decoded messages (a message is shared within a tick's fan-out)."""
@@ -58,8 +62,15 @@ class ViewerFleet:
                 size = self._sizes[m] = len(P.encode_message(m))
         return size
 
-    def connection(self, i: int, address, digest: str, token: str, **kw) -> Connection:
-        """Viewer `i`'s connection, its frames decoded by the shared decoder and handed to this fleet."""
+    def connection(self, i: int, address, digest: str, token: str, **kw) -> Connection | ReaderViewer:
+        """Viewer `i`'s connection, its frames decoded by the shared decoder and handed to this fleet: a handle of
+        the one reader (viewers connected in index order), or a `Connection` of its own (the reference path, and
+        any ws:// address)."""
+        if self.reader is not None and not isinstance(address, str):
+            if i != len(self.reader.viewers):
+                raise ValueError(f"the one reader's viewers connect in order: {len(self.reader.viewers)} next, "
+                                 f"not {i}")
+            return self.reader.viewer(address, digest, token, **kw)
         return Connection(address, digest, token, on_message=self.on_message(i), on_frame=self.on_frame(i),
                           decode=self.messages.decode, **kw)
 
