@@ -41,11 +41,16 @@ class ViewerFleet:
         self.viewers = viewers
         self.now = now
         self.learn = learn
-        self.messages = MessageCache()  # one frame decoder for all the connections, cleared each tick
+        # one frame decoder for all the connections, cleared each tick; it maps the ids of each distinct UPDATE
+        self.messages = MessageCache(on_new=None if learn is None else self._learn_new)
         self._sizes: dict[P.Message, int] = {}
         self.redirects = 0  # REDIRECTs the viewers followed (a cluster)
         self.frames_whole = 0  # frames handed to the ghost table whole (the rest went message by message)
         self.reader = ViewerReader(self.messages.decode, self.on_frame, self.on_message) if one_reader else None
+
+    def _learn_new(self, m: P.Message) -> None:
+        if type(m) is P.Update:
+            self.learn(m)
 
     def clear(self) -> None:
         """Forget the tick's decoded messages (a message is shared within a tick's fan-out)."""
@@ -80,11 +85,11 @@ class ViewerFleet:
 
         def on_frame(msgs: list[P.Message]) -> None:
             self.frames_whole += 1
-            if learn is not None:
+            nbytes = getattr(msgs, "nbytes", None)  # the shared decoder's `Frame`: its size at once
+            if learn is not None and nbytes is None:  # not the decoder's walk: its messages not learnt yet
                 for m in msgs:
                     if type(m) is P.Update:
                         learn(m)
-            nbytes = getattr(msgs, "nbytes", None)  # the shared decoder's `Frame`: its size at once
             # the codec decoded them and the session found them all UPDATEs and LEAVEs: `decoded`
             viewer.receive_frame(msgs, self.now(), sum(map(size, msgs)) if nbytes is None else nbytes, True)
 
