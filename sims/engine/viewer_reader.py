@@ -154,27 +154,32 @@ class ViewerReader:
         return self.viewers[i]
 
     # ---- the bytes (sans-IO: tests feed it directly) -------------------------------------------------------------
-    def take(self, i: int, link: int, decoder: P.FrameDecoder, data: bytes, now: float) -> list[Action]:
+    def take(self, i: int, link: int, decoder: P.FrameDecoder, data: bytes,
+             now: float) -> tuple[list[Action], P.ProtocolError | None]:
         """Bytes from viewer `i`'s attempt `link`: every whole frame delivered (a frame of UPDATEs and LEAVEs on
-        the open link to `on_frame` whole, any other through the session, its deliveries to `on_message`); the
-        session's other actions returned for the shell. Raises ProtocolError for a bad frame (the frames before
-        it are delivered)."""
+        the open link to `on_frame` whole, any other through the session, its deliveries to `on_message`).
+        Returns the session's other actions for the shell, and the error of a bad frame (None: none), which
+        ends the attempt: the frames before it are taken and their actions returned (a WELCOME before it
+        still opens the link)."""
         decoder.receive_data(data)
         session, out = self.sessions[i], []
-        while True:
-            payload = decoder.next_payload()
-            if payload is None:
-                return out
-            msgs = self.decode(payload)
-            if session.delivers_whole(link, msgs, now):
-                self._frames[i](msgs)
-                continue
-            on_message = self._messages[i]
-            for a in session.receive(link, msgs, now):
-                if type(a) is Deliver:
-                    on_message(a.msg)
-                else:
-                    out.append(a)
+        try:
+            while True:
+                payload = decoder.next_payload()
+                if payload is None:
+                    return out, None
+                msgs = self.decode(payload)
+                if session.delivers_whole(link, msgs, now):
+                    self._frames[i](msgs)
+                    continue
+                on_message = self._messages[i]
+                for a in session.receive(link, msgs, now):
+                    if type(a) is Deliver:
+                        on_message(a.msg)
+                    else:
+                        out.append(a)
+        except P.ProtocolError as exc:
+            return out, exc
 
     # ---- running -------------------------------------------------------------------------------------------------
     async def _run_viewer(self, i: int, task_status) -> None:
@@ -241,13 +246,11 @@ class ViewerReader:
                     await self._lose(s, f"server closed the connection{what}")
                     continue
                 self.reads += 1
-                try:
-                    rest = self.take(s.i, s.link, s.decoder, data, now)
-                except P.ProtocolError as exc:
-                    await self._lose(s, str(exc))
-                    continue
+                rest, bad = self.take(s.i, s.link, s.decoder, data, now)
                 if rest:
                     await self._apply(s.i, rest)
+                if bad is not None:
+                    await self._lose(s, str(bad))
 
     async def _timer_loop(self) -> None:
         """Every session's deadlines (handshake timeouts, reconnects, PINGs) from one heap."""
