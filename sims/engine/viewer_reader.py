@@ -40,17 +40,8 @@ import trio
 
 from entitynet import protocol as P
 from entitynet.connection import HandshakeRefused
-from entitynet.session import (
-    Action,
-    ClientSession,
-    Connect,
-    Deliver,
-    Drop,
-    Notice,
-    ReconnectPolicy,
-    Send,
-    Stop,
-)
+from entitynet.session import Action, ClientSession, Connect, Deliver, Drop, Notice, ReconnectPolicy, Send, Stop
+from sims.engine.message_cache import Frame
 
 log = logging.getLogger("sims.viewer_reader")
 
@@ -160,9 +151,11 @@ class ViewerReader:
         the open link to `on_frame` whole, any other through the session, its deliveries to `on_message`).
         Returns the session's other actions for the shell, and the error of a bad frame (None: none), which
         ends the attempt: the frames before it are taken and their actions returned (a WELCOME before it
-        still opens the link)."""
+        still opens the link). Consecutive whole frames of one read go on as one: the ghost table takes a
+        queue in order (a pair seen twice applies the queue first), so joined frames give what frame by frame
+        gives, with one call chain per read instead of per frame."""
         decoder.receive_data(data)
-        session, out = self.sessions[i], []
+        session, out, run = self.sessions[i], [], None
         try:
             while True:
                 payload = decoder.next_payload()
@@ -170,8 +163,17 @@ class ViewerReader:
                     return out, None
                 msgs = self.decode(payload)
                 if session.delivers_whole(link, msgs, now):
-                    self._frames[i](msgs)
+                    if type(msgs) is Frame:  # the read's run of whole frames goes on as one
+                        if run is None:
+                            run = msgs  # the decoder's own new list: extended in place
+                        else:
+                            run.extend(msgs)
+                            run.nbytes += msgs.nbytes
+                    else:
+                        run = self._hand(i, run)
+                        self._frames[i](msgs)
                     continue
+                run = self._hand(i, run)
                 on_message = self._messages[i]
                 for a in session.receive(link, msgs, now):
                     if type(a) is Deliver:
@@ -180,6 +182,13 @@ class ViewerReader:
                         out.append(a)
         except P.ProtocolError as exc:
             return out, exc
+        finally:
+            self._hand(i, run)
+
+    def _hand(self, i: int, run: Frame | None) -> None:
+        """A read's run of whole frames to viewer i's `on_frame` as one frame (None: nothing)."""
+        if run is not None:
+            self._frames[i](run)
 
     # ---- running -------------------------------------------------------------------------------------------------
     async def _run_viewer(self, i: int, task_status) -> None:
@@ -373,3 +382,4 @@ async def _either(a: trio.Event, b: trio.Event) -> None:
             nursery.cancel_scope.cancel()
         nursery.start_soon(wait, a)
         nursery.start_soon(wait, b)
+
