@@ -10,12 +10,16 @@ and LEAVEs on an open link, the usual frame, goes whole to the viewer's column o
 (`entitynet.client.ghost_table`, the ghost rules' one home) with no per-message call in between
 (`Connection(on_frame=...)`: the session says when that is exactly what it would do, `delivers_whole`).
 
-What a simulated viewer keeps of the session: each viewer is still an `entitynet.connection.Connection` with
-its own `ClientSession`, so the handshake (HELLO / WELCOME, digest check), the SUBSCRIBE differences, the
-PING / PONG clock offset, reconnects with backoff and the replay of the subscription, REDIRECT and ERROR go
-through the session as for any client; only the UPDATE / LEAVE frames of an open link skip the per-message
-actions. What it skips that the browser-less Python viewer does: nothing of the rules (the same table), but the
-simulated viewers share one clock with the publishers, so their ghosts use clock offset 0, not the PONG estimate.
+How the bytes arrive: by default all the viewers' TCP sockets are read by one task
+(`sims.engine.viewer_reader.ViewerReader`: one epoll set, each ready socket read once per pass, a read's run of
+whole frames handed on as one), each viewer keeping its own sans-IO `ClientSession`, so the handshake (HELLO /
+WELCOME, digest check), the SUBSCRIBE differences, the PING / PONG clock offset, reconnects with backoff and the
+replay of the subscription, REDIRECT and ERROR go through the session as for any client; only the UPDATE /
+LEAVE frames of an open link skip the per-message actions. `one_reader=False` (and a ws:// address) gives each
+viewer an `entitynet.connection.Connection` of its own instead: the reference path, the same session. What a
+simulated viewer skips that the browser-less Python viewer does: nothing of the rules (the same table), but the
+simulated viewers share one clock with the publishers, so their ghosts use clock offset 0, not the PONG
+estimate. An external server's ids are learnt once per distinct UPDATE (the decoder's `on_new`).
 Sans-IO apart from building the connections; `now()` is the simulation's receiver time.
 """
 
