@@ -25,6 +25,7 @@ Sans-IO apart from building the connections; `now()` is the simulation's receive
 
 from __future__ import annotations
 
+import select
 from collections.abc import Callable
 
 from entitynet import protocol as P
@@ -39,9 +40,11 @@ class ViewerFleet:
     of every UPDATE that arrives (an external server's ids mapped back to the truth), None for none."""
 
     def __init__(self, viewers: list[SimViewer], now: Callable[[], float],
-                 learn: Callable[[P.Update], None] | None = None, one_reader: bool = True) -> None:
-        """`one_reader`: the viewers' TCP sockets read by one task (`viewer_reader.ViewerReader`, the default);
-        False: a `Connection` and its tasks per viewer (the reference path)."""
+                 learn: Callable[[P.Update], None] | None = None, one_reader: bool | None = None) -> None:
+        """`one_reader`: the viewers' TCP sockets read by one task (`viewer_reader.ViewerReader`, the default
+        where the system has epoll: Linux); False: a `Connection` and its tasks per viewer (the reference)."""
+        if one_reader is None:
+            one_reader = hasattr(select, "epoll")
         self.viewers = viewers
         self.now = now
         self.learn = learn
