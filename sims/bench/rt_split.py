@@ -1,5 +1,5 @@
 """Where a real-time tick's time goes: `python -m sims.bench.rt_split ENTITIES VIEWERS [SECONDS] [SHARE]
-[--server-process]`.
+[--server-process] [--per-viewer]`.
 
 Why: `entities_realtime_max` says only pass or fail; to cut a tick one needs its parts. This builds the sim and
 shell as the bench's real-time trial does (server in this process, loopback), runs the shell as fast as it can
@@ -9,6 +9,9 @@ switchboard core. The sends await the sockets, so the server shell and the viewe
 them: `rest` = the tick less the parts outside the sends. Figures are ms per tick after `WARM` ticks (the
 start's burst), in wall time (`ms_per_tick`) and in this process's CPU time (`cpu_ms_per_tick`, steadier when
 other processes load the machine; the tick's CPU less the parts is then the sends and the connections' CPU).
+`--per-viewer`: each viewer its own `Connection` and tasks (the reference path) instead of the one reader over
+every viewer socket (`sims.engine.viewer_reader`), for A/B runs in one tree. `coordinator_us_per_delivery`: the
+viewers' side (the sends and connections, the camera moves, the measure) in CPU us per UPDATE delivered.
 Timings move with the machine's load: say the load average with them.
 """
 
@@ -25,7 +28,7 @@ WARM = 6
 
 
 def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topology=None,
-          server_process: bool = False) -> dict:
+          server_process: bool = False, per_viewer: bool = False) -> dict:
     """The per-tick split (ms) of a real-time run of `n` entities and `viewers` viewers (see the docstring).
     `topology`: (topo, artifact path) to run on instead of the bundled map and schedule (no transit then).
     `server_process`: the server in a child `entitynet serve` (as `entitynet sim` runs large runs): its CPU time
@@ -83,6 +86,10 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
     timed(sim, "maybe_sample", "measure")
     shell = Shell(sim, ShellConfig(duration=seconds + WARM * sim.dt, speed=1000.0, summary_every=1e9,
                                    artifact=artifact, keys=False), lambda m: None)
+    if per_viewer:
+        from sims.engine.viewer_fleet import ViewerFleet
+
+        shell.viewer_fleet = ViewerFleet(sim.viewers, lambda: sim.now, shell._learn, one_reader=False)
     atimed(shell, "_send", "send (server and viewer connections inside)")
     t0: list[float] = []
     step = sim.step
@@ -134,7 +141,10 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
     out[rest] = round(out["tick"] - sum(out.get(k, 0.0) for k in outside), 1)
     cpu_out[rest] = round(cpu_out["tick"] - sum(cpu_out.get(k, 0.0) for k in outside), 1)
     deliveries = (sum(v.deliveries for v in sim.viewers) - delivered[0]) / ticks if delivered else None
-    return {"entities": n, "viewers": viewers, "on_map": len(sim.world.agents), "ticks": ticks,
+    side = cpu_out[rest] + cpu_out.get("viewer_move", 0.0) + cpu_out.get("measure", 0.0)
+    per = round(1000 * side / deliveries, 2) if deliveries else None
+    return {"entities": n, "viewers": viewers, "one_reader": not per_viewer,
+            "coordinator_us_per_delivery": per, "on_map": len(sim.world.agents), "ticks": ticks,
             "deliveries_per_tick": deliveries,
             "measure_share": share, "server": "a child process" if server_process else "in this process",
             "load": os.getloadavg()[0], "ms_per_tick": out, "cpu_ms_per_tick": cpu_out}
@@ -144,7 +154,8 @@ if __name__ == "__main__":
     a = sys.argv[1:]
     if len(a) < 2:
         sys.exit(__doc__.splitlines()[0])
-    child = "--server-process" in a
-    a = [x for x in a if x != "--server-process"]
+    child, per_viewer = "--server-process" in a, "--per-viewer" in a
+    a = [x for x in a if x not in ("--server-process", "--per-viewer")]
     print(json.dumps(split(int(a[0]), int(a[1]), float(a[2]) if len(a) > 2 else 10.0,
-                           float(a[3]) if len(a) > 3 else 0.25, server_process=child), indent=1))
+                           float(a[3]) if len(a) > 3 else 0.25, server_process=child,
+                           per_viewer=per_viewer), indent=1))
