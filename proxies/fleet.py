@@ -52,6 +52,7 @@ class Counters:
     polls: int = 0
     fixes: int = 0
     publishes: int = 0
+    fixes_rejected: int = 0  # fixes the client core refused (NaN, a position off the map's frame): counted, not fed
     retired_stale: int = 0
     retired_done: int = 0
     stops_served_retired: int = 0  # stops served by vehicles that have left (`Fleet.stops_served` adds the rest)
@@ -337,6 +338,7 @@ class Fleet:
         try:
             self.pending.extend(self.core.player(veh.slot).feed(x, y, t, self.accuracy, speed=speed, heading=heading))
         except FixRejected:
+            self.counters.fixes_rejected += 1
             return
         veh.last_fix = t
         veh.still_s = None
@@ -416,8 +418,9 @@ class Fleet:
                 veh.still_s = veh.motion.s if veh.motion.standing else None
         self.counters.fixes += len(due)
         f = np.array(fixes, dtype=float).reshape(len(fixes), 4)
-        stepped, _rejected = self.core.step(now, due, f[:, 0], f[:, 1], self.accuracy, speed=f[:, 2],
+        stepped, rejected = self.core.step(now, due, f[:, 0], f[:, 1], self.accuracy, speed=f[:, 2],
                                             heading=f[:, 3], speed_accuracy=0.3)
+        self.counters.fixes_rejected += rejected
         msgs = [(int(order[slot]), m) for slot, m in stepped]
         if left:  # (a vehicle leaving has no row any more: its messages go where its row's were)
             msgs = sorted(msgs + left, key=lambda om: om[0])

@@ -94,3 +94,16 @@ def test_stops_served_and_vehicles_by_mode_count_the_vehicles_that_left_too(line
     fleet.tick(T0 + 1000.0)  # stale: it leaves, its stops stay counted
     assert not fleet.vehicles and fleet.by_mode() == {}
     assert fleet.stops_served() == served
+
+
+def test_a_position_the_client_core_refuses_is_counted_and_nothing_else_changes(line_topo, line_book):
+    """A GTFS-rt position that is not a fix (NaN) is refused by the vehicle's client core: counted in
+    `fixes_rejected`, not in `fixes`, and the vehicle goes on from its motion as before."""
+    fleet = Fleet(line_topo, line_book)
+    fleet.ingest([_call(2, T0 + 60.0), _call(3, T0 + 150.0)], T0, T0)
+    fleet.tick(T0)
+    before = fleet.counters.fixes
+    fleet.fix("V1", float("nan"), 0.0, T0 + 0.5)
+    assert (fleet.counters.fixes_rejected, fleet.counters.fixes) == (1, before)
+    assert fleet.vehicles["V1"].last_fix < T0 + 0.5
+    assert all(isinstance(m, Publish) for t in range(1, 5) for m in fleet.tick(T0 + t))
