@@ -124,7 +124,11 @@ class ClusterFailoverMixin:
         """Whether another shard may still be serving this connection (roaming.py's band, judged over all its
         cells: a shard serves every entity of a connection while one of them is in its band). If so, and it
         has entities admitted here since it came, those are taken back into the hold too: they might be shown
-        beside that shard's copies (a client failing over re-publishes its entities one by one)."""
+        beside that shard's copies (a client failing over re-publishes its entities one by one). A fleet (more
+        than `max_redirect_entities`) is judged as before: it never roamed by the band, so the band says nothing
+        about where its old shard served it, and taking back hundreds of entities would only churn ids."""
+        if len(c.entities) > self.max_redirect_entities:
+            return False
         since = self.first_publish_at.get(c.cid, -float("inf"))
         every = self._connection_cells(c, cells)
         if not self._in_band_of_unsure_shard(every, owners, now, since):

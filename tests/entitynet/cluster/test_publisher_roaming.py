@@ -354,3 +354,16 @@ def test_a_held_first_publish_that_runs_out_is_forgotten_with_its_connection():
     a.disconnect(q, 1.7)
     bus.run(2.0)
     assert core.held == {} and core.first_publish_at == {}
+
+
+def test_a_fleet_is_judged_as_before_not_taken_back():
+    """A connection with more than `max_redirect_entities` entities never roamed by the band: a new entity of it
+    near an unsure neighbour is admitted as before, and nothing of it is taken back."""
+    bus = banded_bus()
+    a = bus.sbs[0]
+    core = bus.cores[0]
+    p = join(a, now=0.6)
+    a.receive(p, [pub(i, 1, (10 + i,)) for i in range(core.max_redirect_entities + 1)], 0.6)
+    assert len(a.clients[p].entities) == core.max_redirect_entities + 1  # deep in region 0: admitted at once
+    a.receive(p, [pub(99, 1, (49,))], 0.7)  # b not heard since: a smaller connection would be held
+    assert len(a.clients[p].entities) == core.max_redirect_entities + 2 and core.stats["admissions_taken_back"] == 0
