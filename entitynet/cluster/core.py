@@ -40,7 +40,7 @@ from typing import Any
 import msgpack
 
 from entitynet import protocol as P
-from entitynet.cluster.failover import HEARTBEAT, ClusterFailoverMixin, Peer
+from entitynet.cluster.failover import HEARTBEAT, HEARTBEAT_ASK, ClusterFailoverMixin, Peer
 from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
 from entitynet.cluster.roaming import (
     PUBLISHER_LINGER_S,
@@ -52,7 +52,7 @@ from entitynet.cluster.roaming import (
 log = logging.getLogger("entitynet.cluster")
 
 STATE, LEAVE, SNAP_REQ, SNAP_REP, FOLLOW_REQ = 1, 2, 3, 4, 6  # (5: HEARTBEAT, in failover.py)
-INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py)
+INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py; 10: HEARTBEAT_ASK, in failover.py)
 RESEND_LEAVES_S = 3.0  # LEAVEs published again after a NATS reconnect if they went out this recently
 MAX_REDIRECT_ENTITIES = 8  # a connection carrying more (a proxy's fleet) is not redirected: mirrors carry it
 
@@ -122,6 +122,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
         self.held: dict[int, dict[int, tuple[Any, float]]] = {}
         # cid -> when a connection's first PUBLISH came, while some peer has not been heard since (failover.py)
         self.first_publish_at: dict[int, float] = {}
+        self._asked_at = -float("inf")  # when we last asked the peers for a heartbeat now (failover.py)
         self.init_publisher_roaming(cell_adjacency, publisher_margin_cells, publisher_linger_s)
 
     # ------------------------------------------------------------------------------------------ switchboard hooks
@@ -303,6 +304,8 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
                 self._complete_follows(now)
             elif kind == HEARTBEAT:
                 self._heartbeat(shard, m, now)
+            elif kind == HEARTBEAT_ASK:
+                self._heartbeat_asked(shard, now)
             elif kind == FOLLOW_REQ and reply:
                 self._answer_follow(int(m[2]), reply, now)
             elif kind == QUERY_REQ and reply:

@@ -24,6 +24,10 @@ from entitynet import protocol as P
 log = logging.getLogger("entitynet.cluster")
 
 HEARTBEAT = 5
+# "send your heartbeat now": a shard holding a first PUBLISH for want of a peer's heartbeat since the client came
+# asks for it, so a live peer (the old shard of a client it REDIRECTed, a neighbour of a client that starts near a
+# border) releases the hold within a NATS round trip instead of up to `heartbeat_s`; a dead one does not answer
+HEARTBEAT_ASK = 10
 # a heartbeat's subscription, follow, timer and mirror counts (each walks every client or mirror) are taken at
 # most this often; the heartbeats in between (4 a second at `--dead-after 1`) repeat them. Clients and
 # entities are counted afresh every time (a `len`)
@@ -152,7 +156,18 @@ class ClusterFailoverMixin:
         self.stats["admissions_deferred"] += 1
         if msg is not None:
             self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
+        if self._asked_at < self.first_publish_at.get(c.cid, now):
+            self._asked_at = now  # one ask answers every connection that came before it
+            self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT_ASK, self.shard]))
+            self.stats["heartbeats_asked"] += 1
         return False
+
+    def _heartbeat_asked(self, shard: int, now: float) -> None:
+        """Another shard holds a client for want of our heartbeat: send it at the next `tick` (asks that come
+        before it share it)."""
+        if shard != self.shard:
+            self._next_hb = min(self._next_hb, now)
+            self.wake()
 
     def _retry_held(self, now: float) -> None:
         """Judge the held first PUBLISHes again (their validity shortened by the wait; those run out are

@@ -367,3 +367,21 @@ def test_a_fleet_is_judged_as_before_not_taken_back():
     assert len(a.clients[p].entities) == core.max_redirect_entities + 1  # deep in region 0: admitted at once
     a.receive(p, [pub(99, 1, (49,))], 0.7)  # b not heard since: a smaller connection would be held
     assert len(a.clients[p].entities) == core.max_redirect_entities + 2 and core.stats["admissions_taken_back"] == 0
+
+
+def test_a_client_redirected_after_the_linger_is_served_at_its_new_shard_within_a_round_trip():
+    """REDIRECTed after the linger, the client is still within its old shard's band: its new shard holds its
+    first PUBLISH (it cannot tell it from a client failing over) but asks the old shard for a heartbeat at once,
+    so it is served as soon as that answer comes, not at the old shard's next scheduled heartbeat."""
+    bus = banded_bus(publisher_linger_s=2.0)
+    b = bus.sbs[1]
+    p = start(bus, 0, 49, 0.5)
+    step(bus, p, 2, 50, 1.2)  # one cell over: lingering
+    for t in (1.7, 2.2, 2.7, 3.2):
+        bus.run(t)
+    assert [r.shard for r in of(recv(bus.sbs[0], p), P.Redirect)] == [1]  # the linger ended at 3.2
+    q = join(b, now=3.4)  # a's last heartbeat was at 3.2, before the client came
+    b.receive(q, [pub(1, 3, (50,))], 3.4)
+    assert b.counts()["entities"] == 0  # held: a could be a shard that died serving it
+    bus.run(3.41)  # a answers b's ask: a NATS round trip (here 10 ms) later, not at its next heartbeat (3.7)
+    assert b.counts()["entities"] == 1 and bus.cores[1].stats["heartbeats_asked"] == 1
