@@ -11,7 +11,7 @@ Subjects (prefix `en.<cluster-map digest[:12]>`, so shards of different maps nev
   `P.snap`       snapshot request (cells) -> every owner answers the reply inbox with its occupants' states
   `P.f`          follow request (an entity id) -> its owner answers with its state and publishes `P.e.<eid>`
   `P.q`          query by identity -> every shard answers with what the asker may see (the buddy rule)
-  `P.hb`         heartbeats: shard, address, map digest, counts
+  `P.hb`         heartbeats: shard, address, map digest, counts; and asks for one now (HEARTBEAT_ASK, failover.py)
   `P.i`          interest: the cells a shard subscribes to (changes at once, the whole set every 2 s)
 Messages are msgpack arrays (kind first). A shard publishes a cell's states only while another shard has
 announced interest in that cell: interior cells, which no other shard's viewers can see, cost nothing on NATS.

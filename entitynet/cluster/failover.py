@@ -118,8 +118,9 @@ class ClusterFailoverMixin:
             # its owner has not been heard since this client came (a client failing over arrives after its shard
             # died) or has gone quiet (dying?): sending the client there could cost it a failover, serving it
             # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
-            # moment the owner is heard or decided (`_retry_held`): at most a heartbeat for a client that merely
-            # started on the wrong shard, and no round trip to a dead shard for one failing over
+            # moment the owner is heard or decided (`_retry_held`): a NATS round trip for a client that merely
+            # started on the wrong shard (`_hold` asks for the heartbeat), no round trip to a dead shard for one
+            # failing over
             return self._hold(c, msg, now)
         self._redirect(c, target)
         return False

@@ -139,10 +139,10 @@ class PublisherRoamingMixin:
         """Whether another shard may still be serving an entity in `cells` from within its band while we cannot
         tell it is alive: not heard since the client came (a client failing over arrives before its shard is
         quiet) or, unless `quiet` is False, quiet (dying?). Admitted, it would be shown beside the copy that
-        shard still publishes, so it is held (`admit`) until that shard is heard or declared dead: at most a
-        heartbeat for a client that comes near a border, also one its old shard REDIRECTed (a shard cannot
-        tell it from a client failing over: both are new connections whose old shard was last heard before
-        they came)."""
+        shard still publishes, so it is held (`admit`) until that shard is heard (asked for its heartbeat at
+        once: a NATS round trip) or declared dead; also a client its old shard REDIRECTed, which a shard cannot
+        tell from a client failing over (both are new connections whose old shard was last heard before they
+        came)."""
         bands = self._bands
         if bands is None:
             return False
