@@ -11,7 +11,7 @@ Subjects (prefix `en.<cluster-map digest[:12]>`, so shards of different maps nev
   `P.snap`       snapshot request (cells) -> every owner answers the reply inbox with its occupants' states
   `P.f`          follow request (an entity id) -> its owner answers with its state and publishes `P.e.<eid>`
   `P.q`          query by identity -> every shard answers with what the asker may see (the buddy rule)
-  `P.hb`         heartbeats: shard, address, map digest, counts
+  `P.hb`         heartbeats: shard, address, map digest, counts; and asks for one now (HEARTBEAT_ASK, failover.py)
   `P.i`          interest: the cells a shard subscribes to (changes at once, the whole set every 2 s)
 Messages are msgpack arrays (kind first). A shard publishes a cell's states only while another shard has
 announced interest in that cell: interior cells, which no other shard's viewers can see, cost nothing on NATS.
@@ -40,7 +40,7 @@ from typing import Any
 import msgpack
 
 from entitynet import protocol as P
-from entitynet.cluster.failover import HEARTBEAT, ClusterFailoverMixin, Peer
+from entitynet.cluster.failover import HEARTBEAT, HEARTBEAT_ASK, ClusterFailoverMixin, Peer
 from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
 from entitynet.cluster.roaming import (
     PUBLISHER_LINGER_S,
@@ -52,7 +52,7 @@ from entitynet.cluster.roaming import (
 log = logging.getLogger("entitynet.cluster")
 
 STATE, LEAVE, SNAP_REQ, SNAP_REP, FOLLOW_REQ = 1, 2, 3, 4, 6  # (5: HEARTBEAT, in failover.py)
-INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py)
+INTEREST = 9  # (7 and 8: QUERY_REQ and QUERY_REP, in queries.py; 10: HEARTBEAT_ASK, in failover.py)
 RESEND_LEAVES_S = 3.0  # LEAVEs published again after a NATS reconnect if they went out this recently
 MAX_REDIRECT_ENTITIES = 8  # a connection carrying more (a proxy's fleet) is not redirected: mirrors carry it
 
@@ -120,7 +120,9 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
         # first PUBLISHes held while their region's owner is quiet: cid -> local id -> (message, when it came);
         # judged again as soon as the owner is decided (declared dead, or heard again)
         self.held: dict[int, dict[int, tuple[Any, float]]] = {}
-        self.hold_since: dict[int, float] = {}  # cid -> when its first PUBLISH was held
+        # cid -> when a connection's first PUBLISH came, while some peer has not been heard since (failover.py)
+        self.first_publish_at: dict[int, float] = {}
+        self._asked_at = -float("inf")  # when we last asked the peers for a heartbeat now (failover.py)
         self.init_publisher_roaming(cell_adjacency, publisher_margin_cells, publisher_linger_s)
 
     # ------------------------------------------------------------------------------------------ switchboard hooks
@@ -200,42 +202,6 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
             self._redirect(c, best)
 
     _now_hint = 0.0  # the latest `now` the core saw (hooks without a `now` use it)
-
-    def admit(self, c: Any, cells: tuple[int, ...], now: float, msg: Any = None) -> bool:
-        """A connection's first entity, wholly in other shards' regions: REDIRECT it before it is published here,
-        so no viewer sees it under an id that is about to vanish (after a failover, while this shard still
-        counts the old owner alive, that would be a second copy beside the old owner's)."""
-        self._now_hint = now
-        if c.entities or not cells or c.cid in self.redirected:
-            return True
-        owners = self._owners(now)
-        if any(owners[self.region_of[cell]] == self.shard for cell in cells):
-            if self._in_band_of_unsure_shard(cells, owners, now, self.hold_since.get(c.cid, now)):
-                return self._hold(c, msg, now)  # a dying neighbour may still show it (roaming.py)
-            self.hold_since.pop(c.cid, None)
-            return True
-        target = owners[self.region_of[cells[0]]]
-        if self.address_of(target) is None:
-            self.hold_since.pop(c.cid, None)
-            return True  # nowhere to send it: serve it here
-        if self._quiet(target, now) or not self._heard_since(target, self.hold_since.get(c.cid, now)):
-            # its owner has not been heard since this client came (a client failing over arrives after its shard
-            # died) or has gone quiet (dying?): sending the client there could cost it a failover, serving it
-            # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
-            # moment the owner is heard or decided (`_retry_held`): at most a heartbeat for a client that merely
-            # started on the wrong shard, and no round trip to a dead shard for one failing over
-            return self._hold(c, msg, now)
-        self.hold_since.pop(c.cid, None)
-        self._redirect(c, target)
-        return False
-
-    def _hold(self, c: Any, msg: Any, now: float) -> bool:
-        """Hold a first PUBLISH until `_retry_held` judges it again (False: not admitted now)."""
-        self.stats["admissions_deferred"] += 1
-        if msg is not None:
-            self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
-            self.hold_since.setdefault(c.cid, now)
-        return False
 
     def _redirect(self, c: Any, shard: int) -> None:
         """The client's entities leave now; the REDIRECT itself waits in `redirects` until the shell has
@@ -338,6 +304,8 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
                 self._complete_follows(now)
             elif kind == HEARTBEAT:
                 self._heartbeat(shard, m, now)
+            elif kind == HEARTBEAT_ASK:
+                self._heartbeat_asked(shard, now)
             elif kind == FOLLOW_REQ and reply:
                 self._answer_follow(int(m[2]), reply, now)
             elif kind == QUERY_REQ and reply:
@@ -442,7 +410,9 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
         if now >= self._next_hb:
             self._heartbeat_out(now)
             self._forget_gone_publishers()
+            self._forget_first_publishes()
         self._retry_held(now)
+        self._roam_lingering(now)
         if now >= self._next_interest:  # the whole set now and then: a shard that started late learns it
             self._next_interest = now + 2.0
             self._pub(f"{self.prefix}.i", _packb([INTEREST, self.shard, sorted(self.nats_cells), [], True]))
@@ -471,7 +441,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
         """When `tick` must next run: the next heartbeat, interest or follow refresh, query or follow timeout, or
         the moment a silent peer is due to be declared dead (not the next heartbeat after it: every survivor
         then decides within a moment of the others)."""
-        t = min(self._next_hb, self._next_follow_refresh, self._next_interest)
+        t = min(self._next_hb, self._next_follow_refresh, self._next_interest, self._linger_deadline())
         for p in self.peers.values():
             if p.alive:
                 t = min(t, p.last_seen + self.dead_after_s)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import msgpack
 
@@ -23,6 +24,10 @@ from entitynet import protocol as P
 log = logging.getLogger("entitynet.cluster")
 
 HEARTBEAT = 5
+# "send your heartbeat now": a shard holding a first PUBLISH for want of a peer's heartbeat since the client came
+# asks for it, so a live peer (the old shard of a client it REDIRECTed, a neighbour of a client that starts near a
+# border) releases the hold within a NATS round trip instead of up to `heartbeat_s`; a dead one does not answer
+HEARTBEAT_ASK = 10
 # a heartbeat's subscription, follow, timer and mirror counts (each walks every client or mirror) are taken at
 # most this often; the heartbeats in between (4 a second at `--dead-after 1`) repeat them. Clients and
 # entities are counted afresh every time (a `len`)
@@ -91,21 +96,110 @@ class ClusterFailoverMixin:
         p = self.peers.get(shard)
         return shard == self.shard or p is None or p.last_seen > since
 
+    def admit(self, c: Any, cells: tuple[int, ...], now: float, msg: Any = None) -> bool:
+        """A new entity of connection `c` (the switchboard asks before it is published here): False when it is
+        held or REDIRECTed instead. Held while another shard that may still serve the connection cannot be
+        told alive (`_unsure_of`); a connection's first entity wholly in other shards' regions is REDIRECTed
+        before it is published here, so no viewer sees it under an id that is about to vanish."""
+        self._now_hint = now
+        if not cells or c.cid in self.redirected:
+            return True
+        if not c.entities and c.cid not in self.held:
+            self.first_publish_at.setdefault(c.cid, now)
+        owners = self._owners(now)
+        if self._unsure_of(c, cells, owners, now):
+            return self._hold(c, msg, now)
+        if c.entities or any(owners[self.region_of[cell]] == self.shard for cell in cells):
+            return True
+        target = owners[self.region_of[cells[0]]]
+        if self.address_of(target) is None:
+            return True  # nowhere to send it: serve it here
+        if self._quiet(target, now) or not self._heard_since(target, self.first_publish_at.get(c.cid, now)):
+            # its owner has not been heard since this client came (a client failing over arrives after its shard
+            # died) or has gone quiet (dying?): sending the client there could cost it a failover, serving it
+            # here might show it twice beside the dying owner's copy. Hold this PUBLISH and judge it again the
+            # moment the owner is heard or decided (`_retry_held`): a NATS round trip for a client that merely
+            # started on the wrong shard (`_hold` asks for the heartbeat), no round trip to a dead shard for one
+            # failing over
+            return self._hold(c, msg, now)
+        self._redirect(c, target)
+        return False
+
+    def _unsure_of(self, c: Any, cells: tuple[int, ...], owners: list[int], now: float) -> bool:
+        """Whether another shard may still be serving this connection (roaming.py's band, judged over all its
+        cells: a shard serves every entity of a connection while one of them is in its band). If so, and it
+        has entities admitted here since it came, those are taken back into the hold too: they might be shown
+        beside that shard's copies (a client failing over re-publishes its entities one by one). A fleet (more
+        than `max_redirect_entities`) is judged as before: it never roamed by the band, so the band says nothing
+        about where its old shard served it, and taking back hundreds of entities would only churn ids."""
+        if len(c.entities) > self.max_redirect_entities:
+            return False
+        since = self.first_publish_at.get(c.cid, -float("inf"))
+        every = self._connection_cells(c, cells)
+        if not self._in_band_of_unsure_shard(every, owners, now, since):
+            return False
+        if c.entities and self._in_band_of_unsure_shard(every, owners, now, since, quiet=False):
+            self._take_back(c, now)
+        return True
+
+    def _take_back(self, c: Any, now: float) -> None:
+        """Hold the last states of the connection's admitted entities and remove them here (LEAVE to viewers),
+        as the client's UNPUBLISH would; they are judged again with its other held PUBLISHes."""
+        held = self.held.setdefault(c.cid, {})
+        for local, eid in list(c.entities.items()):
+            e = self.sb.entities[eid]
+            held[local] = (P.Publish(local, e.seq, e.cells, e.validity_ms, e.payload), self.sent_at.get(eid, now))
+            self.stats["admissions_taken_back"] += 1
+        self.sb.receive(c.cid, [P.Unpublish(local) for local in list(c.entities)], now)
+
+    def _hold(self, c: Any, msg: Any, now: float) -> bool:
+        """Hold a first PUBLISH until `_retry_held` judges it again (False: not admitted now)."""
+        self.stats["admissions_deferred"] += 1
+        if msg is not None:
+            self.held.setdefault(c.cid, {})[msg.entity] = (msg, now)
+        if self._asked_at < self.first_publish_at.get(c.cid, now):
+            self._asked_at = now  # one ask answers every connection that came before it
+            self._pub(f"{self.prefix}.hb", _packb([HEARTBEAT_ASK, self.shard]))
+            self.stats["heartbeats_asked"] += 1
+        return False
+
+    def _heartbeat_asked(self, shard: int, now: float) -> None:
+        """Another shard holds a client for want of our heartbeat: send it at the next `tick` (asks that come
+        before it share it)."""
+        if shard != self.shard:
+            self._next_hb = min(self._next_hb, now)
+            self.wake()
+
     def _retry_held(self, now: float) -> None:
-        """Judge the held first PUBLISHes again (their validity shortened by the wait): admitted here, REDIRECTed
-        to the region's new owner, or held on while it is still undecided."""
+        """Judge the held first PUBLISHes again (their validity shortened by the wait; those run out are
+        dropped): held on as a whole while the connection is still unsure, else received again, one
+        connection at a time, to be admitted here, REDIRECTed to the region's new owner, or held again."""
         if not self.held:
             return
-        held, self.held = self.held, {}
-        for cid, msgs in held.items():
-            c = self.sb.clients.get(cid)
+        clients = self.sb.clients
+        for cid in list(self.held):
+            msgs = self.held.pop(cid)
+            c = clients.get(cid)
             if c is None or c.closing:
-                self.hold_since.pop(cid, None)
                 continue
-            for m, at in msgs.values():
-                left = m.validity_ms - round((now - at) * 1000)
-                if left > 0:
-                    self.sb.receive(cid, [P.Publish(m.entity, m.seq, m.cells, left, m.payload)], now)
+            live = {k: (m, at) for k, (m, at) in msgs.items() if m.validity_ms - round((now - at) * 1000) > 0}
+            if not live:
+                continue
+            cells = tuple(cell for m, _at in live.values() for cell in m.cells)
+            if self._unsure_of(c, cells, self._owners(now), now):
+                self.held.setdefault(cid, {}).update(live)
+                continue
+            self.sb.receive(cid, [P.Publish(m.entity, m.seq, m.cells, m.validity_ms - round((now - at) * 1000),
+                                            m.payload) for m, at in live.values()], now)
+
+    def _forget_first_publishes(self) -> None:
+        """Drop the first-PUBLISH times every live peer has been heard since (they decide nothing any more) and
+        those of connections that are gone (called with every heartbeat)."""
+        heard = [p.last_seen for p in self.peers.values() if p.alive]
+        oldest = min(heard, default=float("inf"))
+        clients, held = self.sb.clients, self.held
+        for cid in [x for x, t in self.first_publish_at.items() if x not in clients or (t < oldest and x not in held)]:
+            del self.first_publish_at[cid]
 
     def _heartbeat(self, shard: int, m: list, now: float) -> None:
         if not 0 <= shard < self.regions.shards:

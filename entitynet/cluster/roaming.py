@@ -108,7 +108,8 @@ def region_bands(cell_region: Sequence[int], adjacency: Sequence[Sequence[int]],
 
 
 class PublisherRoamingMixin:
-    """Uses `sb`, `shard`, `region_of`, `_owners`, `_quiet`, `_heard_since`, `_redirect` and `stats` of `ClusterCore`;
+    """Uses `sb`, `shard`, `region_of`, `held`, `heartbeat_s`, `max_redirect_entities`, `redirected`, `_owners`,
+    `_quiet`, `_heard_since`, `_redirect` and `stats` of `ClusterCore`;
     `init_publisher_roaming` is called from its constructor."""
 
     def init_publisher_roaming(self, adjacency: Sequence[Sequence[int]] | None, margin: int, linger_s: float) -> None:
@@ -120,6 +121,7 @@ class PublisherRoamingMixin:
                                                                        self.regions.shards)
         self._near: tuple[tuple[int, ...], list[bool]] | None = None  # (owners, cell -> within our band)
         self.out_since: dict[int, float] = {}  # cid -> since when all its entities are out of our regions
+        self._next_linger = float("inf")  # when `_roam_lingering` next has a linger to end
 
     def _near_cells(self, owners: list[int]) -> list[bool] | None:
         """Cell -> within the band of a region this shard owns now (recomputed when ownership changes)."""
@@ -132,20 +134,36 @@ class PublisherRoamingMixin:
             self._near = (key, near.tolist())
         return self._near[1]
 
-    def _in_band_of_unsure_shard(self, cells: tuple[int, ...], owners: list[int], now: float, since: float) -> bool:
+    def _in_band_of_unsure_shard(self, cells: Sequence[int], owners: list[int], now: float, since: float,
+                                 quiet: bool = True) -> bool:
         """Whether another shard may still be serving an entity in `cells` from within its band while we cannot
-        tell it is alive: quiet (dying?), or not heard since the client came (a client failing over arrives
-        before its shard is quiet). Admitted, it would be shown beside the copy that shard still publishes, so
-        its first PUBLISH is held (`admit`) until that shard is heard or declared dead: at most a heartbeat for
-        a client that starts near a border (a REDIRECTed one is beyond the band of the shard it left)."""
+        tell it is alive: not heard since the client came (a client failing over arrives before its shard is
+        quiet) or, unless `quiet` is False, quiet (dying?). Admitted, it would be shown beside the copy that
+        shard still publishes, so it is held (`admit`) until that shard is heard (asked for its heartbeat at
+        once: a NATS round trip) or declared dead; also a client its old shard REDIRECTed, which a shard cannot
+        tell from a client failing over (both are new connections whose old shard was last heard before they
+        came)."""
         bands = self._bands
         if bands is None:
             return False
         for r, s in enumerate(owners):
-            if (s != self.shard and (self._quiet(s, now) or not self._heard_since(s, since))
+            if (s != self.shard and ((quiet and self._quiet(s, now)) or not self._heard_since(s, since))
                     and any(bands[r, cell] for cell in cells)):
                 return True
         return False
+
+    def _connection_cells(self, c: Any, cells: Sequence[int]) -> list[int]:
+        """`cells` and those of every entity of the connection, admitted or held: a shard serves all of a
+        connection's entities while any one of them is in its band, so the others may be anywhere."""
+        entities = self.sb.entities
+        out = list(cells)
+        for eid in c.entities.values():
+            e = entities.get(eid)
+            if e is not None:
+                out.extend(e.cells)
+        for m, _at in self.held.get(c.cid, {}).values():
+            out.extend(m.cells)
+        return out
 
     def _roam_publisher(self, c: Any, e: Any, now: float) -> None:
         """After a local entity's new state: REDIRECT its connection when all its entities are out of our
@@ -161,7 +179,10 @@ class PublisherRoamingMixin:
         if any(owners[region_of[cell]] == me for cell in cells):
             self.out_since.pop(c.cid, None)  # something of this connection is still ours
             return
-        since = self.out_since.setdefault(c.cid, now)
+        since = self.out_since.get(c.cid)
+        if since is None:
+            since = self.out_since[c.cid] = now
+            self._next_linger = min(self._next_linger, now + self.publisher_linger_s)
         near = self._near_cells(owners)
         if near is not None and now - since < self.publisher_linger_s and any(near[cell] for cell in cells):
             self.stats["publishers_in_band"] += 1  # served on here: a state of an entity just over the border
@@ -169,6 +190,31 @@ class PublisherRoamingMixin:
         self._redirect(c, owners[region_of[e.cells[0]]])
         if c.cid in self.redirected:
             del self.out_since[c.cid]
+
+    def _roam_lingering(self, now: float) -> None:
+        """From `tick`: end the lingers that ran out (a parked entity may send nothing but PINGs for as long as
+        its validity lasts, so its next PUBLISH cannot be waited for): its connection is judged as after a
+        new state, REDIRECTed unless something of it came back into our regions. A REDIRECT that cannot go
+        now (its target quiet) is tried again a heartbeat later."""
+        if now < self._next_linger:
+            return
+        clients, entities, linger = self.sb.clients, self.sb.entities, self.publisher_linger_s
+        for cid, since in list(self.out_since.items()):
+            if now - since < linger:
+                continue
+            c = clients.get(cid)
+            e = None if c is None else next((x for eid in c.entities.values()
+                                             if (x := entities.get(eid)) is not None and x.cells), None)
+            if e is None or cid in self.redirected or len(c.entities) > self.max_redirect_entities:
+                del self.out_since[cid]  # gone, moved on, or no longer one to redirect
+                continue
+            self._roam_publisher(c, e, now)
+        due = [t + linger for t in self.out_since.values()]
+        self._next_linger = min((t if t > now else now + self.heartbeat_s for t in due), default=float("inf"))
+
+    def _linger_deadline(self) -> float:
+        """When `tick` must next run for `_roam_lingering`."""
+        return self._next_linger
 
     def _forget_gone_publishers(self) -> None:
         """Drop the out-of-region times of connections that are gone (called now and then from `tick`)."""

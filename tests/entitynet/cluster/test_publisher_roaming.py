@@ -263,3 +263,125 @@ def test_a_first_publish_near_a_live_neighbour_waits_at_most_a_heartbeat_and_one
     q = join(a, now=1.1)
     a.receive(q, [pub(1, 1, (10,))], 1.1)
     assert a.counts()["entities"] == 2
+
+
+def _shown(sb, cid, visible: dict[int, tuple[int, ...]]) -> list[tuple[int, ...]]:
+    """Apply a viewer's messages to `visible` (server id -> cells) and return the cells shown, sorted."""
+    for m in recv(sb, cid):
+        if isinstance(m, P.Update):
+            visible[m.entity] = m.cells
+        elif isinstance(m, P.Leave):
+            visible.pop(m.entity, None)
+    return sorted(visible.values())
+
+
+@pytest.mark.parametrize("order", [(2, 1), (1, 2)])
+def test_a_multi_entity_connection_failing_over_from_a_neighbour_is_never_shown_twice(order):
+    """Shard 1 serves a connection with one entity in its band (49) and one deep in region 0 (10): a shard
+    serves every entity of a connection while one is in its band. It dies; the client fails over to shard 0
+    and re-publishes both, in either order. Neither may be shown beside shard 1's copies until shard 1 is
+    declared dead: the hold judges the connection's cells, and an entity admitted before its sibling showed
+    the connection to be unsure is taken back."""
+    bus = banded_bus()
+    a, b = bus.sbs
+    viewer = watch(bus, 0, (10, 49))
+    visible: dict[int, tuple[int, ...]] = {}
+    p = join(b, now=0.5)
+    b.receive(p, [pub(1, 1, (50,)), pub(2, 1, (60,))], 0.5)
+    bus.run(0.5)
+    bus.run(1.0)
+    b.receive(p, [pub(1, 2, (49,)), pub(2, 2, (10,))], 1.5)
+    bus.run(1.5)
+    assert _shown(a, viewer.cid, visible) == [(10,), (49,)]  # b's two, as mirrors on a
+    bus.down = {1}
+    q = join(a, now=1.7)
+    cells = {1: (49,), 2: (10,)}
+    a.receive(q, [pub(local, 3, cells[local]) for local in order], 1.7)
+    for t in (1.7, 2.2, 2.7, 3.2, 3.6, 4.0):
+        bus.run(t)
+        assert _shown(a, viewer.cid, visible) == [(10,), (49,)], t  # two entities, two ids, never four
+    assert len(a.clients[q].entities) == 2 and a.counts()["entities"] == 2  # served on a once b is dead
+    assert not of(recv(a, q), P.Redirect)
+
+
+def test_a_silent_entity_parked_in_the_band_is_redirected_when_the_linger_ends():
+    """An entity with a long validity that then sends only PINGs: its linger ends from `tick`, not at a
+    PUBLISH that may not come for hours."""
+    bus = banded_bus(publisher_linger_s=5.0)
+    a = bus.sbs[0]
+    p = start(bus, 0, 49, 0.5)
+    a.receive(p, [pub(1, 2, (50,), validity_ms=3_600_000)], 1.5)  # one cell over, out since 1.5
+    bus.run(1.5)
+    assert bus.cores[0].next_deadline() <= 6.5
+    t = 1.5
+    while t < 6.0:  # up to 6.0: 4.5 s out
+        t += 0.5
+        a.receive(p, [P.Ping(0)], t)
+        bus.run(t)
+        assert not of(recv(a, p), P.Redirect), t
+    bus.run(6.5)
+    assert [r.shard for r in of(recv(a, p), P.Redirect)] == [1]
+    assert bus.cores[0].out_since == {} and a.counts()["entities"] == 0
+
+
+def test_a_linger_that_cannot_redirect_now_is_tried_again_a_heartbeat_later_not_in_a_busy_loop():
+    bus = banded_bus(publisher_linger_s=1.0)
+    core = bus.cores[0]
+    p = start(bus, 0, 49, 0.5)
+    step(bus, p, 2, 50, 1.5)
+    bus.down = {1}  # shard 1 goes quiet: no REDIRECT goes to it
+    bus.run(2.6)
+    assert p in core.out_since and core.stats["redirects"] == 0
+    assert core.next_deadline() > 2.6  # not due again at once
+
+
+def test_a_held_first_publish_that_runs_out_is_forgotten_with_its_connection():
+    """A first PUBLISH held near a border whose validity runs out before it is judged again is dropped, and
+    nothing of its connection is kept: not while it lives on (once every peer was heard), not after it left."""
+    bus = banded_bus()
+    a = bus.sbs[0]
+    core = bus.cores[0]
+    p = join(a, now=0.6)
+    a.receive(p, [pub(1, 1, (49,), validity_ms=300)], 0.6)
+    assert core.held and p in core.first_publish_at
+    bus.run(1.0)  # b heard: the PUBLISH would be admitted, but it ran out at 0.9
+    assert a.counts()["entities"] == 0 and core.held == {}
+    bus.run(1.5)
+    assert core.first_publish_at == {}
+    q = join(a, now=1.6)
+    a.receive(q, [pub(1, 1, (49,), validity_ms=300)], 1.6)
+    assert q in core.first_publish_at
+    a.disconnect(q, 1.7)
+    bus.run(2.0)
+    assert core.held == {} and core.first_publish_at == {}
+
+
+def test_a_fleet_is_judged_as_before_not_taken_back():
+    """A connection with more than `max_redirect_entities` entities never roamed by the band: a new entity of it
+    near an unsure neighbour is admitted as before, and nothing of it is taken back."""
+    bus = banded_bus()
+    a = bus.sbs[0]
+    core = bus.cores[0]
+    p = join(a, now=0.6)
+    a.receive(p, [pub(i, 1, (10 + i,)) for i in range(core.max_redirect_entities + 1)], 0.6)
+    assert len(a.clients[p].entities) == core.max_redirect_entities + 1  # deep in region 0: admitted at once
+    a.receive(p, [pub(99, 1, (49,))], 0.7)  # b not heard since: a smaller connection would be held
+    assert len(a.clients[p].entities) == core.max_redirect_entities + 2 and core.stats["admissions_taken_back"] == 0
+
+
+def test_a_client_redirected_after_the_linger_is_served_at_its_new_shard_within_a_round_trip():
+    """REDIRECTed after the linger, the client is still within its old shard's band: its new shard holds its
+    first PUBLISH (it cannot tell it from a client failing over) but asks the old shard for a heartbeat at once,
+    so it is served as soon as that answer comes, not at the old shard's next scheduled heartbeat."""
+    bus = banded_bus(publisher_linger_s=2.0)
+    b = bus.sbs[1]
+    p = start(bus, 0, 49, 0.5)
+    step(bus, p, 2, 50, 1.2)  # one cell over: lingering
+    for t in (1.7, 2.2, 2.7, 3.2):
+        bus.run(t)
+    assert [r.shard for r in of(recv(bus.sbs[0], p), P.Redirect)] == [1]  # the linger ended at 3.2
+    q = join(b, now=3.4)  # a's last heartbeat was at 3.2, before the client came
+    b.receive(q, [pub(1, 3, (50,))], 3.4)
+    assert b.counts()["entities"] == 0  # held: a could be a shard that died serving it
+    bus.run(3.41)  # a answers b's ask: a NATS round trip (here 10 ms) later, not at its next heartbeat (3.7)
+    assert b.counts()["entities"] == 1 and bus.cores[1].stats["heartbeats_asked"] == 1

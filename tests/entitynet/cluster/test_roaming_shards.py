@@ -41,7 +41,9 @@ async def test_a_publisher_dithering_on_a_border_stays_and_one_going_deep_moves_
         watchers = [await _view(a, 49, 50, 52), await _view(b, 49, 50, 52)]
         for s in (a, b):
             await s.cluster.nc.flush()
-        await trio.sleep(0.15)  # a heartbeat of each: a first PUBLISH next to the border is not held
+        await trio.sleep(0.15)  # a heartbeat of each: addresses known (the first PUBLISH, at 49, is still
+        # held until b is heard after the client came, since b could be serving a client failing over: a's ask
+        # for b's heartbeat makes that a NATS round trip)
         redirects: list[P.Redirect] = []
         conn = Connection(("127.0.0.1", a.port), DIGEST, backoff=(0.01, 0.05),
                           on_message=lambda m: redirects.append(m) if isinstance(m, P.Redirect) else None)
