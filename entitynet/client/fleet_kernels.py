@@ -18,7 +18,7 @@ import numpy as np
 from entitynet.client.kinematics import A_EPS
 from entitynet.client.limits import HORIZON
 from entitynet.client.network import NetView
-from entitynet.client.tracker import DOPPLER_MOVING
+from entitynet.client.tracker import DOPPLER_ALONG_SHARE, DOPPLER_MOVING
 
 try:  # the compiled kernels, where pip built them (setup.py; optional): entitynet/client/_fleet.pyx
     from entitynet.client import _fleet as COMPILED  # type: ignore[attr-defined]
@@ -255,7 +255,7 @@ def fuse_rows(geo: Geometry, vel: np.ndarray, s: np.ndarray, pe: np.ndarray, pd:
     with np.errstate(all="ignore"):
         along = (vx * (hx - bx) + vy * (hy - by)) / norm
     speed = hypot_py(vx, vy)
-    across = (speed >= DOPPLER_MOVING) & ((np.abs(along) < 0.7 * speed) | (has_route & (along < 0.0)))
+    across = (speed >= DOPPLER_MOVING) & ((np.abs(along) < DOPPLER_ALONG_SHARE * speed) | (has_route & (along < 0.0)))
     sden = p11 + rv
     use = (vel[:, 3] > 0.0) & (norm > 0.0) & ~across & (sden > 0.0)
     if not use.any():

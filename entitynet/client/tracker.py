@@ -31,6 +31,9 @@ assert [F_COL[n] - _LF_OFF for n in ("lf_x", "lf_y", "lf_d")] == [1, 2, 3] and F
 
 MAX_PATH_EDGES = PATH_W
 DOPPLER_MOVING = 1.0  # m/s: a Doppler velocity at least this fast has a direction worth checking
+#: a moving Doppler velocity whose component along the way is below this share of its speed is mostly across the
+#: way: the fix is not taken as a move along it (the scalar tracker and the fleet's arrays both read it here)
+DOPPLER_ALONG_SHARE = 0.7
 # choosing among the path's edges: an along-path jump of ALONG_SCALE metres from the prediction costs as
 # much as one metre off the way (the prediction is good to a few metres; the fix only to its accuracy)
 ALONG_SCALE = 3.0
@@ -126,7 +129,8 @@ class NetworkTracker(TrackerState):
                 return
             along = (vx * (hx - bx) + vy * (hy - by)) / n
             speed = math.hypot(vx, vy)
-            if speed >= DOPPLER_MOVING and (abs(along) < 0.7 * speed or (self.has_route and along < 0.0)):
+            across = abs(along) < DOPPLER_ALONG_SHARE * speed
+            if speed >= DOPPLER_MOVING and (across or (self.has_route and along < 0.0)):
                 return
             self.kf.update_speed(along, rv)
         elif self.place is AREA:
