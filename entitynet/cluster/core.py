@@ -104,6 +104,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
         self.following: set[int] = set()  # remote entities some local client follows through `P.e.<eid>`
         self.queries: dict = {}  # key -> queries._Query
         self.redirected: set[int] = set()
+        self.camera_retry: set[int] = set()  # viewers whose camera REDIRECT waits for its target (roaming.py)
         self.redirects: list[tuple[int, int, str]] = []  # REDIRECTs waiting for NATS to have our LEAVEs
         self.recent_leaves: deque[tuple[float, int, tuple[int, ...]]] = deque()  # (when, entity, its cells)
         self.interest: dict[int, set[int]] = {}  # other shard -> the cells it subscribes to
@@ -411,6 +412,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
             self._heartbeat_out(now)
             self._forget_gone_publishers()
             self._forget_first_publishes()
+            self._retry_cameras(now)
         self._retry_held(now)
         self._roam_lingering(now)
         if now >= self._next_interest:  # the whole set now and then: a shard that started late learns it

@@ -36,19 +36,45 @@ CAMERA_MARGIN_M = 24.0  # a view-grid column or so: deep enough that GPS-like ji
 
 
 class CameraRoamingMixin:
-    """Uses `regions`, `shard`, `redirect_viewers`, `redirected`, `_owners` and `_redirect` of `ClusterCore`."""
+    """Uses `sb`, `regions`, `shard`, `redirect_viewers`, `redirected`, `camera_retry`, `_owners` and `_redirect`
+    of `ClusterCore`."""
 
     camera_margin_m: float = CAMERA_MARGIN_M
 
     def on_camera(self, c: Any, now: float) -> None:
         """A viewer's camera moved (`c.camera`): REDIRECT it when the camera is well inside another shard's
-        area. Connections that publish entities roam by their entities instead."""
+        area. Connections that publish entities roam by their entities instead. A viewer whose camera lies in
+        another shard's own region and stays here (that shard quiet, not yet heard, or dead with its region
+        failed over to us) is judged again each heartbeat (`_retry_cameras`): a camera at rest sends no
+        further CAMERA, so it would otherwise stay on the wrong shard for good once that shard is back."""
         self._now_hint = now
+        retry = self.camera_retry
         if not self.redirect_viewers or c.entities or c.cid in self.redirected or c.camera is None:
+            retry.discard(c.cid)
             return
-        target = self.camera_shard(c.camera[0], c.camera[1], now)
+        x, y = c.camera[0], c.camera[1]
+        target = self.camera_shard(x, y, now)
         if target is not None and target != self.shard:
             self._redirect(c, target)
+        home = self.regions.region_at(x, y)  # (a region's own shard has its number)
+        if home is not None and home != self.shard and c.cid not in self.redirected:
+            retry.add(c.cid)
+        else:
+            retry.discard(c.cid)
+
+    def _retry_cameras(self, now: float) -> None:
+        """From `tick`, once a heartbeat: judge again the cameras kept here in another shard's region (a
+        connection that is gone drops out)."""
+        retry = self.camera_retry
+        if not retry:
+            return
+        clients = self.sb.clients
+        for cid in list(retry):
+            c = clients.get(cid)
+            if c is None:
+                retry.discard(cid)
+            else:
+                self.on_camera(c, now)
 
     def camera_shard(self, x: float, y: float, now: float) -> int | None:
         """The shard a camera at local (x, y) belongs to, with the margin: this shard unless the camera and the

@@ -72,6 +72,84 @@ async def test_only_a_shard_announces_camera_and_a_single_server_ignores_it(nats
         assert w.limits.get("camera") == 1
 
 
+def _camera_bus():
+    """Two shards in miniature (test_core.Bus) whose regions split the plane at x = 0, viewers roaming."""
+    from .test_core import Bus
+
+    bus = Bus(2, redirect_viewers=True)
+    bus.regions.region_at = lambda x, y: 0 if x < 0 else 1  # (the test map has no view grid)
+    bus.run(0.0)
+    bus.run(0.5)  # heartbeats heard: addresses known
+    return bus
+
+
+def _redirects(sb, cid) -> list[int]:
+    from tests.entitynet.switchboard_helpers import of, recv
+
+    return [r.shard for r in of(recv(sb, cid), P.Redirect)]
+
+
+def test_a_camera_at_rest_in_a_quiet_shards_region_is_redirected_once_that_shard_is_heard_again():
+    """The REDIRECT cannot go while its target is quiet; the camera sends nothing more, and is still moved
+    at the next heartbeat after the target is heard (the CI flake of the test below, in miniature)."""
+    from tests.entitynet.switchboard_helpers import join
+
+    bus = _camera_bus()
+    a = bus.sbs[0]
+    v = join(a, now=0.5)
+    a.receive(v, [P.Subscribe((1, 60), ())], 0.5)
+    bus.down = {1}
+    bus.run(1.0)
+    bus.run(1.7)  # shard 1 unheard for over quiet_s (1 s): going quiet, no REDIRECT goes to it
+    a.receive(v, [P.Camera(100.0, 0.0, 1.7)], 1.7)
+    bus.run(1.7)
+    assert _redirects(a, v) == [] and v in bus.cores[0].camera_retry
+    bus.down = set()
+    for t in (1.8, 2.2, 2.7):
+        bus.run(t)
+    assert _redirects(a, v) == [1]
+    assert v not in bus.cores[0].camera_retry
+    bus.run(3.5)
+    assert _redirects(a, v) == []  # once
+
+
+def test_a_camera_in_a_dead_shards_region_stays_and_moves_when_that_shard_comes_back():
+    from tests.entitynet.switchboard_helpers import join
+
+    bus = _camera_bus()
+    a = bus.sbs[0]
+    bus.down = {1}
+    for t in (1.0, 2.0, 3.0):
+        bus.run(t)  # shard 1 declared dead: its region is ours now
+    v = join(a, now=3.0)
+    a.receive(v, [P.Subscribe((60,), ()), P.Camera(100.0, 0.0, 1.7)], 3.0)
+    bus.run(3.0)
+    assert _redirects(a, v) == []  # its region is served here meanwhile
+    bus.down = set()
+    for t in (3.5, 4.0, 4.5, 5.0, 5.5):
+        bus.run(t)
+    assert _redirects(a, v) == [1]
+
+
+def test_a_camera_in_our_own_region_is_not_judged_again_and_a_gone_viewer_is_forgotten():
+    from tests.entitynet.switchboard_helpers import join
+
+    bus = _camera_bus()
+    a = bus.sbs[0]
+    core = bus.cores[0]
+    home = join(a, now=0.5)
+    a.receive(home, [P.Subscribe((1,), ()), P.Camera(-100.0, 0.0, 1.7)], 0.5)
+    bus.down = {1}
+    bus.run(1.7)
+    away = join(a, now=1.7)
+    a.receive(away, [P.Subscribe((1,), ()), P.Camera(100.0, 0.0, 1.7)], 1.7)
+    assert core.camera_retry == {away}
+    a.disconnect(away, 1.8)
+    for t in (2.5, 3.1):
+        bus.run(t)  # (at 2.5 shard 1 is declared dead, which sends our heartbeat early: judged at the next)
+    assert core.camera_retry == set()
+
+
 @pytest.fixture(scope="module")
 def town_pvs(tmp_path_factory):
     pvs = PvsConfig(max_height=20.0, view_distance=300.0, workers=1)  # a view grid, built in a few seconds
