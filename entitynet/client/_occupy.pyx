@@ -416,6 +416,16 @@ def occupy(path, double s_front, double length, double v, double a, double vmax,
            double max_validity=60.0, double min_validity=0.5, bint dead_end_at_path_end=False, travel=None,
            double branch_depth=40.0):
     """`occupation.occupy` (see there), compiled."""
+    cdef tuple o = occupy_parts(path, s_front, length, v, a, vmax, networks, known_until, margin, lookahead, tight,
+                                max_validity, min_validity, dead_end_at_path_end, travel, branch_depth)
+    return _occ.make_occupation(tuple(<list>o[0]), o[1], o[2], o[3], o[4], o[5])
+
+
+cdef tuple occupy_parts(path, double s_front, double length, double v, double a, double vmax, networks,
+                        double known_until, double margin, double lookahead, tight, double max_validity,
+                        double min_validity, bint dead_end_at_path_end, travel, double branch_depth):
+    """`occupy`'s fields as (cells list, validity, front, aft, cover_start, cover_end), for a caller at C level
+    (`_cover.pyx` builds its occupation once, after adding its own cells to the list)."""
     if not (isfinite(s_front) and isfinite(v) and isfinite(a)):
         raise ValueError("occupation needs finite position, speed and acceleration")
     cdef bint is_tight = (lookahead <= 0.0) if tight is None else bool(tight)
@@ -454,4 +464,4 @@ def occupy(path, double s_front, double length, double v, double a, double vmax,
     if is_tight and p.first_boundary_after(start, end_known, &behind):
         aft = _time_to_travel(behind - start, v, a, vmax) if travel is None else travel(behind - start)
     validity = _max(_min(_min(front, aft), max_validity), min_validity)
-    return _occ.make_occupation(tuple(cells), validity, front, aft, start, cover_end)
+    return cells, validity, front, aft, start, cover_end

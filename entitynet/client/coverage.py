@@ -10,6 +10,7 @@ and the published ghost, and changes neither.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
@@ -38,6 +39,14 @@ MAX_PUBLISH_CELLS = 64
 #: are covered ahead, and the least distance (m) (`Coverage._lateral_ahead`)
 LATERAL_AHEAD_TIME = 12.0
 LATERAL_AHEAD_MIN = 10.0
+
+_COMPILED = None
+if not os.environ.get("ENTITYNET_PURE_PYTHON"):
+    try:  # the network model's cover compiled (entitynet/client/_cover.pyx; optional in setup.py)
+        from entitynet.client import _cover as _COMPILED  # type: ignore[attr-defined,no-redef]
+    except ImportError:  # `Coverage.occupation` below, the reference
+        _COMPILED = None
+_network_occupation = _COMPILED.network_occupation if _COMPILED is not None else None
 
 
 def _wire(occ: Occupation) -> Occupation:
@@ -128,6 +137,8 @@ class Coverage:
                                  occ.cover_start, occ.cover_end)
             return _wire(occ)
         if isinstance(ghost, NetworkModel):
+            if _network_occupation is not None:  # this branch compiled (the usual publish; _cover.pyx)
+                return _network_occupation(self, ghost, trk, lateral)
             path, s, v, a = ghost.path, ghost.s0, ghost.v, ghost.a
         else:
             # world-frame baselines: the same occupation machinery on the client's network estimate

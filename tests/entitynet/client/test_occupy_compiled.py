@@ -143,7 +143,8 @@ def test_pure_python_forces_the_reference():
     test_state's child, with every compiled client module hidden)."""
     code = ("from entitynet.client import coverage, occupation\n"
             "assert occupation._COMPILED is None and occupation.occupy is occupation.occupy_reference\n"
-            "assert coverage.occupy is occupation.occupy_reference\nprint('reference ok')\n")
+            "assert coverage.occupy is occupation.occupy_reference\n"
+            "assert coverage._COMPILED is coverage._network_occupation is None\nprint('reference ok')\n")
     env = dict(os.environ, ENTITYNET_PURE_PYTHON="1")
     done = subprocess.run([sys.executable, "-c", code], cwd=FilePath(__file__).parents[3], capture_output=True,
                           text=True, timeout=300, env=env)
