@@ -2,11 +2,11 @@
 loop (entitynet/server/_flushloop.pyx) and the client state's field accessors (entitynet/client/_columns.pyx),
 the lateral cover's candidate loop (entitynet/client/_lateral.pyx, and over C tables _waytable.pyx), the
 payload's quantisation (entitynet/client/_payload.pyx), `Path.xy` (entitynet/client/_geom.pyx), the
-cell occupation (entitynet/client/_occupy.pyx), the network model's publish cover around it and its fields
-(entitynet/client/_cover.pyx, _fields.pyx), the fleet core's kernels (entitynet/client/_fleet.pyx) and the codec's
-PUBLISH loop (entitynet/protocol/_decode.pyx); everything else is in pyproject.toml. Optional on purpose: without
-a C compiler the build goes on and the pure-Python paths (the references, `entitynet.switchboard.outbox` and
-`entitynet.server.flushloop`, `entitynet.client.state.column`, the codec's `_decode_one`) are used."""
+cell occupation (entitynet/client/_occupy.pyx; the network model's publish cover around it, _cover.pyx), the
+fleet core's kernels (entitynet/client/_fleet.pyx) and the codec's PUBLISH loop (entitynet/protocol/_decode.pyx);
+everything else is in pyproject.toml. Optional on purpose: without a C compiler the build goes on and the
+pure-Python paths (the references, `entitynet.switchboard.outbox` and `entitynet.server.flushloop`,
+`entitynet.client.state.column`, the codec's `_decode_one`) are used."""
 
 from setuptools import Extension, setup
 
@@ -25,7 +25,6 @@ else:
          Extension("entitynet.client._geom", ["entitynet/client/_geom.pyx"], optional=True),
          Extension("entitynet.client._occupy", ["entitynet/client/_occupy.pyx"], optional=True),
          Extension("entitynet.client._cover", ["entitynet/client/_cover.pyx"], optional=True),
-         Extension("entitynet.client._fields", ["entitynet/client/_fields.pyx"], optional=True),
          Extension("entitynet.client._fleet", ["entitynet/client/_fleet.pyx"], optional=True),
          Extension("entitynet.protocol._decode", ["entitynet/protocol/_decode.pyx"], optional=True)],
         language_level=3,

@@ -18,7 +18,6 @@ only the world-frame models work and no cells are published.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 
 from entitynet.client.baselines import WorldFilter, plane_model
@@ -44,12 +43,6 @@ __all__ = ["MODELS", "FixRejected", "Player", "placer_for"]
 
 
 _make_publish = maker(Publish)  # Publish(...) without the frozen dataclass __init__ (once per publish)
-_FIELDS = None
-if not os.environ.get("ENTITYNET_PURE_PYTHON"):
-    try:  # `Player._network_fields` compiled (entitynet/client/_fields.pyx; optional in setup.py)
-        from entitynet.client import _fields as _FIELDS  # type: ignore[attr-defined,no-redef]
-    except ImportError:  # the method below, the reference
-        _FIELDS = None
 
 
 class Player(PlayerState):
@@ -263,9 +256,7 @@ class Player(PlayerState):
             trk.face_travel()  # publish in the direction of travel, whatever the filter's hysteresis says
         # ghost == decode(payload, net), without the round trip
         if self.world is None and trk.place is EDGE:
-            fields = (self._network_fields(t, from_ghost, stop_at) if _FIELDS is None else
-                      _FIELDS.network_fields(self, t, from_ghost, stop_at, Player._network_fields))
-            payload, ghost = encode_network(*fields)
+            payload, ghost = encode_network(*self._network_fields(t, from_ghost, stop_at))
         else:
             area = trk.area if self.world is None and trk.place is AREA else None
             payload, ghost = encode_quantized(plane_model(self.model, self.etype, t, *self._plane(), area,

@@ -199,19 +199,18 @@ def test_the_compiled_accessors_refuse_what_the_reference_refuses():
 
 
 def test_without_the_compiled_module_the_reference_gives_the_pinned_messages():
-    """Where pip built no `_columns`, `_lateral`, `_waytable`, `_geom`, `_occupy`, `_cover`, `_fields` nor
-    `_payload` (no C compiler: setup.py goes on without them), the Python accessors, filter update, lateral loop,
-    path point, occupation and its publish cover and fields and payload quantisation are the only ones, and no
-    other test runs them where the modules are built. In a child with the modules hidden: the pinned replay
-    digests, and a fleet core's messages and paths (rebuilt from the row's arrays) equal to its twin Players'."""
+    """Where pip built no `_columns`, `_lateral`, `_waytable`, `_geom`, `_occupy`, `_cover` nor `_payload` (no C
+    compiler: setup.py goes on without them), the Python accessors, filter update, lateral loop, path point,
+    occupation and its publish cover and payload quantisation are the only ones, and no other test runs them where
+    the modules are built. In a child with the modules hidden: the pinned replay digests, and a fleet core's
+    messages and paths (rebuilt from the row's arrays) equal to its twin Players'."""
     code = ("import sys\nsys.modules['entitynet.client._columns'] = None\n"
             "sys.modules['entitynet.client._lateral'] = sys.modules['entitynet.client._geom'] = None\n"
             "sys.modules['entitynet.client._occupy'] = sys.modules['entitynet.client._cover'] = None\n"
-            "sys.modules['entitynet.client._fields'] = None\n"
             "sys.modules['entitynet.client._waytable'] = sys.modules['entitynet.client._payload'] = None\n"
-            "from entitynet.client import coverage, lateral, occupation, path, payload, player, state\n"
+            "from entitynet.client import coverage, lateral, occupation, path, payload, state\n"
             "assert state._COMPILED is lateral._COMPILED is path._COMPILED is occupation._COMPILED is None\n"
-            "assert coverage._COMPILED is coverage._network_occupation is player._FIELDS is None\n"
+            "assert coverage._COMPILED is coverage._network_occupation is None\n"
             "assert lateral._WayTable is lateral._areas_near is payload._COMPILED is None\n"
             "assert payload.encode_network is payload.encode_network_reference\n"
             "from tests.entitynet.client import test_fleet_state as f, test_player_replay as r\n"
