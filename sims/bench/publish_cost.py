@@ -69,21 +69,26 @@ def measure(entities: int = 2000, warmup: int = 20, seconds: int = 30, seed: int
             "digest": h.hexdigest()[:16]}
 
 
-def main(argv: list[str] | None = None) -> None:
-    """The command: one measurement, printed as JSON (and written to `--out`)."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def command(measure_fn, description: str, argv: list[str] | None, seconds: int, seed: int) -> None:
+    """A measurement's command line (`--entities --warmup --seconds --seed --out`): `measure_fn`'s result printed as
+    JSON and written to `--out` (shared with `sims.bench.publish_ab`)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--entities", type=int, default=2000)
     ap.add_argument("--warmup", type=int, default=20)
-    ap.add_argument("--seconds", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--seconds", type=int, default=seconds)
+    ap.add_argument("--seed", type=int, default=seed)
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
-    res = measure(args.entities, args.warmup, args.seconds, args.seed)
-    text = json.dumps(res, indent=1)
+    text = json.dumps(measure_fn(args.entities, args.warmup, args.seconds, args.seed), indent=1)
     print(text)
     if args.out:
         with open(args.out, "w") as fh:
             fh.write(text + "\n")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """The command: one measurement, printed as JSON (and written to `--out`)."""
+    command(measure, __doc__.splitlines()[0], argv, 30, 5)
 
 
 if __name__ == "__main__":
