@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 from hypothesis import settings
 
@@ -24,6 +26,40 @@ def helsinki_path(tmp_path_factory):
 @pytest.fixture(scope="session")
 def helsinki(helsinki_path):
     return load(helsinki_path)
+
+
+@pytest.fixture(scope="session")
+def _gtfs_memo() -> dict:
+    """Session store of `gtfs_once`: (what, arguments) -> result, holding the arguments (the map) alive so that
+    an id in a key is never reused."""
+    return {}
+
+
+@pytest.fixture
+def gtfs_once(monkeypatch, _gtfs_memo):
+    """`topology.gtfs.read_feed` and `match_shapes` computed once per session for the same arguments (the HSL
+    feed: ~4 s to read and ~5 s to match onto the Helsinki map, which several benchmark tests repeat for their
+    entities). Both are pure functions of their arguments and their results are only read, so a test sees what a
+    fresh call gives; `tests/topology/test_gtfs.py` tests the functions themselves, without this."""
+    import topology.gtfs as gtfs
+
+    read, match = gtfs.read_feed, gtfs.match_shapes
+
+    def read_feed(path, modes=("tram", "bus")):
+        st = os.stat(path)
+        key = ("read", os.fspath(path), tuple(modes), st.st_size, st.st_mtime_ns)
+        if key not in _gtfs_memo:
+            _gtfs_memo[key] = read(path, modes)
+        return _gtfs_memo[key]
+
+    def match_shapes(feed, topo, **kw):
+        key = ("match", id(feed), id(topo), tuple(sorted(kw.items())))
+        if key not in _gtfs_memo:
+            _gtfs_memo[key] = (match(feed, topo, **kw), feed, topo)
+        return list(_gtfs_memo[key][0])
+
+    monkeypatch.setattr(gtfs, "read_feed", read_feed)
+    monkeypatch.setattr(gtfs, "match_shapes", match_shapes)
 
 
 def _both_paths(request, module, what: str):
