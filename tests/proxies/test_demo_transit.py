@@ -15,7 +15,7 @@ async def test_transit_vehicles_reach_the_server(line_topo, line_book, line_feed
             shell = await n.start(lambda task_status: run_transit(
                 line_topo, ("127.0.0.1", server.port), line_feed, lines.append, poll=0.5, start=8 * 3600 + 600.0,
                 book=line_book, task_status=task_status))
-            with trio.fail_after(10.0):
+            with trio.fail_after(30.0):  # (a condition's deadline, generous for a loaded machine)
                 while (server.metrics.registry.get_sample_value("entitynet_entities") or 0) < 3:  # as the server counts
                     await trio.sleep(0.05)
             assert len(shell.fleet.vehicles) >= 3

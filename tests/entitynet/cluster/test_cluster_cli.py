@@ -66,7 +66,7 @@ async def test_cluster_up_status_and_a_killed_switchboard_process(small_town, tm
         await view.send(P.Subscribe((cell, *[int(c) for c in regions.cells_of(1)[:5]]), ()))
         await view.send(P.Ping(1))
         await view.expect(P.Pong)
-        with trio.fail_after(10):  # until shard 1 has heard shard 0 and its NATS interest is in place
+        with trio.fail_after(30):  # until shard 1 has heard shard 0 and its NATS interest is in place
             seq = 0
             while True:
                 seq += 1

@@ -9,7 +9,7 @@ from sims.bench.dr_bench import _new_acc, run_entity
 from sims.bench.dr_data import SHARED, pedestrians, vehicles
 
 
-def test_breakdown_agrees_with_the_benchmark_and_classifies_every_bad_sample(helsinki):
+def test_breakdown_agrees_with_the_benchmark_and_classifies_every_bad_sample(helsinki, gtfs_once):
     rep = dr_causes.causes(helsinki, "pedestrians", progress=lambda _m: None, walkers=6)
     rng = random.Random(dr_causes.SEED)
     if (SHARED / "hsl-gtfs-2022-02.zip").exists():
@@ -27,7 +27,7 @@ def test_breakdown_agrees_with_the_benchmark_and_classifies_every_bad_sample(hel
         assert where in {"expired", "front", "aft", "mid", "body"} and model in {"standing model", "moving model"}
 
 
-def test_a_fixed_look_ahead_is_taken_and_reported(helsinki, monkeypatch):
+def test_a_fixed_look_ahead_is_taken_and_reported(helsinki, monkeypatch, gtfs_once):
     given = []
 
     class Recording(dr_causes.Player):

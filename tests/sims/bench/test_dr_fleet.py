@@ -26,7 +26,7 @@ def _same(a: dict, b: dict) -> None:
 
 
 @pytest.mark.parametrize("doppler", [None, 0.3])
-def test_the_fleet_core_counts_what_each_entity_alone_counts(helsinki, doppler):
+def test_the_fleet_core_counts_what_each_entity_alone_counts(helsinki, doppler, gtfs_once):
     rng = random.Random(5)
     ents: list[Entity] = pedestrians(helsinki, 5, rng)
     if (SHARED / "hsl-gtfs-2022-02.zip").exists():

@@ -8,8 +8,14 @@ from sims.bench.sim_workers import model_entities, worker_rows
 from tests.sims.engine.test_routes import grid
 
 
-def test_worker_rows_time_every_mode_on_the_same_run():
-    r = worker_rows(grid(), None, True, lambda m: None, entities=12, viewers=2, transit=False)
+@pytest.fixture(scope="module")
+def quick_rows() -> dict:
+    """One --quick run of the worker rows (three runs in subprocess workers: seconds), read by two tests."""
+    return worker_rows(grid(), None, True, lambda m: None, entities=12, viewers=2, transit=False)
+
+
+def test_worker_rows_time_every_mode_on_the_same_run(quick_rows):
+    r = quick_rows
     assert [x["workers"] for x in r["runs"]] == [0, 1, 2]
     assert len({x["entities_on_map"] for x in r["runs"]}) == 1  # the same truth in every mode
     assert r["two_vs_one_worker"] == r["wall_s_median"]["two_workers"] / r["wall_s_median"]["one_worker"]
@@ -27,12 +33,11 @@ def test_the_model_puts_the_limit_where_the_costs_are():
     assert eight["entities"] == eight["coordinator_bound"]
 
 
-def test_quick_skips_the_realtime_trials_and_a_trial_runs_with_workers_over_sockets(tmp_path):
+def test_quick_skips_the_realtime_trials_and_a_trial_runs_with_workers_over_sockets(quick_rows, tmp_path):
     from sims.bench.sim_workers import realtime_trial
     from topology.artifact import save
 
-    r = worker_rows(grid(), None, True, lambda m: None, entities=6, viewers=1, transit=False)
-    assert r["realtime"] == "skipped with --quick"
+    assert quick_rows["realtime"] == "skipped with --quick"
     path = tmp_path / "grid.enttopo"
     topo = grid()
     save(topo, path)
