@@ -73,10 +73,16 @@ def test_ctrl_c_stops_replay_and_siri_without_a_traceback(tmp_path, line_topo, l
     art = tmp_path / "line.enttopo"
     save(line_topo, art)
     rc, err = _interrupted(["proxy", "replay", "--gtfs", str(line_feed), "--port", "0"], "replay of", tmp_path)
-    assert rc == 130 and "Traceback" not in err and "entitynet: interrupted" in err, err
+    assert rc in INTERRUPTED and "Traceback" not in err and "entitynet: interrupted" in err, err
     rc, err = _interrupted(["proxy", "siri", "--url", "http://127.0.0.1:1/siri", "--server", "127.0.0.1:1",
                             "--topology", str(art), "--gtfs", str(line_feed)], "request(s) per poll", tmp_path)
-    assert rc == 130 and "Traceback" not in err and "entitynet: interrupted" in err, err
+    assert rc in INTERRUPTED and "Traceback" not in err and "entitynet: interrupted" in err, err
+
+
+# 130, or death by SIGINT after the CLI said "interrupted" and returned 130: CPython's `-m` runner ends a process
+# by re-raising SIGINT when a KeyboardInterrupt crossed any code run through its PyRun_* entry points on the way,
+# even one the program caught (about 1 run in 25 of `proxy siri` here, 2026-11-27). A shell shows both as 130.
+INTERRUPTED = (130, -2)
 
 
 def _gtfsrt_argv(tmp_path, line_topo, line_feed, *extra: str) -> list[str]:
