@@ -79,9 +79,9 @@ def test_ctrl_c_stops_replay_and_siri_without_a_traceback(tmp_path, line_topo, l
     assert rc in INTERRUPTED and "Traceback" not in err and "entitynet: interrupted" in err, err
 
 
-# 130, or death by SIGINT after the CLI said "interrupted" and returned 130: CPython's `-m` runner ends a process
-# by re-raising SIGINT when a KeyboardInterrupt crossed any code run through its PyRun_* entry points on the way,
-# even one the program caught (about 1 run in 25 of `proxy siri` here, 2026-11-27). A shell shows both as 130.
+# 130, or death by SIGINT after the CLI printed "interrupted" (no traceback): seen in about 1 run in 25 of
+# `proxy siri` on 2026-11-27, cause not found (CPython ends a process by re-raising SIGINT when it believes a
+# KeyboardInterrupt went unhandled). A shell shows both as exit status 130.
 INTERRUPTED = (130, -2)
 
 
