@@ -1,26 +1,27 @@
 # cython: language_level=3, boundscheck=False, wraparound=False
-"""The compiled per-PUBLISH path: the switchboard's fan-out loops and the routing of one new state, in C.
+"""The compiled per-PUBLISH path: the routing of one new state and the run of PUBLISHes, in C.
 
 Why: forwarding one PUBLISH to N viewers is, per viewer, a set insert (the new viewer set), a set difference
-(who lost the entity), a dict store (the outbox) and a set insert (the dirty set), and in CPython each of these
-goes through the interpreter and builds a temporary set. `route` does them in one pass over the cells'
-subscribers with a per-client stamp array (a C array indexed by client id: "seen in this PUBLISH"), so the
-union, the deduplication of viewers in two cells and the difference against the old viewers cost a C array
-access each instead of a hashed set operation, and no temporary set is built. The tables stay the core's own
-Python sets and dicts (one home per state: `Switchboard.subscribers`, `EntityState.viewers`, the outboxes);
-this module keeps only scratch space. `publish_run` takes the rest of a common PUBLISH (the checks, the entity's
-fields, the occupants, the UPDATE's bytes, the expiry) for a run of PUBLISHes in one C loop, so that the route is
-reached without a Python call per message; anything unusual it leaves to `Switchboard._publish`. The pure functions of `entitynet.switchboard.outbox` and
-`Switchboard._route_py` are the reference (and the fallback where this module is not built); tests run both
-and compare every client's frames.
+(who lost the entity), an outbox store and a set insert (the dirty set), and in CPython each of these goes
+through the interpreter and builds a temporary set. `route` does them in one pass over the cells' subscribers
+with a per-client stamp array (a C array indexed by client id: "seen in this PUBLISH"), so the union, the
+deduplication of viewers in two cells and the difference against the old viewers cost a C array access each
+instead of a hashed set operation, and no temporary set is built; the outbox store is an append to the
+compiled outboxes' C arrays (`_outbox.pyx`), not a store into a dict per viewer. The tables stay the core's
+own Python sets and dicts (one home per state: `Switchboard.subscribers`, `EntityState.viewers`); this module
+keeps only scratch space. `publish_run` takes the rest of a common PUBLISH (the checks, the entity's fields,
+the occupants, the UPDATE's bytes, the expiry) for a run of PUBLISHes in one C loop, so that the route is
+reached without a Python call per message; anything unusual it leaves to `Switchboard._publish`. The dict
+outboxes of `entitynet.switchboard.outbox` and `Switchboard._route_py` are the reference (and the fallback
+where these modules are not built); tests run both and compare every client's frames.
 """
 
 from cpython.bytes cimport PyBytes_AS_STRING, PyBytes_FromStringAndSize, PyBytes_GET_SIZE
-from cpython.dict cimport PyDict_GetItem, PyDict_SetItem
+from cpython.dict cimport PyDict_GetItem
 from cpython.long cimport PyLong_AsLong, PyLong_AsLongLongAndOverflow
 from cpython.ref cimport PyObject
 from cpython.set cimport PySet_Add
-from libc.stdlib cimport free, realloc
+from libc.stdlib cimport realloc
 from libc.string cimport memcpy, memset
 
 from entitynet.switchboard._outbox cimport OutboxTable
@@ -72,8 +73,9 @@ cdef unsigned int _next_gen():
 
 
 def route(object sb, object c, object e, tuple old, tuple new):
-    """`Switchboard._route` for an entity without followers whose owner shows no identity (the caller checks):
-    the same stores, LEAVEs, dirty marks, counters and new viewer set, in one C pass."""
+    """`Switchboard._route` for an entity without followers whose owner shows no identity, on a switchboard
+    whose outboxes are the compiled table (the caller checks): the same stores, LEAVEs, dirty marks, counters
+    and new viewer set, in one C pass."""
     _route(sb, c, e, old, new)
 
 
