@@ -1,4 +1,5 @@
-"""Builds the optional compiled hot loops with Cython: the fan-out (entitynet/switchboard/_fanout.pyx), the flush
+"""Builds the optional compiled hot loops with Cython: the route (entitynet/switchboard/_fanout.pyx) over the
+outboxes in C arrays (entitynet/switchboard/_outbox.pyx, with its .pxd), the flush
 loop (entitynet/server/_flushloop.pyx) and the client state's field accessors (entitynet/client/_columns.pyx),
 the lateral cover's candidate loop (entitynet/client/_lateral.pyx, and over C tables _waytable.pyx), the
 payload's quantisation (entitynet/client/_payload.pyx), `Path.xy` (entitynet/client/_geom.pyx), the
@@ -17,6 +18,7 @@ except ImportError:  # no Cython at build time: the pure path only
 else:
     ext_modules = cythonize(
         [Extension("entitynet.switchboard._fanout", ["entitynet/switchboard/_fanout.pyx"], optional=True),
+         Extension("entitynet.switchboard._outbox", ["entitynet/switchboard/_outbox.pyx"], optional=True),
          Extension("entitynet.server._flushloop", ["entitynet/server/_flushloop.pyx"], optional=True),
          Extension("entitynet.client._columns", ["entitynet/client/_columns.pyx"], optional=True),
          Extension("entitynet.client._lateral", ["entitynet/client/_lateral.pyx"], optional=True),

@@ -19,7 +19,8 @@ def test_every_compiled_extension_is_optional(monkeypatch):
     monkeypatch.chdir(Path(__file__).parents[1])
     runpy.run_path("setup.py")
     exts = seen["ext_modules"]
-    assert {e.name for e in exts} == {"entitynet.switchboard._fanout", "entitynet.server._flushloop",
+    assert {e.name for e in exts} == {"entitynet.switchboard._fanout", "entitynet.switchboard._outbox",
+                                      "entitynet.server._flushloop",
                                       "entitynet.client._columns", "entitynet.client._lateral",
                                       "entitynet.client._geom", "entitynet.client._occupy",
                                       "entitynet.protocol._decode", "entitynet.client._fleet",

@@ -27,7 +27,7 @@ from entitynet.switchboard import outbox as outbox_module
 from entitynet.switchboard.config import SwitchConfig
 from entitynet.switchboard.mirror import MirrorMixin
 from entitynet.switchboard.outbound import OutboundMixin
-from entitynet.switchboard.outbox import Outbox, Outboxes
+from entitynet.switchboard.outbox import Outbox
 from entitynet.switchboard.privacy import identity_shown
 from entitynet.switchboard.querying import QueriesMixin
 from entitynet.switchboard.ratelimit import TokenBucket
@@ -60,7 +60,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         self.by_identity: dict[str, set[int]] = {}  # published identity -> client ids
         self.timers = ExpiryHeap()  # entity id -> validity deadline
         self.hello_timers = ExpiryHeap()  # client id -> handshake deadline
-        self.outboxes = Outboxes(config.max_pending, config.max_control)
+        self.outboxes = outbox_module.new_outboxes(config.max_pending, config.max_control)  # C arrays or dicts
         self._dirty: set[int] = set()
         # a reply was queued outside its client's own frame (a cluster's QUERY answer, FOLLOW refusal, REDIRECT):
         # the reader will not write it, and the shell's flusher must not hold it for its latency budget
@@ -160,7 +160,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         cap = self.config.max_replies_per_frame
         # the compiled PUBLISH run (`_fanout.publish_run`) takes the common PUBLISHes in one C loop and leaves
         # the rest (refusals, new entities, stale seqs, followers, identities) to `_publish` below
-        run = outbox_module.compiled_publish_run() if self.cluster is None else None
+        run = outbox_module.compiled_publish_run(self.outboxes) if self.cluster is None else None
         i, n = 0, len(msgs)
         while i < n:
             if c.closing:
@@ -282,7 +282,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         (`_fanout.route`) where it was built and the entity has no followers and shows no identity (nearly every
         PUBLISH), else `_route_py`, the reference; both leave the same tables and outboxes behind. (Cells that are
         not tuples come only from code feeding the core directly, never from the decoder: the reference takes them.)"""
-        fast = outbox_module.compiled_route()
+        fast = outbox_module.compiled_route(self.outboxes)
         if fast is not None and not e.followers and e.owner.identity is None and type(new) is tuple \
                 and type(old) is tuple:
             fast(self, c, e, old, new)
@@ -411,6 +411,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
                 fc.follows.discard(eid)
         if e.viewers:
             self._leave(eid, e.viewers)
+        self.outboxes.forget(eid)
         e.viewers = set()
         e.targets = None
 

@@ -8,14 +8,16 @@ error and a close.
 
 The core only puts (`put_state`, `put_control`, `put_last_word`, and `Outboxes.fan_out` for the same bytes to
 many clients); the shell only takes (`take_states`, `drain`) and reads the flags. Neither touches the other's
-side, so either can change its data structures without the other noticing.
+side, so either can change its data structures without the other noticing. Two implementations: these classes
+(dicts; the reference and the fallback) and, where pip built it, `_outbox.pyx` (the states in C arrays, the
+same API and behaviour); `new_outboxes` picks one per switchboard.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Iterable
-from types import ModuleType, SimpleNamespace
+from types import ModuleType
 from typing import Any
 
 
@@ -103,7 +105,7 @@ class Outbox:
                 return n, body
         return None
 
-    take_states = take_states_py  # the reference; `use_compiled` installs `_fanout.take_states` in its place
+    take_states = take_states_py
 
     def drain(self, max_messages: int | None = None, max_bytes: int | None = None) -> list[bytes]:
         """Take queued messages for one frame: control first, then entity states in first-queued order.
@@ -150,8 +152,8 @@ class Outbox:
 
 class Outboxes:
     """The outboxes of all clients, by client id: lets the core queue the same bytes for many clients in one
-    call (a PUBLISH reaches every viewer of its cells) at the cost of a dict store per client, which is what
-    the forwarding hot path can afford."""
+    call (a PUBLISH reaches every viewer of its cells) at the cost of a dict store per client. The reference of
+    the compiled `_outbox.OutboxTable` (same methods)."""
 
     __slots__ = ("_boxes", "_states", "max_states", "max_control")
 
@@ -173,6 +175,9 @@ class Outboxes:
         self._boxes.pop(cid, None)
         self._states.pop(cid, None)
 
+    def forget(self, eid: int) -> None:
+        """The entity is gone (its LEAVEs are queued): nothing to do for dicts (the compiled table frees its slot)."""
+
     def targets(self, cids: Iterable[int]) -> tuple[dict[int, bytes], ...]:
         """An opaque handle on the outboxes of `cids` (all open) for `fan_out_to`. The core keeps one per entity
         with its viewer set and hands it back on every PUBLISH that reuses the set: the client-id lookup is paid
@@ -183,79 +188,67 @@ class Outboxes:
 
     @staticmethod
     def fan_out_to(targets: tuple[dict[int, bytes], ...], entity: int, encoded: bytes) -> None:
-        """`put_state(entity, encoded)` on every outbox of a `targets` handle (replaced by `use_compiled`)."""
-        fan_out_to_py(targets, entity, encoded)
+        """`put_state(entity, encoded)` on every outbox of a `targets` handle."""
+        for st in targets:
+            st[entity] = encoded
 
     def fan_out(self, cids: Iterable[int], entity: int, encoded: bytes) -> None:
         """`put_state(entity, encoded)` on the outbox of every client in `cids` (all open)."""
-        _impl.fan_out(self._states, cids, entity, encoded)
+        states = self._states
+        for v in cids:
+            states[v][entity] = encoded
 
     def fan_out_open(self, cids: Iterable[int], entity: int, encoded: bytes) -> None:
         """As `fan_out`, skipping clients that are gone (LEAVEs to sets that may name closed clients)."""
-        _impl.fan_out_open(self._states, cids, entity, encoded)
+        states = self._states
+        for v in cids:
+            st = states.get(v)
+            if st is not None:
+                st[entity] = encoded
 
 
-# ---------------------------------------------------------------------------------------------- fan-out loops
-# The per-delivery loops, in Python (the reference) and, where pip built it, compiled (`_fanout.pyx`, the same
-# three functions in C). `use_compiled` picks one for the process; ENTITYNET_PURE_PYTHON=1 forces the reference.
-def fan_out_py(states: dict[int, dict[int, bytes]], cids: Iterable[int], entity: int, encoded: bytes) -> None:
-    """`states[v][entity] = encoded` for every v in `cids` (all present)."""
-    for v in cids:
-        states[v][entity] = encoded
-
-
-def fan_out_open_py(states: dict[int, dict[int, bytes]], cids: Iterable[int], entity: int, encoded: bytes) -> None:
-    """As `fan_out_py`, skipping client ids not in `states`."""
-    for v in cids:
-        st = states.get(v)
-        if st is not None:
-            st[entity] = encoded
-
-
-def fan_out_to_py(targets: tuple[dict[int, bytes], ...], entity: int, encoded: bytes) -> None:
-    """`st[entity] = encoded` for every dict of `targets`."""
-    for st in targets:
-        st[entity] = encoded
-
-
-PURE: Any = SimpleNamespace(fan_out=fan_out_py, fan_out_open=fan_out_open_py, fan_out_to=fan_out_to_py)
+# ---------------------------------------------------------------------------------------------- the paths
+# The compiled outboxes (`_outbox.pyx`) and the compiled route and PUBLISH run over them (`_fanout.pyx`), where
+# pip built both; `use_compiled` picks them or these classes for the switchboards made afterwards
+# (ENTITYNET_PURE_PYTHON=1 forces the reference).
 COMPILED: ModuleType | None
+TABLE: Any = None
 try:
     from entitynet.switchboard import _fanout as COMPILED  # type: ignore[attr-defined, no-redef]
+    from entitynet.switchboard._outbox import OutboxTable as TABLE  # type: ignore[import-not-found, no-redef]
 except ImportError:  # not built (no compiler at install time): the reference path
-    COMPILED = None
-_impl: Any = PURE
-_route: Any = None
-_publish_run: Any = None
+    COMPILED = TABLE = None
+_in_use = False
 
 
 def use_compiled(flag: bool = True) -> bool:
-    """Select the fan-out loops for this process: the compiled ones when `flag` and they were built, else the
-    pure-Python reference. Returns whether the compiled ones are now in use."""
-    global _impl, _route, _publish_run
-    _impl = COMPILED if flag and COMPILED is not None else PURE
-    _route = getattr(_impl, "route", None)
-    _publish_run = getattr(_impl, "publish_run", None)
-    Outbox.take_states = getattr(_impl, "take_states", Outbox.take_states_py)  # type: ignore[method-assign]
-    Outboxes.fan_out_to = staticmethod(_impl.fan_out_to)  # type: ignore[method-assign]
-    return _impl is COMPILED
+    """Select the outboxes, route and PUBLISH run for switchboards made from now on: the compiled ones when
+    `flag` and they were built, else the pure-Python reference. Returns whether the compiled ones are in use."""
+    global _in_use
+    _in_use = bool(flag) and COMPILED is not None
+    return _in_use
 
 
-def compiled_route() -> Any:
-    """The compiled `Switchboard._route` (`_fanout.route`) when the compiled loops are in use, else None (the
-    core then routes in Python)."""
-    return _route
+def new_outboxes(max_states: int, max_control: int) -> Any:
+    """A switchboard's outboxes: the compiled table when in use, else `Outboxes`."""
+    return TABLE(max_states, max_control) if _in_use else Outboxes(max_states, max_control)
 
 
-def compiled_publish_run() -> Any:
+def compiled_route(outboxes: Any) -> Any:
+    """The compiled `Switchboard._route` (`_fanout.route`) for a switchboard whose outboxes are the compiled
+    table while the compiled paths are in use, else None (the core then routes in Python)."""
+    return COMPILED.route if _in_use and type(outboxes) is TABLE else None  # type: ignore[union-attr]
+
+
+def compiled_publish_run(outboxes: Any) -> Any:
     """The compiled run of PUBLISHes (`_fanout.publish_run`: `_publish`, `_apply_state` and the route in one C
-    loop) when the compiled loops are in use, else None (the core then publishes in Python)."""
-    return _publish_run
+    loop) under the same conditions as `compiled_route`, else None (the core then publishes in Python)."""
+    return COMPILED.publish_run if _in_use and type(outboxes) is TABLE else None  # type: ignore[union-attr]
 
 
 def compiled_in_use() -> bool:
-    """Whether the compiled fan-out loops are in use (the server logs it, the bench reports it)."""
-    return COMPILED is not None and _impl is COMPILED
+    """Whether the compiled outboxes and loops are in use (the server logs it, the bench reports it)."""
+    return _in_use
 
 
 use_compiled(not os.environ.get("ENTITYNET_PURE_PYTHON"))
