@@ -2,13 +2,13 @@
 
 Why: in a real-time run the table's per-message step is one of the viewers' parts per delivery
 (docs/simulation.md); this times it without sockets, the server or the world, so that the pure step
-(ENTITYNET_PURE_PYTHON=1) and the compiled one, or two trees, can be alternated in one sitting. Each tick,
-UPDATES distinct messages (a fresh seq each, of entities out of 6,000) are each delivered to FAN viewers
-picked at random out of VIEWERS, in frames of 6 messages per viewer (as the server writes them at 3,000 /
-300), then the queue is applied (`flush`) as the measure's read would. Payloads are not decoded (the
-decoder returns its bytes: the shared decode cache does that work once per distinct payload in a run). Prints CPU us per delivery for `receive`
-(the per-message step and the new versions) and `flush`, medians over the ticks after two untimed ones.
-Runs with the base tree's code too (it uses only the table's public API)."""
+(ENTITYNET_PURE_PYTHON=1) and the compiled one, or two trees, can be alternated in one sitting. Each tick, UPDATES
+distinct messages (a fresh seq each, of entities out of 6,000) are each delivered to FAN viewers picked at random
+out of VIEWERS, in frames of 6 messages per viewer (as the server writes them at 3,000 / 300), then the queue is
+applied (`flush`) as the measure's read would. Payloads are not decoded (the decoder returns its bytes: the shared
+decode cache does that work once per distinct payload in a run). Prints CPU us per delivery for `receive` (the
+per-message step and the new versions) and `flush`, medians over the ticks after two untimed ones. Runs with the
+base tree's code too (it uses only the table's public API)."""
 
 from __future__ import annotations
 
