@@ -451,6 +451,7 @@ class Shell:
         }
         rep["server"] = {"in_process": self.server is not None, **self.server_info, "gap_s": self.gap_s,
                          "outages": self.outages}
+        rep["viewer_errors"] = self.viewer_fleet.error_report()  # per viewer: attempts ended by an error
         if self.config.cluster is not None:
             cl = self.config.cluster
             rep["cluster"] = {"shards": cl.per_shard(), "nats": cl.nats_urls,
