@@ -11,8 +11,9 @@ start's burst), in wall time (`ms_per_tick`) and in this process's CPU time (`cp
 other processes load the machine; the tick's CPU less the parts is then the sends and the connections' CPU).
 `--per-viewer`: each viewer its own `Connection` and tasks (the reference path) instead of the one reader over
 every viewer socket (`sims.engine.viewer_reader`), for A/B runs in one tree. `--measured K`: only K viewers
-keep ghosts and are measured, the others are counted viewers (`SimConfig.measured_viewers`). `coordinator_us_per_delivery`: the
-viewers' side (the sends and connections, the camera moves, the measure) in CPU us per UPDATE delivered.
+keep ghosts and are measured, the others are counted viewers (`SimConfig.measured_viewers`).
+`coordinator_us_per_delivery`: the viewers' side (the sends and connections, the camera moves, the measure) in
+CPU us per UPDATE delivered.
 Timings move with the machine's load: say the load average with them.
 """
 
