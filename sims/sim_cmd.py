@@ -235,6 +235,10 @@ def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, c
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
         f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")
+    if config.measured_viewers is not None and config.measured_viewers < config.viewers:
+        say(f"{config.measured_viewers} viewers measured against the truth, {config.viewers - config.measured_viewers}"
+            " counted (they subscribe and read every byte, but keep no ghosts): the truth figures rest on "
+            f"{config.measured_viewers}")
     if viewer_procs is not None:
         sim.viewers = []  # they live in the viewer processes
         say(f"viewers in {viewer_procs.n} processes of their own (pids "

@@ -65,3 +65,13 @@ def test_the_sample_is_spread_over_street_and_roof_viewers():
         SimConfig(viewers=4, measured_viewers=5)
     with pytest.raises(ValueError, match="measured viewers"):
         SimConfig(viewers=4, measured_viewers=0)
+
+
+def test_the_cli_refuses_more_measured_viewers_than_viewers(capsys):
+    from entitynet.cli import main
+
+    assert main(["sim", "--viewers", "4", "--measured-viewers", "5", "--duration", "1"]) == 2
+    assert "measured viewers must be between 1 and the 4 viewers" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:  # refused while parsing
+        main(["sim", "--measured-viewers", "0", "--duration", "1"])
+    assert info.value.code == 2 and "argument --measured-viewers" in capsys.readouterr().err
