@@ -201,7 +201,7 @@ async def test_a_run_behind_real_time_says_so_once_per_interval_and_in_the_summa
     warnings = [line for line in lines if "warning: behind real time" in line]
     assert warnings, lines
     assert all(b - a >= 1.5 - 0.05 for a, b in zip(warned_at, warned_at[1:], strict=False)), warned_at
-    assert "--viewers" in warnings[0] and "--speed" in warnings[0]
+    assert "--viewers" in warnings[0] and "--measured-viewers" in warnings[0] and "--speed" in warnings[0]
     summaries = [line for line in lines if "collisions avoided" in line]
     assert summaries and all("late p99" in line for line in summaries)
     assert any("ticks behind" in line for line in summaries)
