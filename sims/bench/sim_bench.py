@@ -169,7 +169,7 @@ def run(args, progress) -> dict[str, Any]:
     progress("fleet core: fixes per second on one core")
     fleet = _fleet_rates(topo, 300 if quick else 1000, 3 if quick else 10, 3 if quick else 20)
 
-    progress("real time with the server in this process and in a child process (alternating)")
+    progress("real time: the server in this process, in a child, and in a child with counted viewers (alternating)")
     rt_seconds = 6.0 if quick else 20.0  # simulated = wall seconds at speed 1, after the warm-up
     ladders = _realtime_ladders(topo, artifact, schedule, rt_seconds, quick, progress)
     best, child_best = ladders["in_process"]["max"], ladders["server_process"]["max"]
