@@ -4,10 +4,11 @@ loop (entitynet/server/_flushloop.pyx) and the client state's field accessors (e
 the lateral cover's candidate loop (entitynet/client/_lateral.pyx, and over C tables _waytable.pyx), the
 payload's quantisation (entitynet/client/_payload.pyx), `Path.xy` (entitynet/client/_geom.pyx), the
 cell occupation (entitynet/client/_occupy.pyx; the network model's publish cover around it, _cover.pyx), the
-fleet core's kernels (entitynet/client/_fleet.pyx) and the codec's PUBLISH loop (entitynet/protocol/_decode.pyx);
-everything else is in pyproject.toml. Optional on purpose: without a C compiler the build goes on and the
-pure-Python paths (the references, `entitynet.switchboard.outbox` and `entitynet.server.flushloop`,
-`entitynet.client.state.column`, the codec's `_decode_one`) are used."""
+fleet core's kernels (entitynet/client/_fleet.pyx), the codec's PUBLISH loop (entitynet/protocol/_decode.pyx) and
+the ghost table's per-message queue (entitynet/client/_ghost_queue.pyx); everything else is in pyproject.toml.
+Optional on purpose: without a C compiler the build goes on and the pure-Python paths (the references,
+`entitynet.switchboard.outbox` and `entitynet.server.flushloop`, `entitynet.client.state.column`, the codec's
+`_decode_one`) are used."""
 
 from setuptools import Extension, setup
 
@@ -28,7 +29,8 @@ else:
          Extension("entitynet.client._occupy", ["entitynet/client/_occupy.pyx"], optional=True),
          Extension("entitynet.client._cover", ["entitynet/client/_cover.pyx"], optional=True),
          Extension("entitynet.client._fleet", ["entitynet/client/_fleet.pyx"], optional=True),
-         Extension("entitynet.protocol._decode", ["entitynet/protocol/_decode.pyx"], optional=True)],
+         Extension("entitynet.protocol._decode", ["entitynet/protocol/_decode.pyx"], optional=True),
+         Extension("entitynet.client._ghost_queue", ["entitynet/client/_ghost_queue.pyx"], optional=True)],
         language_level=3,
         quiet=True,
     )

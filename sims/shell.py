@@ -375,8 +375,8 @@ class Shell:
         sim = self.sim
         return (f"[{sim.ticks * sim.dt:6.0f}s] warning: behind real time (this tick {1000 * late:.0f} ms late, "
                 f"{self.behind} ticks behind so far): the figures still hold for simulated time, but the load "
-                "is not what the options asked for; try fewer viewers (--viewers), fewer entities, a smaller "
-                "--measure-share or a slower --speed")
+                "is not what the options asked for; try fewer viewers (--viewers) or fewer of them measured "
+                "(--measured-viewers), fewer entities, a smaller --measure-share or a slower --speed")
 
     def _lateness_text(self) -> str:
         """This window's tick lateness for the summary line (and the window restarts)."""
@@ -451,6 +451,7 @@ class Shell:
         }
         rep["server"] = {"in_process": self.server is not None, **self.server_info, "gap_s": self.gap_s,
                          "outages": self.outages}
+        rep["viewer_errors"] = self.viewer_fleet.error_report()  # per viewer: attempts ended by an error
         if self.config.cluster is not None:
             cl = self.config.cluster
             rep["cluster"] = {"shards": cl.per_shard(), "nats": cl.nats_urls,

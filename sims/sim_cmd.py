@@ -65,6 +65,11 @@ def register(sub) -> None:
                    help="share of the viewers measured against the truth at each 1 s sample, in turn (default "
                         "0.25: each viewer every 4 s, so the measure does not make real time late); 1 = the full "
                         "measure")
+    p.add_argument("--measured-viewers", type=bounded_int(1, 1_000_000), metavar="K",
+                   help="only K of the viewers (spread evenly, street and roof alike) keep ghosts and enter the "
+                        "truth figures; the others connect, subscribe and read every byte (the server's load is "
+                        "unchanged) but only count UPDATEs, LEAVEs and bytes (default: all measured; the report's "
+                        "truth_vs_viewer says how many it rests on; docs/simulation.md)")
     p.add_argument("--viewer-processes", type=bounded_int(0, 64), metavar="K",
                    help="run the viewers in K processes of their own, each with its share of the viewers, their "
                         "server connections and their measure against the truth it steps from the seed (0: in "
@@ -159,7 +164,8 @@ def run(args: argparse.Namespace) -> int:
         config = SimConfig(entities=args.entities, viewers=args.viewers, connections=args.connections,
                            car_share=args.car_share, tick_hz=args.tick_hz, seed=args.seed, start=args.start,
                            transit=args.gtfs != "none", subscribe="radius" if args.radius else "pvs",
-                           measure_share=args.measure_share)
+                           measure_share=args.measure_share,
+                           measured_viewers=getattr(args, "measured_viewers", None))
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     if not 0 <= args.car_share <= 1:
@@ -229,6 +235,10 @@ def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, c
     say(f"{sum(sim.world.by_type().values()) if sim.world.agents else config.entities} entities, "
         f"{len(sim.viewers)} viewers subscribing by {sim.subscription_text()}, ticks at {config.tick_hz:g} Hz, "
         f"speed x{args.speed:g}")
+    if config.measured_viewers is not None and config.measured_viewers < config.viewers:
+        say(f"{config.measured_viewers} viewers measured against the truth, {config.viewers - config.measured_viewers}"
+            " counted (they subscribe and read every byte, but keep no ghosts): the truth figures rest on "
+            f"{config.measured_viewers}")
     if viewer_procs is not None:
         sim.viewers = []  # they live in the viewer processes
         say(f"viewers in {viewer_procs.n} processes of their own (pids "

@@ -1,5 +1,5 @@
 """Where a real-time tick's time goes: `python -m sims.bench.rt_split ENTITIES VIEWERS [SECONDS] [SHARE]
-[--server-process] [--per-viewer]`.
+[--server-process] [--per-viewer] [--measured K]`.
 
 Why: `entities_realtime_max` says only pass or fail; to cut a tick one needs its parts. This builds the sim and
 shell as the bench's real-time trial does (server in this process, loopback), runs the shell as fast as it can
@@ -10,8 +10,10 @@ them: `rest` = the tick less the parts outside the sends. Figures are ms per tic
 start's burst), in wall time (`ms_per_tick`) and in this process's CPU time (`cpu_ms_per_tick`, steadier when
 other processes load the machine; the tick's CPU less the parts is then the sends and the connections' CPU).
 `--per-viewer`: each viewer its own `Connection` and tasks (the reference path) instead of the one reader over
-every viewer socket (`sims.engine.viewer_reader`), for A/B runs in one tree. `coordinator_us_per_delivery`: the
-viewers' side (the sends and connections, the camera moves, the measure) in CPU us per UPDATE delivered.
+every viewer socket (`sims.engine.viewer_reader`), for A/B runs in one tree. `--measured K`: only K viewers
+keep ghosts and are measured, the others are counted viewers (`SimConfig.measured_viewers`).
+`coordinator_us_per_delivery`: the viewers' side (the sends and connections, the camera moves, the measure) in
+CPU us per UPDATE delivered.
 Timings move with the machine's load: say the load average with them.
 """
 
@@ -28,7 +30,7 @@ WARM = 6
 
 
 def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topology=None,
-          server_process: bool = False, per_viewer: bool = False) -> dict:
+          server_process: bool = False, per_viewer: bool = False, measured: int | None = None) -> dict:
     """The per-tick split (ms) of a real-time run of `n` entities and `viewers` viewers (see the docstring).
     `topology`: (topo, artifact path) to run on instead of the bundled map and schedule (no transit then).
     `server_process`: the server in a child `entitynet serve` (as `entitynet sim` runs large runs): its CPU time
@@ -45,12 +47,17 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
         schedule = load_schedule(BUNDLED_FEED, topo, cache=cache_dir())
     else:
         (topo, artifact), schedule = topology, None
+    counted = {} if measured is None else {"measured_viewers": measured}  # (runs on a tree without the option)
     sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=share,
-                              transit=schedule is not None), schedule)
+                              transit=schedule is not None, **counted), schedule)
     acc: dict[str, float] = defaultdict(float)
     cpu: dict[str, float] = defaultdict(float)  # the same parts in this process's CPU time (steadier under load)
+    calls: dict[str, int] = defaultdict(int)  # timed calls per part (each costs the timer's own time)
 
     def timed(obj, name: str, key: str) -> None:
+        """Time `obj.name` under `key`, in wall and in this process's CPU time. Each timed call costs the timers
+        themselves, about 14 us on this VM (`process_time` is a system call, about 6 us), counted in
+        `timed_calls_per_tick` (a viewer's frames: about 640 calls a tick at 3,000 / 300)."""
         f = getattr(obj, name)
 
         @functools.wraps(f)
@@ -62,6 +69,7 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
                 if sim.ticks >= WARM:
                     acc[key] += time.perf_counter() - t
                     cpu[key] += time.process_time() - c
+                    calls[key] += 1
         setattr(obj, name, wrapper)
 
     def atimed(obj, name: str, key: str) -> None:
@@ -143,11 +151,12 @@ def split(n: int, viewers: int, seconds: float = 10.0, share: float = 0.25, topo
     deliveries = (sum(v.deliveries for v in sim.viewers) - delivered[0]) / ticks if delivered else None
     side = cpu_out[rest] + cpu_out.get("viewer_move", 0.0) + cpu_out.get("measure", 0.0)
     per = round(1000 * side / deliveries, 2) if deliveries else None
-    return {"entities": n, "viewers": viewers, "one_reader": not per_viewer,
+    return {"entities": n, "viewers": viewers, "measured_viewers": measured or viewers, "one_reader": not per_viewer,
             "coordinator_us_per_delivery": per, "on_map": len(sim.world.agents), "ticks": ticks,
             "deliveries_per_tick": deliveries,
             "measure_share": share, "server": "a child process" if server_process else "in this process",
-            "load": os.getloadavg()[0], "ms_per_tick": out, "cpu_ms_per_tick": cpu_out}
+            "load": os.getloadavg()[0], "ms_per_tick": out, "cpu_ms_per_tick": cpu_out,
+            "timed_calls_per_tick": {k: round(x / ticks, 1) for k, x in sorted(calls.items())}}
 
 
 if __name__ == "__main__":
@@ -155,7 +164,12 @@ if __name__ == "__main__":
     if len(a) < 2:
         sys.exit(__doc__.splitlines()[0])
     child, per_viewer = "--server-process" in a, "--per-viewer" in a
+    k = None
+    if "--measured" in a:
+        at = a.index("--measured")
+        k = int(a[at + 1])
+        del a[at:at + 2]
     a = [x for x in a if x not in ("--server-process", "--per-viewer")]
     print(json.dumps(split(int(a[0]), int(a[1]), float(a[2]) if len(a) > 2 else 10.0,
                            float(a[3]) if len(a) > 3 else 0.25, server_process=child,
-                           per_viewer=per_viewer), indent=1))
+                           per_viewer=per_viewer, measured=k), indent=1))

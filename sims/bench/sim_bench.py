@@ -4,12 +4,16 @@ Figures (keys of `results`):
 - `entities_realtime_max`: the largest population (pedestrians and cars, plus the scheduled transit) that keeps
   real time with the shard server in the same process on this machine, over real loopback sockets: tick
   lateness p99 under one tick and no tick more than one tick behind (no backlog). Populations double until one
-  fails; `realtime_trials` lists every trial.
+  fails, then up to 3 trials bisect between the last kept and the first lost (`sims.bench.sim_ladder`; none
+  with `--quick`); `realtime_limit` gives both ends per ladder; `realtime_trials` lists every trial.
+- `entities_realtime_max_counted_viewers`: the same with the server in a child and counted viewers (a tenth of
+  the viewers, at least 10, measured; `entitynet sim --measured-viewers K`), trials in
+  `realtime_trials_counted_viewers`.
 - each real-time trial also has `sim_process_cpu_s` (this process's CPU time over the run, the in-process
   server's included) and `server_process_cpu_s` (the child server's, None in-process): what the server costs.
 - `entities_realtime_max_server_process`: the same ladder with the server in a child `entitynet serve`
   (`entitynet sim --server-process yes`, sims/server_child.py), its trials in `realtime_trials_server_process`;
-  the two ladders alternate at each population, so both see the same load on the machine;
+  the ladders alternate trial by trial, so all see the same load on the machine;
   `ratio.server_process_vs_in_process_realtime_max` their ratio.
 - `fleet_fixes_per_s`: honest-client fixes per second on one core (GPS fix, client-core decision, message)
   through the fleet core (`Fleet(core="fleet")`, entitynet/client/fleet.py); `fleet_fixes_per_s_player`: the same
@@ -42,15 +46,9 @@ from pathlib import Path
 from typing import Any
 
 from sims.bench.report import pyplot
+from sims.bench.sim_ladder import realtime_trial, run_ladders
 from sims.engine.local import run_local
 from sims.engine.sim import Sim, SimConfig
-
-#: ticks of each real-time trial left out of its lateness (the start: every entity's first publish, the
-#: viewers' first subscriptions and the server's first snapshots arrive together)
-WARMUP_TICKS = 6
-#: the real-time trials measure truth against a quarter of the viewers at each sample, in turn, as
-#: `entitynet sim` does by default (`--measure-share`): the full measure is a burst that made ticks late
-RT_MEASURE_SHARE = 0.25
 
 
 def _per_viewer_s(sim: Sim, seconds: float, high: bool) -> dict[str, float]:
@@ -66,36 +64,6 @@ def _local(topo, schedule, cfg: SimConfig, seconds: float) -> tuple[Sim, dict]:
     sim = Sim(topo, cfg, schedule)
     rep = run_local(sim, seconds)
     return sim, rep
-
-
-def _realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: float,
-                    server_process: bool = False) -> dict[str, Any]:
-    import trio
-
-    from sims.server_child import ServerChild
-    from sims.shell import Shell, ShellConfig
-
-    sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=RT_MEASURE_SHARE), schedule)
-    shell = Shell(sim, ShellConfig(duration=seconds + WARMUP_TICKS * sim.dt, speed=1.0, summary_every=1e9,
-                                   artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS), lambda m: None)
-    cpu0, server_cpu = time.process_time(), None
-    if server_process:
-        with ServerChild(artifact) as child:
-            shell.config.server = child.address
-            rep = trio.run(child.run_shell, shell)
-            server_cpu = child.cpu_seconds()
-    else:
-        rep = trio.run(shell.run)
-    sim_cpu = time.process_time() - cpu0
-    rt = rep["realtime"]
-    tick_ms = 1000.0 * sim.dt
-    ok = rt["tick_lateness_p99_ms"] < tick_ms and rt["ticks_behind"] == 0
-    return {"entities": n, "on_map": sum(rep["entities"].values()), "viewers": viewers,
-            "server": "a child process" if server_process else "in this process",
-            "measure_share": RT_MEASURE_SHARE, "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"],
-            "ticks_behind": rt["ticks_behind"], "ok": ok,
-            "sim_process_cpu_s": sim_cpu, "server_process_cpu_s": server_cpu,
-            "missed_visibility": (rep["truth_vs_viewer"].get("all") or {}).get("missed_visibility")}
 
 
 class _Removals:
@@ -201,11 +169,10 @@ def run(args, progress) -> dict[str, Any]:
     progress("fleet core: fixes per second on one core")
     fleet = _fleet_rates(topo, 300 if quick else 1000, 3 if quick else 10, 3 if quick else 20)
 
-    progress("real time with the server in this process and in a child process (alternating)")
+    progress("real time: the server in this process, in a child, and in a child with counted viewers (alternating)")
     rt_seconds = 6.0 if quick else 20.0  # simulated = wall seconds at speed 1, after the warm-up
-    ladders = _realtime_ladders(topo, artifact, schedule, rt_seconds, 200 if quick else 20000, progress)
-    trials, best, lateness = ladders[False]
-    child_trials, child_best, child_lateness = ladders[True]
+    ladders = _realtime_ladders(topo, artifact, schedule, rt_seconds, quick, progress)
+    best, child_best = ladders["in_process"]["max"], ladders["server_process"]["max"]
 
     from sims.sumo.compare import bench_rows  # skipped, with the reason, without the [sumo] extra
 
@@ -218,7 +185,10 @@ def run(args, progress) -> dict[str, Any]:
     results = {
         "entities_realtime_max": best,
         "entities_realtime_max_server_process": child_best,
-        "tick_lateness_p99_ms_server_process": child_lateness,
+        "tick_lateness_p99_ms_server_process": _lateness_of_max(ladders["server_process"]),
+        "entities_realtime_max_counted_viewers": ladders["counted_viewers"]["max"],
+        "tick_lateness_p99_ms_counted_viewers": _lateness_of_max(ladders["counted_viewers"]),
+        "realtime_limit": {name: {"kept": lad["max"], "lost": lad["lost"]} for name, lad in ladders.items()},
         "fleet_fixes_per_s": fleet["fleet"],
         "fleet_fixes_per_s_player": fleet["player"],
         "fleet_core_speedup": fleet["ratio"],
@@ -233,11 +203,12 @@ def run(args, progress) -> dict[str, Any]:
         "missed_visibility": all_pvs["missed_visibility"],
         "stale_ghost_fraction": all_pvs["stale_ghost_fraction"],
         "collisions": pvs["collisions"],
-        "tick_lateness_p99_ms": lateness,
+        "tick_lateness_p99_ms": _lateness_of_max(ladders["in_process"]),
         "error_vs_updates": sweep,
         "truth_vs_viewer": {"pvs": pvs["truth_vs_viewer"], "radius": rad["truth_vs_viewer"]},
-        "realtime_trials": trials,
-        "realtime_trials_server_process": child_trials,
+        "realtime_trials": ladders["in_process"]["trials"],
+        "realtime_trials_server_process": ladders["server_process"]["trials"],
+        "realtime_trials_counted_viewers": ladders["counted_viewers"]["trials"],
         "sumo": sumo,
         "workers": workers,
     }
@@ -262,28 +233,28 @@ def run(args, progress) -> dict[str, Any]:
     }
 
 
-def _realtime_ladders(topo, artifact, schedule, seconds: float, top: int, progress) -> dict[bool, tuple]:
-    """The real-time ladder (populations doubling from 100, a tenth as many viewers, until one misses real time)
-    with the server in this process (key False) and in a child process (True), the two alternating at each
-    population so that both see the same load on the machine; each: (trials, largest ok, its lateness p99)."""
-    out: dict[bool, tuple[list, int, float | None]] = {False: ([], 0, None), True: ([], 0, None)}
-    going = {False: True, True: True}
-    n = 100
-    while n <= top and any(going.values()):
-        for child in (False, True):
-            if not going[child]:
-                continue
-            trial = _realtime_trial(topo, artifact, schedule, n, max(10, n // 10), seconds, server_process=child)
-            trials, best, lateness = out[child]
-            trials.append(trial)
-            progress(f"  {n} entities, server {trial['server']}: lateness p99 {trial['tick_lateness_p99_ms']:.0f} "
-                     f"ms, behind {trial['ticks_behind']} -> {'ok' if trial['ok'] else 'not real time'}")
-            if trial["ok"]:
-                out[child] = (trials, n, trial["tick_lateness_p99_ms"])
-            else:
-                going[child] = False
-        n *= 2
-    return out
+def _realtime_ladders(topo, artifact, schedule, seconds: float, quick: bool, progress) -> dict[str, dict]:
+    """The real-time ladders (`sims.bench.sim_ladder`: doubling from 100 entities with a tenth as many viewers,
+    then bisecting between the last size kept and the first lost), alternating trial by trial: the server in
+    this process, in a child process, and in a child with counted viewers (a tenth of the viewers, at least 10,
+    measured; the others only count what they read). `--quick`: up to 200 entities, no bisection."""
+    def variant(server_process: bool, counted: bool):
+        def trial(n: int) -> dict:
+            v = max(10, n // 10)
+            return realtime_trial(topo, artifact, schedule, n, v, seconds, server_process=server_process,
+                                  measured=min(v, max(10, v // 10)) if counted else None)
+        return trial
+
+    return run_ladders({"in_process": variant(False, False), "server_process": variant(True, False),
+                        "counted_viewers": variant(True, True)},
+                       top=200 if quick else 20000, bisect_steps=0 if quick else 3,
+                       budget_s=300.0 if quick else 2400.0, progress=progress)
+
+
+def _lateness_of_max(ladder: dict) -> float | None:
+    """Tick lateness p99 of the ladder's largest trial kept (None: none kept)."""
+    kept = [t for t in ladder["trials"] if t["ok"] and t["entities"] == ladder["max"]]
+    return kept[-1]["tick_lateness_p99_ms"] if kept else None
 
 
 def _plot(sweep: list[dict], path: Path, progress) -> None:

@@ -24,7 +24,7 @@ from sims.engine.decode_cache import DecodeCache
 from sims.engine.measure import Measure
 from sims.engine.schedule import Schedule
 from sims.engine.source import MobilitySource, OurWorld
-from sims.engine.viewers import CellsAt, SimViewer, pvs_cells_at, radius_cells_at
+from sims.engine.viewers import CellsAt, SimViewer, measured_indices, pvs_cells_at, radius_cells_at, viewer_counts
 
 
 @dataclass
@@ -51,6 +51,10 @@ class SimConfig:
     #: late; 0.1 measures a tenth of the viewers each second, so each viewer every 10 s (counts shrink, the
     #: fractions and percentiles estimate the same figures). The deterministic runs keep 1.0.
     measure_share: float = 1.0
+    #: how many viewers keep ghosts and enter the truth figures (None: all); the others are counted viewers,
+    #: which connect, subscribe and read every byte but only count it (`sims.engine.viewers`). Why: the server's
+    #: load is the full run's while the simulation's process keeps and measures only a sample
+    measured_viewers: int | None = None
     measure_after: float = 2.0  # s: the start, when every entity appears at once before its first fix, is not sampled
     threshold: float | None = None  # the client core's drift threshold (None: its default)
     core: str = "fleet"  # the honest clients' core: "fleet" (vectorised, the same messages) or "player"
@@ -79,6 +83,9 @@ class SimConfig:
             problems.append(f"radius must be > 0, got {self.radius}")
         if not 0.0 < self.measure_share <= 1.0:
             problems.append(f"measure share must be within (0, 1], got {self.measure_share}")
+        if self.measured_viewers is not None and not 1 <= self.measured_viewers <= max(self.viewers, 1):
+            problems.append(f"measured viewers must be between 1 and the {self.viewers} viewers, "
+                            f"got {self.measured_viewers}")
         if self.core not in ("fleet", "player"):
             problems.append(f"core must be 'fleet' or 'player', got {self.core!r}")
         if self.client_model not in ("network", "periodic"):
@@ -119,8 +126,11 @@ class Sim:
         self.decode_cache = DecodeCache(self.world.net)  # one payload reaches many viewers: decode it once
         #: every viewer's ghosts in one table of arrays (the ghost rules' one home), decoding through the cache
         self.ghost_table = GhostTable(self.world.net, self.decode_cache)
-        self.viewers = [SimViewer(self.world.net, i, i < n_high, cells_at, rng, table=self.ghost_table)
-                        for i in range(config.viewers)]
+        measured = measured_indices(config.viewers, config.measured_viewers)
+        self.viewers = [SimViewer(self.world.net, i, i < n_high, cells_at, rng, table=self.ghost_table,
+                                  counted=i not in measured) for i in range(config.viewers)]
+        #: the run's measured viewers in index order: viewer index -> its rank among them (the measure's turns)
+        self.measured_rank = {i: r for r, i in enumerate(sorted(measured))}
         self.measure = Measure()
         self.dt = 1.0 / config.tick_hz
         self._next_sample = config.start + config.measure_after
@@ -169,21 +179,23 @@ class Sim:
         return True
 
     def measured_viewers(self) -> list[SimViewer]:
-        """The viewers the next sample measures: all of them, or with `measure_share` < 1 the next
-        ceil(share x V) in turn (wrapping round), so every viewer is measured equally often. A viewer process
-        holds a share of the run's V viewers (`sims.viewers`): it measures those of its own that fall in the
-        run's window, so the processes together measure the viewers one process would, equally often."""
-        v = self.viewers
+        """The viewers the next sample measures: every measured viewer (all of them unless
+        `measured_viewers`), or with `measure_share` < 1 the next ceil(share x M) of the run's M measured ones
+        in turn (wrapping round), so every one is measured equally often. A viewer process holds a share of the
+        run's viewers (`sims.viewers`): it measures those of its own that fall in the run's window, so the
+        processes together measure the viewers one process would, equally often."""
+        rank = self.measured_rank
+        v = [x for x in self.viewers if not x.counted]
         share = self.config.measure_share
         if share >= 1.0 or not v:
             return v
-        n = max(len(v), self.config.viewers)
+        n = len(rank)
         k = min(n, max(1, math.ceil(share * n - 1e-9)))
         i = self._measure_from
         self._measure_from = (i + k) % n
         if len(v) == n:
             return [v[(i + j) % n] for j in range(k)]
-        return [x for x in v if (x.index - i) % n < k]
+        return [x for x in v if (rank[x.index] - i) % n < k]
 
     def counts(self) -> dict:
         """The cheap counters (entities by type, collisions, spawns, client messages), for the live summary line
@@ -206,10 +218,9 @@ class Sim:
             "subscribe_by": self.subscribe_by,
             "sim_time_s": self.ticks * self.dt,
             **self.counts(),
-            "viewers": {"street": sum(not x.high for x in v), "roof": sum(x.high for x in v),
-                        "deliveries": sum(x.deliveries for x in v), "leaves": sum(x.leaves for x in v),
-                        "bytes": sum(x.bytes for x in v)},
-            "truth_vs_viewer": self.measure.summary(),
+            "viewers": viewer_counts(v),
+            "truth_vs_viewer": {**self.measure.summary(), "measured_viewers": len(self.measured_rank),
+                                "counted_viewers": self.config.viewers - len(self.measured_rank)},
             "timetable": timetable_summary(self.world.stop_lateness),
         }
 

@@ -64,6 +64,13 @@ class ViewerFleet:
         self.messages.clear()
         self._sizes.clear()
 
+    def error_report(self) -> dict:
+        """The viewers' connection errors (`ViewerReader.error_report`) for the run's report; with a
+        `Connection` per viewer (`one_reader=False`) they are not gathered, and the report says so."""
+        if self.reader is None:
+            return {"errors": None, "why": "a Connection per viewer: errors not gathered (only the one reader's)"}
+        return self.reader.error_report()
+
     def size(self, m: P.Update | P.Leave) -> int:
         """The encoded size of a message that arrived: its bytes' length in the frame when the shared decoder
         returned it, else encoded once per tick (equal messages encode alike)."""

@@ -121,6 +121,14 @@ class ViewerReader:
         self.passes = 0  # read passes (epoll wake-ups with something ready)
         self.reads = 0  # socket reads that brought bytes
 
+    def error_report(self, most: int = 20) -> dict:
+        """The viewers' connection errors for a run's report: how many attempts ended by an error, on how many
+        viewers, and the latest error of the first `most` of those viewers (by index; bounded so that a run
+        of 1,000 viewers against a vanished server writes a short report)."""
+        bad = [i for i, n in enumerate(self.errors) if n]
+        return {"errors": sum(self.errors), "viewers_with_errors": len(bad),
+                "last_error": {str(i): self.last_error[i] for i in bad[:most]}}
+
     # ---- building ----------------------------------------------------------------------------------------------
     def viewer(self, address, digest: str, token: str = "", *, reconnect: bool = True,
                backoff: tuple[float, float] = (0.1, 5.0), ping_interval: float = 5.0,

@@ -3,6 +3,13 @@ distance cut) through the client library, and keep ghosts of what they receive.
 
 Sans-IO: `move(dt)` returns the SUBSCRIBE differences to send, `receive(msg, now)` takes what arrived; the
 caller (the in-process switch or the trio shell) moves the messages. Counters: deliveries and bytes received.
+
+Measured and counted viewers (`SimConfig.measured_viewers`): a measured viewer keeps ghosts (a column of the
+ghost table) and enters the truth figures; a counted one moves, subscribes, is sent and reads every byte as a
+measured one does (the server's load is the same), but only counts its UPDATEs, LEAVEs and bytes. Why: at
+10,000 entities and 1,000 viewers a run delivers about 330,000 UPDATEs per 0.5 s tick, and keeping every
+viewer's ghosts and measuring them is most of the simulation's process's work per delivery
+(docs/simulation.md), while the truth figures need only a sample of the viewers.
 """
 
 from __future__ import annotations
@@ -67,10 +74,12 @@ class SimViewer:
     6 m/s), subscribed to what `cells_at` gives for its position."""
 
     def __init__(self, net: NetView, index: int, high: bool, cells_at: CellsAt, rng: random.Random,
-                 decoder: Callable[[bytes], Model] | None = None, table: GhostTable | None = None):
+                 decoder: Callable[[bytes], Model] | None = None, table: GhostTable | None = None,
+                 counted: bool = False):
         """`table`: the ghost table its store is a column of (the simulation's viewers share one, which decodes
         with the shared caching decoder, `sims.engine.decode_cache`); else `decoder`: its own store's decoder
-        (default: each decodes its own)."""
+        (default: each decodes its own). `counted`: a counted viewer (the module docstring): no ghosts
+        (`ghosts` is None), only the counters."""
         self.index = index
         self.high = high
         self.z = rng.uniform(40.0, 90.0) if high else 1.7
@@ -80,7 +89,8 @@ class SimViewer:
         self._cells_at = cells_at
         self._last_cells: np.ndarray | None = None  # the lookup's answer at the last move
         self.lookups_skipped = 0
-        self.ghosts = GhostStore(net, decoder=decoder, table=table)
+        self.counted = counted
+        self.ghosts = None if counted else GhostStore(net, decoder=decoder, table=table)
         self.deliveries = 0
         self.leaves = 0
         self.bytes = 0
@@ -98,15 +108,19 @@ class SimViewer:
             self.lookups_skipped += 1
             return []
         msgs = self.subs.move_camera(x, y, self.z)
-        self.ghosts.set_visible(self.subs.cells)
+        if self.ghosts is not None:
+            self.ghosts.set_visible(self.subs.cells)
         self._last_cells = cells
         return msgs
 
     def receive_frame(self, msgs: list[P.Update | P.Leave], now: float, size: int, decoded: bool = False) -> None:
         """A whole frame of UPDATEs and LEAVEs that arrived (`size`: their encoded bytes): what `receive` does
         with each, taken by the ghost table in one call (the viewer fleet's path, `sims.engine.viewer_fleet`;
-        `decoded`: the codec's messages, see `GhostTable.receive`)."""
-        leaves = self.ghosts.table.receive(self.ghosts.col, msgs, now, decoded)
+        `decoded`: the codec's messages, see `GhostTable.receive`). A counted viewer only counts them."""
+        if self.ghosts is None:
+            leaves = sum(type(m) is P.Leave for m in msgs)
+        else:
+            leaves = self.ghosts.table.receive(self.ghosts.col, msgs, now, decoded)
         self.bytes += size
         self.deliveries += len(msgs) - leaves
         self.leaves += leaves
@@ -116,13 +130,34 @@ class SimViewer:
         session, so after a reconnect the old ones mean nothing) and adopts the server's limits (the next move
         subscribes within its max_subscriptions: a SUBSCRIBE over the limit is refused whole)."""
         self.bytes += size
+        gs = self.ghosts
         if isinstance(msg, P.Update):
             self.deliveries += 1
-            self.ghosts.receive(msg, now)
+            if gs is not None:
+                gs.receive(msg, now)
         elif isinstance(msg, P.Leave):
             self.leaves += 1
-            self.ghosts.receive(msg, now)
+            if gs is not None:
+                gs.receive(msg, now)
         elif isinstance(msg, P.Welcome):
-            self.ghosts.clear()  # entity ids are per server session
+            if gs is not None:
+                gs.clear()  # entity ids are per server session
             self.subs.apply_limits(msg.limits)
             self._last_cells = None  # the next move recomputes its subscription under the new limits
+
+
+def measured_indices(viewers: int, measured: int | None) -> frozenset[int]:
+    """The indices of the measured viewers out of `viewers` (None: all): `measured` spread evenly over the
+    list, so that street and roof viewers (the first `roof_share` of the list) are sampled in proportion."""
+    if measured is None or measured >= viewers:
+        return frozenset(range(viewers))
+    return frozenset(j * viewers // measured for j in range(measured))
+
+
+def viewer_counts(viewers: list[SimViewer]) -> dict[str, int]:
+    """A report's `viewers` counters (summed over viewer processes): street and roof viewers, how many were
+    measured and how many counted, and their UPDATEs, LEAVEs and bytes received."""
+    return {"street": sum(not x.high for x in viewers), "roof": sum(x.high for x in viewers),
+            "measured": sum(not x.counted for x in viewers), "counted": sum(x.counted for x in viewers),
+            "deliveries": sum(x.deliveries for x in viewers), "leaves": sum(x.leaves for x in viewers),
+            "bytes": sum(x.bytes for x in viewers)}

@@ -24,7 +24,8 @@ from sims.viewers import wire
 from sims.viewers.child import child_main
 from sims.viewers.share import share_of
 
-VIEWER_COUNTS = ("street", "roof", "deliveries", "leaves", "bytes")  # a report's `viewers` counters, summed
+#: a report's `viewers` counters, summed over the processes
+VIEWER_COUNTS = ("street", "roof", "measured", "counted", "deliveries", "leaves", "bytes")
 
 
 class ViewerProcesses:
@@ -203,9 +204,10 @@ class ViewerProcesses:
                 for f in ("visible", "missed", "shown", "stale", "viewer_samples"):
                     setattr(acc, f, getattr(acc, f) + getattr(t, f))
         rep["viewers"] = viewers
-        rep["truth_vs_viewer"] = measure.summary()
+        rep["truth_vs_viewer"] = {**measure.summary(), "measured_viewers": viewers["measured"],
+                                  "counted_viewers": viewers["counted"]}
         rep["viewer_processes"] = {
-            "processes": self.n, "measured_viewers": viewers["street"] + viewers["roof"],
+            "processes": self.n, "measured_viewers": viewers["measured"],
             "viewers": self.config.viewers, "subscribe_msgs": subscribe_msgs, "deaths": list(self.deaths),
             "cpu_s": [None if r is None else round(r["cpu_s"], 2) for r in self.reports],
             "coordinator_tick_wait_s": round(self.tick_wait_s, 3),

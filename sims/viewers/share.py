@@ -21,6 +21,7 @@ from entitynet import protocol as P
 from sims.engine.payload_ids import PayloadIds
 from sims.engine.schedule import Schedule
 from sims.engine.sim import Sim, SimConfig
+from sims.engine.viewers import viewer_counts
 
 Sent = namedtuple("Sent", "entity payload")  # what `PayloadIds.published` reads of a PUBLISH
 UNKNOWN_TICKS = 20  # how long an UPDATE whose payload is not known yet waits for its tick frame
@@ -126,6 +127,4 @@ class ViewerShare:
         return {"tallies": tallies, "subscribe_msgs": self.subscribe_msgs, "ticks": self.sim.ticks,
                 "cpu_s": float(time.process_time()),
                 "tick_delay_p99_ms": float(np.percentile(self.delays, 99) * 1000) if self.delays else 0.0,
-                "viewers": {"street": sum(not x.high for x in v), "roof": sum(x.high for x in v),
-                            "deliveries": sum(x.deliveries for x in v), "leaves": sum(x.leaves for x in v),
-                            "bytes": sum(x.bytes for x in v)}}
+                "viewers": viewer_counts(v)}

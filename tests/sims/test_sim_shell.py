@@ -24,6 +24,7 @@ async def test_sim_on_helsinki_with_an_in_process_server(helsinki, helsinki_path
     assert rep["clients"]["published"] >= 30 and rep["viewers"]["deliveries"] > 0
     assert rep["truth_vs_viewer"]["all"]["visible_entity_samples"] > 0
     assert rep["server"] == {"in_process": True, "gap_s": 0.0, "outages": 0}
+    assert rep["viewer_errors"] == {"errors": 0, "viewers_with_errors": 0, "last_error": {}}
     assert "tick_lateness_p99_ms" in rep["realtime"]
     assert any("deliveries" in line and "collisions avoided" in line for line in lines)
 
@@ -63,6 +64,8 @@ async def test_server_going_away_mid_run_is_survived_and_reported():
     rep = result["rep"]
     assert rep["sim_time_s"] == 12.0  # the simulation kept stepping through the outage
     assert rep["server"]["outages"] >= 1 and rep["server"]["gap_s"] > 0.0
+    ve = rep["viewer_errors"]  # each viewer's lost link counted, with its reason
+    assert ve["errors"] >= ve["viewers_with_errors"] == len(sim.viewers) and all(ve["last_error"].values())
     assert result["second"].sb.stats["updates_in"] > 0  # the honest clients re-published to the new server
     assert "ids" in rep["truth_vs_viewer"]  # an external server's ids, mapped to the truth by payload
 
@@ -198,7 +201,7 @@ async def test_a_run_behind_real_time_says_so_once_per_interval_and_in_the_summa
     warnings = [line for line in lines if "warning: behind real time" in line]
     assert warnings, lines
     assert all(b - a >= 1.5 - 0.05 for a, b in zip(warned_at, warned_at[1:], strict=False)), warned_at
-    assert "--viewers" in warnings[0] and "--speed" in warnings[0]
+    assert "--viewers" in warnings[0] and "--measured-viewers" in warnings[0] and "--speed" in warnings[0]
     summaries = [line for line in lines if "collisions avoided" in line]
     assert summaries and all("late p99" in line for line in summaries)
     assert any("ticks behind" in line for line in summaries)

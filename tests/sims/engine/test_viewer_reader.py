@@ -159,6 +159,9 @@ async def test_over_sockets_bad_input_costs_only_its_viewer_and_a_vanished_serve
             assert "mid-frame" in reader.last_error[2]
             assert "too large" in reader.last_error[3].lower() or "1073741824" in reader.last_error[3]
             assert vs[0].connected
+            rep = reader.error_report(most=2)  # what the shell's report shows (bounded)
+            assert rep["errors"] == sum(reader.errors) >= 3 and rep["viewers_with_errors"] == 3
+            assert rep["last_error"] == {"1": reader.last_error[1], "2": reader.last_error[2]}
             nursery.cancel_scope.cancel()  # the listener goes
         late = ViewerReader(P.decode_payload, lambda i: lambda m: None, lambda i: lambda m: None)
         async with trio.open_nursery() as viewers:  # a server that vanishes: every viewer loses its link
