@@ -11,7 +11,8 @@ bytes on the wire as the reference; tests compare them.
 """
 
 from libc.errno cimport EAGAIN, EINTR, errno
-from libc.stdlib cimport malloc, free
+from libc.stdlib cimport free, malloc
+from libc.string cimport memcpy
 from posix.uio cimport iovec, writev
 from posix.unistd cimport read
 from cpython.bytes cimport PyBytes_FromStringAndSize
@@ -69,14 +70,19 @@ def lone_ping_ms(bytes data):
 
 
 def hub_ready(object server, object conn):
-    """See `hub_ready_py`: the same read, the same effects."""
+    """See `hub_ready_py`: the same read, the same effects.
+
+    The shared buffer is read only between the `read(2)` and the next call into Python (which may let another
+    thread's server run this function): a lone PING's bytes (at most 16) are copied to the stack first."""
     global _buf, _cap
     cdef Py_ssize_t size = server.config.read_size
+    cdef bint mid = conn.decoder.mid_frame  # (only this reader feeds the decoder: asked before the read)
+    cdef int fd = conn.fd
     cdef Py_ssize_t n
     cdef long long ms
-    cdef int fd = conn.fd
-    cdef int err
+    cdef int err = 0
     cdef char *grown
+    cdef char ping[16]
     if size > _cap:
         grown = <char *>malloc(size)
         if grown == NULL:
@@ -98,9 +104,12 @@ def hub_ready(object server, object conn):
     if n == 0:
         server._hub_eof(conn)
         return
-    if not conn.decoder.mid_frame:
+    if not mid:
         ms = _lone_ping(<const unsigned char *>_buf, n)
-        if ms >= 0 and pong_now(server, conn, ms):
+        if ms >= 0:  # then n <= 16
+            memcpy(ping, _buf, n)
+            if not pong_now(server, conn, ms):
+                server._hub_bytes(conn, PyBytes_FromStringAndSize(ping, n))
             return
     server._hub_bytes(conn, PyBytes_FromStringAndSize(_buf, n))
 
