@@ -170,7 +170,7 @@ class Server(ReadingMixin, WritingMixin):
         try:
             async with trio.open_nursery() as nursery:
                 self._nursery = nursery
-                self.hub = ReadHub(self._hub_ready)  # before the listeners: it reads their TCP clients
+                self.hub = ReadHub(self._hub_reader())  # before the listeners: it reads their TCP clients
                 nursery.start_soon(self.hub.run)
                 self.http = self._http_server()
                 listen = Listeners(cfg, self.ssl, self.admission, tcp_handler=self._handle_tcp,

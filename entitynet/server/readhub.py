@@ -10,8 +10,8 @@ synchronously). A connection whose frame needs to await (a token looked up off t
 yield between slices) or that ended is taken out of the set and handed to its own reader task, which
 re-registers it once it has caught up: frames of one connection are still handled in order, by one of the two.
 
-The hub knows nothing of frames or the core: `ready` is the server's (entitynet.server.reading). TLS and
-WebSocket connections keep their own reader tasks and streams.
+The hub knows nothing of frames or the core: `ready` is the server's (entitynet.server.hubpass, bound by
+entitynet.server.reading). TLS and WebSocket connections keep their own reader tasks and streams.
 
 A registered connection's socket is closed by the server only (`Server._close`), after its scope is cancelled
 and its reader task has taken it out of the set: a descriptor closed from outside drops out of the epoll set

@@ -12,17 +12,17 @@ frames need no await, and by their own task while one does; TLS and WebSocket by
 
 from __future__ import annotations
 
+import functools
 import logging
-import os
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import trio
 import trio_websocket
 
 from entitynet import protocol as P
-from entitynet.server import logs
-from entitynet.server.pingframe import lone_ping_ms
+from entitynet.server import hubpass, logs
 
 if TYPE_CHECKING:
     from entitynet.server.app import _Conn
@@ -31,6 +31,13 @@ if TYPE_CHECKING:
 #: checkpoint is a pass through trio's scheduler (tens of microseconds), more than a small SUBSCRIBE costs, so
 #: a frame of a few cheap slices (a viewer's SUBSCRIBE difference and its PING) goes through without one
 FEED_YIELD_S = 0.0005
+
+
+def _cheap_rest(msgs: list[P.Message], start: int, step: int) -> bool:
+    """Whether what is left of a frame from `start` on is at most one slice of PINGs: answering them costs less
+    than the checkpoint and the hand-over to the connection's task a yield takes (a viewer's SUBSCRIBE
+    difference and its barrier PING, `bench e2e`), so the frame is finished without one."""
+    return len(msgs) - start <= step and all(type(m) is P.Ping for m in msgs[start:])
 
 
 class ReadingMixin:
@@ -93,7 +100,7 @@ class ReadingMixin:
             if ob is None or ob.close_after:
                 return None
             start = end
-            if start < n and time.perf_counter() - began >= FEED_YIELD_S:
+            if start < n and time.perf_counter() - began >= FEED_YIELD_S and not _cheap_rest(msgs, start, step):
                 return start
         return None
 
@@ -116,27 +123,24 @@ class ReadingMixin:
         ob = self.sb.outbox(conn.cid)
         return ob is None or ob.close_after
 
-    def _hub_ready(self, conn: _Conn) -> None:
-        """The read hub's call for a readable plain-TCP connection (entitynet.server.readhub): one `os.read`,
-        and its frames fed to the core right here, synchronously. The connection goes to its own task
-        (`_read_plain`) when a frame must await there (a token to look up, a big frame that yields between
-        slices: `conn.pending` says where to go on) or when it ended (`conn.pending` None)."""
-        try:
-            data = os.read(conn.fd, self.config.read_size)
-        except BlockingIOError:
-            return  # readable was reported but the bytes went elsewhere: the next poll tells
-        except OSError:
-            data = b""  # closed under us (a revoked token, shutdown) or reset by the peer
-        if not data:
-            if conn.decoder.mid_frame:
-                logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid,
-                           buffered=conn.decoder.buffered)
-            self._hand_off(conn, None)
-            return
-        dec = conn.decoder
-        if not dec.mid_frame and (ms := lone_ping_ms(data)) is not None and self._pong_now(conn, P.Ping(ms)):
-            return  # the lock step's PING: answered without the deframer (entitynet.server.pingframe)
-        dec.receive_data(data)
+    def _hub_reader(self) -> Callable[[_Conn], None]:
+        """The read hub's call for a readable plain-TCP connection (entitynet.server.readhub): the selected
+        `hubpass.hub_ready` bound to this server (one read; a lone PING answered at once, the rest to
+        `_hub_bytes`)."""
+        return functools.partial(hubpass.impl().hub_ready, self)
+
+    def _hub_eof(self, conn: _Conn) -> None:
+        """The read hub's connection ended (or its read failed): its task takes over and ends it."""
+        if conn.decoder.mid_frame:
+            logs.event("client vanished mid-frame", logging.INFO, cid=conn.cid, buffered=conn.decoder.buffered)
+        self._hand_off(conn, None)
+
+    def _hub_bytes(self, conn: _Conn, data: bytes) -> None:
+        """The read hub's bytes that are not one lone PING (entitynet.server.hubpass reads them): the frames
+        fed to the core right here, synchronously. The connection goes to its own task (`_read_plain`) when a
+        frame must await there (a token to look up, a big frame that yields between slices: `conn.pending` says
+        where to go on) or when it is closing (`conn.pending` None)."""
+        conn.decoder.receive_data(data)
         try:
             while (msgs := self._next_to_feed(conn)) is not None:
                 start = 0 if self._asks_token(conn, msgs) else self._feed_slices(conn, msgs, 0)
@@ -160,7 +164,7 @@ class ReadingMixin:
             conn.handoff.set()
 
     async def _read_plain(self, conn: _Conn) -> None:
-        """The plain-TCP reader task: the connection is served by the read hub (`_hub_ready`) while its frames
+        """The plain-TCP reader task: the connection is served by the read hub (`_hub_reader`) while its frames
         go through without an await; this task takes over when one must await, catches up on what the
         decoder holds (in order: the hub does not read the socket meanwhile), and hands it back.
 
@@ -191,34 +195,21 @@ class ReadingMixin:
             self.hub.discard(conn)
 
     def _pong_now(self, conn: _Conn, ping: P.Ping) -> bool:
-        """Answer a frame that is one PING right here, when the core says the PONG overtakes nothing
-        (`Switchboard.quick_pong`); False: feed the frame as usual. On a plain socket, states waiting for the
-        flush go in the same frame, after the PONG (as the usual path orders them): one `writev` instead of the
-        flusher's and the PONG's (a lock step's viewers PING right after the tick's publishes)."""
-        if conn.busy or conn.closed:
+        """Answer a plain-TCP frame that is one PING right here, when the core says the PONG overtakes nothing
+        (`Switchboard.quick_pong`); False: feed the frame as usual. States waiting for the flush go in the same
+        frame, after the PONG (as the usual path orders them): one `writev` instead of the flusher's and the
+        PONG's (a lock step's viewers PING right after the tick's publishes). The selected implementation of
+        entitynet.server.hubpass (compiled or the reference)."""
+        return bool(hubpass.impl().pong_now(self, conn, ping.client_ms))
+
+    def _pong_with_states(self, conn: _Conn, pong: bytes) -> bool:
+        """`_pong_now`'s frame when coalesced states wait: the PONG and those states in one frame, or False
+        (nothing taken: the frame is fed as usual) when they are more than one frame's worth."""
+        taken = conn.outbox.take_states(self._fast_batch - 1, self._sure_fit - 1, self._max_body - len(pong))
+        if taken is None:
             return False
-        sb = self.sb
-        plain = conn.fd is not None
-        pong = sb.quick_pong(conn.cid, ping, self.clock(), states_ok=plain)
-        if pong is None:
-            return False
-        if self.pacer is not None:
-            self.pacer.woke()  # input all the same: paced like any frame (`_note_news` does it for those)
-        if plain and len(conn.outbox):
-            taken = conn.outbox.take_states(self._fast_batch - 1, self._sure_fit - 1, self._max_body - len(pong))
-            if taken is None:
-                return False  # more than one frame's worth: the usual path (nothing was taken)
-            self._write_states(conn, taken[0] + 1, pong + taken[1])
-            sb.written_out(conn.cid)  # no flusher wake-up for what went here
-            return True
-        head = P.frame_prefix(1, len(pong))
-        self.written += 1
-        self.frames += 1
-        sent = self._writev(conn, head, pong)
-        if sent is not None and sent < len(head) + len(pong):
-            conn.rest = (head + pong)[sent:]  # the writer task sends the rest
-            conn.busy = True
-            conn.wake.set()
+        self._write_states(conn, taken[0] + 1, pong + taken[1])
+        self.sb.written_out(conn.cid)  # no flusher wake-up for what went here
         return True
 
     async def _read_tcp(self, conn: _Conn) -> None:

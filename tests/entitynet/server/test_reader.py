@@ -1,4 +1,4 @@
-"""The plain-TCP reader (the read hub's `Server._hub_ready`, and `Server._read_plain`) and the PINGs it answers
+"""The plain-TCP reader (the read hub's `hubpass.hub_ready`, and `Server._read_plain`) and the PINGs it answers
 itself (`Server._pong_now`), over real loopback sockets: a lock step's PING gets its PONG with nothing left for
 the flusher, a PING behind pending states comes with them, bytes in any split still make frames, and a peer that
 resets or vanishes mid-frame costs only its own connection."""

@@ -53,6 +53,23 @@ async def test_a_frame_that_yields_between_slices_and_the_frames_behind_it_keep_
         await flows(pub, view, 10, cell=5)
 
 
+async def test_a_subscribe_and_its_barrier_ping_finish_in_the_hub_without_a_hand_over(monkeypatch):
+    monkeypatch.setattr(reading, "FEED_YIELD_S", 0.0)  # every slice would yield, were the rest not one PING
+    async with running(latency_budget=0.0) as server:
+        pub, view = await pair(server, cell=5)
+        c = await Raw.connect(server)
+        await trio.testing.wait_all_tasks_blocked()
+        handed: list = []
+        hand_off = server._hand_off
+        server._hand_off = lambda conn, work: (handed.append(work), hand_off(conn, work))
+        await c.send_bytes(P.encode_frame([P.Subscribe((5,), ()), P.Ping(7)]))
+        assert (await c.expect(P.Pong)).client_ms == 7
+        assert handed == []  # answered in the same pass: no checkpoint, no task
+        await c.send_bytes(P.encode_frame([P.Subscribe((6,), ()), P.Ping(8), P.Publish(1, 1, (6,), 1000, b"")]))
+        assert (await c.expect(P.Pong)).client_ms == 8
+        assert any(isinstance(w, tuple) and w[1] > 0 for w in handed)  # more than PINGs left: it yields
+
+
 async def test_a_token_lookup_goes_through_the_connections_task_and_back(tmp_path):
     from entitynet.auth import TokenStore
 
