@@ -49,7 +49,8 @@ def _interrupted(cmd: list[str], ready: str, cwd) -> tuple[int, str]:
     import time
 
     proc = subprocess.Popen([sys.executable, "-m", "entitynet", *cmd], cwd=cwd, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "ENTITYNET_CACHE": str(cwd)})
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "ENTITYNET_CACHE": str(cwd), "PYTHONFAULTHANDLER": "1"})
     seen = []
     deadline = time.monotonic() + 60
     try:
@@ -59,7 +60,12 @@ def _interrupted(cmd: list[str], ready: str, cwd) -> tuple[int, str]:
         seen.append(line)
         time.sleep(0.5)  # inside its trio loop by now
         proc.send_signal(signal.SIGINT)
-        _out, rest = proc.communicate(timeout=30)
+        try:
+            _out, rest = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:  # a hang: SIGABRT makes faulthandler print every thread's stack
+            proc.send_signal(signal.SIGABRT)
+            _out, rest = proc.communicate(timeout=30)
+            raise AssertionError(f"still running 30 s after Ctrl-C; its stacks:\n{''.join(seen)}{rest}") from None
     finally:
         if proc.poll() is None:
             proc.kill()
