@@ -24,10 +24,13 @@ cdef struct Ent:
 cdef class OutboxTable:
     cdef Box *boxes
     cdef Ent *ents
-    cdef unsigned long long *bits
+    cdef unsigned long long **blk  # the 2-bit matrix in blocks (NULL: all 0), (ecap >> BR) x (vcap >> BV)
+    cdef int *blk_n  # per block: its entries that are not 0 (the block is pooled when none is left)
+    cdef unsigned long long **pool  # emptied blocks (all 0) kept for reuse, at most POOL_MAX
+    cdef Py_ssize_t n_pool, n_blocks
     cdef unsigned int *vstamp
     cdef int *vslot_of
-    cdef Py_ssize_t vcap, ecap, wpr, n_cid, n_vslots, n_eslots
+    cdef Py_ssize_t vcap, ecap, nbv, n_cid, n_vslots, n_eslots
     cdef unsigned int fgen
     cdef dict slot_of
     cdef list free_vs, free_es
@@ -43,6 +46,10 @@ cdef class OutboxTable:
     cdef int put_plain(self, int vs) except -1
     cdef int end_plain(self) except -1
     cdef int put_enc(self, int vs, Py_ssize_t s, bytes enc) except -1
+    cdef int _regrid(self, Py_ssize_t nbe, Py_ssize_t nbv) except -1
+    cdef int _reserve(self, Py_ssize_t s, int vs) except -1
+    cdef void _unblock(self, Py_ssize_t k) noexcept
+    cdef int _new_vslot(self) except -1
     cdef int _grow_v(self, Py_ssize_t need) except -1
     cdef int _grow_e(self, Py_ssize_t need) except -1
     cdef int _append(self, int vs, Py_ssize_t s, PyObject *enc) except -1

@@ -9,8 +9,14 @@ store is a chain of dependent cache misses (the dict, its keys object, the index
   first-queued order, each an *entity slot* and either NULL ("the entity's shared bytes") or bytes of its own;
 - per entity (an *entity slot*, keyed by entity id, freed once the entity is gone and nothing is pending) the
   shared bytes `cur` that plain items read when they are taken, and a row of 2 bits per viewer slot (pending;
-  own bytes) that deduplicates: an entity's row is contiguous, so the route's checks for its few hundred
-  viewers touch two or three cache lines, not a dict per viewer.
+  own bytes) that deduplicates: an entity's row is contiguous within a block, so the route's checks for its
+  few hundred viewers touch a few cache lines, not a dict per viewer.
+
+The (entity slot x viewer slot) 2-bit matrix is kept in blocks of 64 entity slots x 256 viewer slots (4 KiB),
+a block allocated only while one of its entries is pending (emptied blocks go to a small pool): memory is
+bounded by the pending states (at most 4 KiB each, never more than the dense E x V / 4 bytes) plus a pointer
+per block position (E x V / 2048 bytes), not by every entity times every connection (a publisher that views
+nothing costs its viewer slot's box, never a column of bits).
 
 The same bytes for many viewers (`fan_out`, `fan_out_to` and the compiled route: the UPDATE of a PUBLISH) are
 stored once, as the slot's `cur`, and each viewer gets a plain item (or keeps the one it has: coalescing). Any
@@ -28,21 +34,57 @@ from cpython.ref cimport Py_DECREF, Py_INCREF, PyObject
 from libc.stdlib cimport calloc, free, realloc
 from libc.string cimport memcpy, memmove, memset
 
+cimport cython
+
 cdef enum:
     SHRINK_ABOVE = 1024  # an emptied box with more room than this gives it back
+    BR = 6  # a block has 2**BR entity slots (rows) ...
+    BV = 8  # ... of 2**BV viewer slots (2 bits each)
+    RMASK = (1 << BR) - 1
+    VMASK = (1 << BV) - 1
+    RWORDS = 8  # 64-bit words in a block's row: 2**BV / 32
+    BWORDS = 512  # 64-bit words in a block: 2**BR * RWORDS
+    POOL_MAX = 256  # emptied blocks kept for reuse (1 MiB at most)
+
+# A client id indexes an int array (`vslot_of`): ids beyond this are refused rather than sizing it past 1 GiB.
+MAX_CID = (1 << 28) - 1
 
 
 # ---------------------------------------------------------------------------------------------- the 2-bit rows
 # State of (entity slot, viewer slot): 0 nothing pending, 1 pending and reading the slot's `cur`, 3 pending with
 # bytes of its own.
+cdef inline Py_ssize_t _blk(OutboxTable t, Py_ssize_t s, int vs) noexcept:
+    """The block position of (s, vs)."""
+    return (s >> BR) * t.nbv + (vs >> BV)
+
+
+cdef inline Py_ssize_t _word(Py_ssize_t s, int vs) noexcept:
+    """The word of (s, vs) within its block."""
+    return (s & RMASK) * RWORDS + ((vs & VMASK) >> 5)
+
+
 cdef inline unsigned int _st(OutboxTable t, Py_ssize_t s, int vs) noexcept:
-    return (t.bits[s * t.wpr + (vs >> 5)] >> ((vs & 31) * 2)) & 3
+    cdef unsigned long long *b = t.blk[_blk(t, s, vs)]
+    if b == NULL:
+        return 0
+    return (b[_word(s, vs)] >> ((vs & 31) * 2)) & 3
 
 
 cdef inline void _set(OutboxTable t, Py_ssize_t s, int vs, unsigned long long st) noexcept:
-    cdef unsigned long long *w = &t.bits[s * t.wpr + (vs >> 5)]
+    """Set the state of (s, vs); its block is there (`_reserve` before a 0 becomes pending; a pending entry's
+    block stays until the entry is 0 again)."""
+    cdef Py_ssize_t k = _blk(t, s, vs)
+    cdef unsigned long long *w = &t.blk[k][_word(s, vs)]
     cdef int sh = (vs & 31) * 2
+    cdef unsigned long long old = (w[0] >> sh) & 3
     w[0] = (w[0] & ~(<unsigned long long>3 << sh)) | (st << sh)
+    if old == 0:
+        if st != 0:
+            t.blk_n[k] += 1
+    elif st == 0:
+        t.blk_n[k] -= 1
+        if t.blk_n[k] == 0:
+            t._unblock(k)
 
 
 cdef inline PyObject *_enc(OutboxTable t, Item *it) noexcept:
@@ -50,6 +92,8 @@ cdef inline PyObject *_enc(OutboxTable t, Item *it) noexcept:
     return it.enc if it.enc != NULL else t.ents[it.slot].cur
 
 
+@cython.no_gc_clear  # a collected table must outlive its outboxes' `__dealloc__` (they give their slots back)
+@cython.auto_pickle(False)
 cdef class OutboxTable:
     """The outboxes of all clients (`Outboxes`' API): `open(cid)` gives a client's `COutbox` (the `Outbox` API),
     the fan-out calls queue the same bytes for many clients, `forget(eid)` says an entity is gone."""
@@ -66,7 +110,7 @@ cdef class OutboxTable:
         self._grow_e(256)
 
     def __dealloc__(self):
-        cdef Py_ssize_t s, vs, i
+        cdef Py_ssize_t s, vs, i, k
         for vs in range(self.n_vslots):
             for i in range(self.boxes[vs].n):
                 if self.boxes[vs].items[i].enc != NULL:
@@ -77,56 +121,107 @@ cdef class OutboxTable:
                 Py_DECREF(<object>self.ents[s].cur)
             if self.ents[s].eid != NULL:
                 Py_DECREF(<object>self.ents[s].eid)
+        for k in range((self.ecap >> BR) * self.nbv):
+            free(self.blk[k])
+        for k in range(self.n_pool):
+            free(self.pool[k])
+        free(self.pool)
+        free(self.blk)
+        free(self.blk_n)
         free(self.boxes)
         free(self.ents)
-        free(self.bits)
         free(self.vstamp)
         free(self.vslot_of)
 
     # -------------------------------------------------------------------------------------- growth, slots
+    def __copy__(self):
+        raise TypeError("an OutboxTable cannot be copied (it owns C arrays)")
+
+    def __deepcopy__(self, memo):
+        raise TypeError("an OutboxTable cannot be copied (it owns C arrays)")
+
+    def __reduce__(self):
+        raise TypeError("an OutboxTable cannot be pickled (it owns C arrays)")
+
+    # -------------------------------------------------------------------------------------- growth, slots
+    cdef int _regrid(self, Py_ssize_t nbe, Py_ssize_t nbv) except -1:
+        """The block grid resized to `nbe` x `nbv` positions (never smaller): the blocks keep their places."""
+        cdef Py_ssize_t old_nbe = self.ecap >> BR, r
+        blk = <unsigned long long **>calloc(max(nbe * nbv, 1), sizeof(unsigned long long *))
+        cnt = <int *>calloc(max(nbe * nbv, 1), sizeof(int))
+        if blk == NULL or cnt == NULL:
+            free(blk)
+            free(cnt)
+            raise MemoryError()
+        for r in range(old_nbe):
+            memcpy(blk + r * nbv, self.blk + r * self.nbv, self.nbv * sizeof(unsigned long long *))
+            memcpy(cnt + r * nbv, self.blk_n + r * self.nbv, self.nbv * sizeof(int))
+        free(self.blk)
+        free(self.blk_n)
+        self.blk, self.blk_n, self.nbv = blk, cnt, nbv
+        return 0
+
+    cdef int _reserve(self, Py_ssize_t s, int vs) except -1:
+        """The block of (s, vs) is there (from the pool, else zeroed memory): before an entry becomes pending."""
+        cdef Py_ssize_t k = _blk(self, s, vs)
+        if self.blk[k] != NULL:
+            return 0
+        if self.n_pool:
+            self.n_pool -= 1
+            self.blk[k] = self.pool[self.n_pool]
+        else:
+            self.blk[k] = <unsigned long long *>calloc(BWORDS, sizeof(unsigned long long))
+            if self.blk[k] == NULL:
+                raise MemoryError()
+        self.n_blocks += 1
+        return 0
+
+    cdef void _unblock(self, Py_ssize_t k) noexcept:
+        """Block `k` has nothing pending (all 0): to the pool, or freed when the pool is full."""
+        if self.pool == NULL:
+            self.pool = <unsigned long long **>calloc(POOL_MAX, sizeof(unsigned long long *))
+        if self.pool != NULL and self.n_pool < POOL_MAX:
+            self.pool[self.n_pool] = self.blk[k]
+            self.n_pool += 1
+        else:
+            free(self.blk[k])
+        self.blk[k] = NULL
+        self.n_blocks -= 1
+
     cdef int _grow_v(self, Py_ssize_t need) except -1:
-        """Room for viewer slots below `need`: boxes, stamps, and every entity row widened (2 bits a viewer)."""
-        cdef Py_ssize_t cap, wpr, s
-        cdef unsigned long long *bits
+        """Room for viewer slots below `need`: boxes, stamps, and a wider block grid (no bits move)."""
+        cdef Py_ssize_t cap
         if need <= self.vcap:
             return 0
-        cap = max(need, 2 * self.vcap, 64)
-        cap = (cap + 31) // 32 * 32
-        wpr = cap // 32
-        bits = <unsigned long long *>calloc(max(self.ecap, 1) * wpr, sizeof(unsigned long long))
+        cap = max(need, 2 * self.vcap, 1 << BV)
+        cap = (cap + VMASK) >> BV << BV
         boxes = <Box *>realloc(self.boxes, cap * sizeof(Box))
-        if boxes != NULL:
-            self.boxes = boxes
-        stamp = <unsigned int *>realloc(self.vstamp, cap * sizeof(unsigned int))
-        if stamp != NULL:
-            self.vstamp = stamp
-        if bits == NULL or boxes == NULL or stamp == NULL:
-            free(bits)
+        if boxes == NULL:
             raise MemoryError()
+        self.boxes = boxes
+        stamp = <unsigned int *>realloc(self.vstamp, cap * sizeof(unsigned int))
+        if stamp == NULL:
+            raise MemoryError()
+        self.vstamp = stamp
+        self._regrid(self.ecap >> BR, cap >> BV)
         memset(self.boxes + self.vcap, 0, (cap - self.vcap) * sizeof(Box))
         memset(self.vstamp + self.vcap, 0, (cap - self.vcap) * sizeof(unsigned int))
-        for s in range(self.ecap):
-            memcpy(bits + s * wpr, self.bits + s * self.wpr, self.wpr * sizeof(unsigned long long))
-        free(self.bits)
-        self.bits, self.vcap, self.wpr = bits, cap, wpr
+        self.vcap = cap
         return 0
 
     cdef int _grow_e(self, Py_ssize_t need) except -1:
-        """Room for entity slots below `need`."""
+        """Room for entity slots below `need`: entities and a taller block grid."""
         cdef Py_ssize_t cap
         if need <= self.ecap:
             return 0
-        cap = max(need, 2 * self.ecap, 256)
+        cap = max(need, 2 * self.ecap, 1 << BR)
+        cap = (cap + RMASK) >> BR << BR
         ents = <Ent *>realloc(self.ents, cap * sizeof(Ent))
         if ents == NULL:
             raise MemoryError()
         self.ents = ents
-        bits = <unsigned long long *>realloc(self.bits, cap * self.wpr * sizeof(unsigned long long))
-        if bits == NULL:
-            raise MemoryError()
-        self.bits = bits
+        self._regrid(cap >> BR, self.nbv)
         memset(self.ents + self.ecap, 0, (cap - self.ecap) * sizeof(Ent))
-        memset(self.bits + self.ecap * self.wpr, 0, (cap - self.ecap) * self.wpr * sizeof(unsigned long long))
         self.ecap = cap
         return 0
 
@@ -217,6 +312,7 @@ cdef class OutboxTable:
         self.vstamp[vs] = self.fgen
         st = _st(self, s, vs)
         if st == 0:
+            self._reserve(s, vs)
             self._append(vs, s, NULL)
             _set(self, s, vs, 1)
             self.ents[s].plain += 1
@@ -258,8 +354,9 @@ cdef class OutboxTable:
         between `begin_plain` and `end_plain` of the same slot (the route's LEAVEs: no stale scan for them)."""
         cdef Py_ssize_t i
         cdef Item *it
-        Py_INCREF(enc)
         if _st(self, s, vs) == 0:
+            self._reserve(s, vs)
+            Py_INCREF(enc)
             try:
                 self._append(vs, s, <PyObject *>enc)
             except MemoryError:
@@ -267,6 +364,7 @@ cdef class OutboxTable:
                 raise
             _set(self, s, vs, 3)
             return 0
+        Py_INCREF(enc)
         it = &self.boxes[vs].items[self._find(vs, s)]
         if it.enc == NULL:
             self.ents[s].plain -= 1
@@ -361,19 +459,32 @@ cdef class OutboxTable:
         self._drop(vs, self.boxes[vs].n)
         free(self.boxes[vs].items)
         self.boxes[vs].items, self.boxes[vs].cap = NULL, 0
+        if self.free_vs is None:  # (never cleared by the collector: `no_gc_clear`; a guard all the same)
+            return
         try:
             self.free_vs.append(vs)
         except BaseException:  # only MemoryError is possible: the slot stays unused
             pass
 
+    cdef int _new_vslot(self) except -1:
+        """A viewer slot for a new outbox: a freed one, else the next one."""
+        cdef int vs
+        if self.free_vs:
+            return self.free_vs.pop()
+        self._grow_v(self.n_vslots + 1)
+        vs = self.n_vslots
+        self.n_vslots += 1
+        return vs
+
     # -------------------------------------------------------------------------------------- `Outboxes` API
     def open(self, long cid):
         """A new client's outbox."""
-        cdef int vs
         cdef Py_ssize_t n
         cdef COutbox ob
         if cid < 0 or cid in self._boxes:
             raise ValueError(f"client id {cid} is negative or open")
+        if cid > MAX_CID:
+            raise ValueError(f"client id {cid} is beyond the compiled outboxes' bound {MAX_CID}")
         if cid >= self.n_cid:
             n = max(cid + 1, 2 * self.n_cid, 1024)
             grown = <int *>realloc(self.vslot_of, n * sizeof(int))
@@ -381,16 +492,8 @@ cdef class OutboxTable:
                 raise MemoryError()
             memset(grown + self.n_cid, 0xff, (n - self.n_cid) * sizeof(int))  # -1: not open
             self.vslot_of, self.n_cid = grown, n
-        if self.free_vs:
-            vs = self.free_vs.pop()
-        else:
-            self._grow_v(self.n_vslots + 1)
-            vs = self.n_vslots
-            self.n_vslots += 1
-        ob = COutbox.__new__(COutbox)
-        ob.table, ob.vs, ob._control = self, vs, []
-        ob.max_states, ob.max_control = self.max_states, self.max_control
-        self.vslot_of[cid] = vs
+        ob = COutbox(self)
+        self.vslot_of[cid] = ob.vs
         self._boxes[cid] = ob
         return ob
 
@@ -449,6 +552,10 @@ cdef class OutboxTable:
     def slots_in_use(self):
         """(entity slots, viewer slots) in use: what tests check for leaks."""
         return self.n_eslots - len(self.free_es), self.n_vslots - len(self.free_vs)
+
+    def blocks_in_use(self):
+        """(blocks of the 2-bit matrix in use, emptied ones pooled): what tests check memory by."""
+        return self.n_blocks, self.n_pool
 
 
 include "_coutbox.pxi"  # COutbox: one client's outbox (the `Outbox` API) over this table
