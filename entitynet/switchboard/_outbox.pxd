@@ -35,7 +35,7 @@ cdef class OutboxTable:
     cdef dict slot_of
     cdef list free_vs, free_es
     cdef dict _boxes
-    cdef Py_ssize_t f_slot, f_before, f_hits
+    cdef Py_ssize_t f_slot, f_before, f_hits, f_kbase, f_wbase  # the fan-out's slot; its block row, word row
     cdef PyObject *f_prev
     cdef bint f_active
     cdef readonly Py_ssize_t max_states, max_control
@@ -46,9 +46,6 @@ cdef class OutboxTable:
     cdef int put_plain(self, int vs) except -1
     cdef int end_plain(self) except -1
     cdef int put_enc(self, int vs, Py_ssize_t s, bytes enc) except -1
-    cdef int _regrid(self, Py_ssize_t nbe, Py_ssize_t nbv) except -1
-    cdef int _reserve(self, Py_ssize_t s, int vs) except -1
-    cdef void _unblock(self, Py_ssize_t k) noexcept
     cdef int _new_vslot(self) except -1
     cdef int _grow_v(self, Py_ssize_t need) except -1
     cdef int _grow_e(self, Py_ssize_t need) except -1

@@ -38,53 +38,12 @@ cimport cython
 
 cdef enum:
     SHRINK_ABOVE = 1024  # an emptied box with more room than this gives it back
-    BR = 6  # a block has 2**BR entity slots (rows) ...
-    BV = 8  # ... of 2**BV viewer slots (2 bits each)
-    RMASK = (1 << BR) - 1
-    VMASK = (1 << BV) - 1
-    RWORDS = 8  # 64-bit words in a block's row: 2**BV / 32
-    BWORDS = 512  # 64-bit words in a block: 2**BR * RWORDS
-    POOL_MAX = 256  # emptied blocks kept for reuse (1 MiB at most)
 
 # A client id indexes an int array (`vslot_of`): ids beyond this are refused rather than sizing it past 1 GiB.
 MAX_CID = (1 << 28) - 1
 
 
-# ---------------------------------------------------------------------------------------------- the 2-bit rows
-# State of (entity slot, viewer slot): 0 nothing pending, 1 pending and reading the slot's `cur`, 3 pending with
-# bytes of its own.
-cdef inline Py_ssize_t _blk(OutboxTable t, Py_ssize_t s, int vs) noexcept:
-    """The block position of (s, vs)."""
-    return (s >> BR) * t.nbv + (vs >> BV)
-
-
-cdef inline Py_ssize_t _word(Py_ssize_t s, int vs) noexcept:
-    """The word of (s, vs) within its block."""
-    return (s & RMASK) * RWORDS + ((vs & VMASK) >> 5)
-
-
-cdef inline unsigned int _st(OutboxTable t, Py_ssize_t s, int vs) noexcept:
-    cdef unsigned long long *b = t.blk[_blk(t, s, vs)]
-    if b == NULL:
-        return 0
-    return (b[_word(s, vs)] >> ((vs & 31) * 2)) & 3
-
-
-cdef inline void _set(OutboxTable t, Py_ssize_t s, int vs, unsigned long long st) noexcept:
-    """Set the state of (s, vs); its block is there (`_reserve` before a 0 becomes pending; a pending entry's
-    block stays until the entry is 0 again)."""
-    cdef Py_ssize_t k = _blk(t, s, vs)
-    cdef unsigned long long *w = &t.blk[k][_word(s, vs)]
-    cdef int sh = (vs & 31) * 2
-    cdef unsigned long long old = (w[0] >> sh) & 3
-    w[0] = (w[0] & ~(<unsigned long long>3 << sh)) | (st << sh)
-    if old == 0:
-        if st != 0:
-            t.blk_n[k] += 1
-    elif st == 0:
-        t.blk_n[k] -= 1
-        if t.blk_n[k] == 0:
-            t._unblock(k)
+include "_blocks.pxi"  # the 2-bit matrix in blocks: `_st`, `_set`, `_reserve`, grid growth
 
 
 cdef inline PyObject *_enc(OutboxTable t, Item *it) noexcept:
@@ -144,50 +103,6 @@ cdef class OutboxTable:
         raise TypeError("an OutboxTable cannot be pickled (it owns C arrays)")
 
     # -------------------------------------------------------------------------------------- growth, slots
-    cdef int _regrid(self, Py_ssize_t nbe, Py_ssize_t nbv) except -1:
-        """The block grid resized to `nbe` x `nbv` positions (never smaller): the blocks keep their places."""
-        cdef Py_ssize_t old_nbe = self.ecap >> BR, r
-        blk = <unsigned long long **>calloc(max(nbe * nbv, 1), sizeof(unsigned long long *))
-        cnt = <int *>calloc(max(nbe * nbv, 1), sizeof(int))
-        if blk == NULL or cnt == NULL:
-            free(blk)
-            free(cnt)
-            raise MemoryError()
-        for r in range(old_nbe):
-            memcpy(blk + r * nbv, self.blk + r * self.nbv, self.nbv * sizeof(unsigned long long *))
-            memcpy(cnt + r * nbv, self.blk_n + r * self.nbv, self.nbv * sizeof(int))
-        free(self.blk)
-        free(self.blk_n)
-        self.blk, self.blk_n, self.nbv = blk, cnt, nbv
-        return 0
-
-    cdef int _reserve(self, Py_ssize_t s, int vs) except -1:
-        """The block of (s, vs) is there (from the pool, else zeroed memory): before an entry becomes pending."""
-        cdef Py_ssize_t k = _blk(self, s, vs)
-        if self.blk[k] != NULL:
-            return 0
-        if self.n_pool:
-            self.n_pool -= 1
-            self.blk[k] = self.pool[self.n_pool]
-        else:
-            self.blk[k] = <unsigned long long *>calloc(BWORDS, sizeof(unsigned long long))
-            if self.blk[k] == NULL:
-                raise MemoryError()
-        self.n_blocks += 1
-        return 0
-
-    cdef void _unblock(self, Py_ssize_t k) noexcept:
-        """Block `k` has nothing pending (all 0): to the pool, or freed when the pool is full."""
-        if self.pool == NULL:
-            self.pool = <unsigned long long **>calloc(POOL_MAX, sizeof(unsigned long long *))
-        if self.pool != NULL and self.n_pool < POOL_MAX:
-            self.pool[self.n_pool] = self.blk[k]
-            self.n_pool += 1
-        else:
-            free(self.blk[k])
-        self.blk[k] = NULL
-        self.n_blocks -= 1
-
     cdef int _grow_v(self, Py_ssize_t need) except -1:
         """Room for viewer slots below `need`: boxes, stamps, and a wider block grid (no bits move)."""
         cdef Py_ssize_t cap
@@ -203,7 +118,7 @@ cdef class OutboxTable:
         if stamp == NULL:
             raise MemoryError()
         self.vstamp = stamp
-        self._regrid(self.ecap >> BR, cap >> BV)
+        _regrid(self, self.ecap >> BR, cap >> BV)
         memset(self.boxes + self.vcap, 0, (cap - self.vcap) * sizeof(Box))
         memset(self.vstamp + self.vcap, 0, (cap - self.vcap) * sizeof(unsigned int))
         self.vcap = cap
@@ -220,7 +135,7 @@ cdef class OutboxTable:
         if ents == NULL:
             raise MemoryError()
         self.ents = ents
-        self._regrid(cap >> BR, self.nbv)
+        _regrid(self, cap >> BR, self.nbv)
         memset(self.ents + self.ecap, 0, (cap - self.ecap) * sizeof(Ent))
         self.ecap = cap
         return 0
@@ -298,6 +213,7 @@ cdef class OutboxTable:
             memset(self.vstamp, 0, self.vcap * sizeof(unsigned int))
             self.fgen = 1
         self.f_slot, self.f_before, self.f_hits, self.f_active = s, e.plain, 0, True
+        self.f_kbase, self.f_wbase = (s >> BR) * self.nbv, (s & RMASK) * RWORDS  # (no slot opens mid-fan-out)
         self.f_prev = e.cur  # its reference moves to f_prev until `end_plain`
         Py_INCREF(enc)
         e.cur = <PyObject *>enc
@@ -313,10 +229,10 @@ cdef class OutboxTable:
         if vs < 0 or self.vstamp[vs] == self.fgen:
             return 0
         self.vstamp[vs] = self.fgen
-        k = _blk(self, s, vs)
+        k = self.f_kbase + (vs >> BV)
         if self.blk[k] == NULL:
-            self._reserve(s, vs)
-        w = &self.blk[k][_word(s, vs)]
+            _reserve(self, s, vs)
+        w = &self.blk[k][self.f_wbase + ((vs & VMASK) >> 5)]
         sh = (vs & 31) * 2
         st = (w[0] >> sh) & 3
         if st == 0:
@@ -363,7 +279,7 @@ cdef class OutboxTable:
         cdef Py_ssize_t i
         cdef Item *it
         if _st(self, s, vs) == 0:
-            self._reserve(s, vs)
+            _reserve(self, s, vs)
             Py_INCREF(enc)
             try:
                 self._append(vs, s, <PyObject *>enc)
