@@ -2,8 +2,24 @@
 # kept apart so that each source file stays small). The `Outbox` API of entitynet/switchboard/outbox.py.
 
 
+@cython.auto_pickle(False)  # a copy would share the viewer slot, and both would give it back
 cdef class COutbox:
     """One client's pending messages (the `Outbox` API): its states in the table's C arrays, a control FIFO."""
+
+    def __cinit__(self, OutboxTable table not None):
+        """Only with a table (`OutboxTable.open` makes them): the outbox takes a viewer slot of its own."""
+        self.vs = table._new_vslot()
+        self.table, self._control = table, []
+        self.max_states, self.max_control = table.max_states, table.max_control
+
+    def __copy__(self):
+        raise TypeError("a COutbox cannot be copied (it owns a viewer slot of its table)")
+
+    def __deepcopy__(self, memo):
+        raise TypeError("a COutbox cannot be copied (it owns a viewer slot of its table)")
+
+    def __reduce__(self):
+        raise TypeError("a COutbox cannot be pickled (it owns a viewer slot of its table)")
 
     def __dealloc__(self):
         if self.table is not None:

@@ -24,15 +24,18 @@ cdef struct Ent:
 cdef class OutboxTable:
     cdef Box *boxes
     cdef Ent *ents
-    cdef unsigned long long *bits
+    cdef unsigned long long **blk  # the 2-bit matrix in blocks (NULL: all 0), (ecap >> BR) x (vcap >> BV)
+    cdef int *blk_n  # per block: its entries that are not 0 (the block is pooled when none is left)
+    cdef unsigned long long **pool  # emptied blocks (all 0) kept for reuse, at most POOL_MAX
+    cdef Py_ssize_t n_pool, n_blocks
     cdef unsigned int *vstamp
     cdef int *vslot_of
-    cdef Py_ssize_t vcap, ecap, wpr, n_cid, n_vslots, n_eslots
+    cdef Py_ssize_t vcap, ecap, nbv, n_cid, n_vslots, n_eslots
     cdef unsigned int fgen
     cdef dict slot_of
     cdef list free_vs, free_es
     cdef dict _boxes
-    cdef Py_ssize_t f_slot, f_before, f_hits
+    cdef Py_ssize_t f_slot, f_before, f_hits, f_kbase, f_wbase  # the fan-out's slot; its block row, word row
     cdef PyObject *f_prev
     cdef bint f_active
     cdef readonly Py_ssize_t max_states, max_control
@@ -43,6 +46,7 @@ cdef class OutboxTable:
     cdef int put_plain(self, int vs) except -1
     cdef int end_plain(self) except -1
     cdef int put_enc(self, int vs, Py_ssize_t s, bytes enc) except -1
+    cdef int _new_vslot(self) except -1
     cdef int _grow_v(self, Py_ssize_t need) except -1
     cdef int _grow_e(self, Py_ssize_t need) except -1
     cdef int _append(self, int vs, Py_ssize_t s, PyObject *enc) except -1

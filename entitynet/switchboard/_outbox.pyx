@@ -9,8 +9,14 @@ store is a chain of dependent cache misses (the dict, its keys object, the index
   first-queued order, each an *entity slot* and either NULL ("the entity's shared bytes") or bytes of its own;
 - per entity (an *entity slot*, keyed by entity id, freed once the entity is gone and nothing is pending) the
   shared bytes `cur` that plain items read when they are taken, and a row of 2 bits per viewer slot (pending;
-  own bytes) that deduplicates: an entity's row is contiguous, so the route's checks for its few hundred
-  viewers touch two or three cache lines, not a dict per viewer.
+  own bytes) that deduplicates: an entity's row is contiguous within a block, so the route's checks for its
+  few hundred viewers touch a few cache lines, not a dict per viewer.
+
+The (entity slot x viewer slot) 2-bit matrix is kept in blocks of 64 entity slots x 256 viewer slots (4 KiB),
+a block allocated only while one of its entries is pending (emptied blocks go to a small pool): memory is
+bounded by the pending states (at most 4 KiB each, never more than the dense E x V / 4 bytes) plus a pointer
+per block position (E x V / 2048 bytes), not by every entity times every connection (a publisher that views
+nothing costs its viewer slot's box, never a column of bits).
 
 The same bytes for many viewers (`fan_out`, `fan_out_to` and the compiled route: the UPDATE of a PUBLISH) are
 stored once, as the slot's `cur`, and each viewer gets a plain item (or keeps the one it has: coalescing). Any
@@ -28,21 +34,16 @@ from cpython.ref cimport Py_DECREF, Py_INCREF, PyObject
 from libc.stdlib cimport calloc, free, realloc
 from libc.string cimport memcpy, memmove, memset
 
+cimport cython
+
 cdef enum:
     SHRINK_ABOVE = 1024  # an emptied box with more room than this gives it back
 
-
-# ---------------------------------------------------------------------------------------------- the 2-bit rows
-# State of (entity slot, viewer slot): 0 nothing pending, 1 pending and reading the slot's `cur`, 3 pending with
-# bytes of its own.
-cdef inline unsigned int _st(OutboxTable t, Py_ssize_t s, int vs) noexcept:
-    return (t.bits[s * t.wpr + (vs >> 5)] >> ((vs & 31) * 2)) & 3
+# A client id indexes an int array (`vslot_of`): ids beyond this are refused rather than sizing it past 1 GiB.
+MAX_CID = (1 << 28) - 1
 
 
-cdef inline void _set(OutboxTable t, Py_ssize_t s, int vs, unsigned long long st) noexcept:
-    cdef unsigned long long *w = &t.bits[s * t.wpr + (vs >> 5)]
-    cdef int sh = (vs & 31) * 2
-    w[0] = (w[0] & ~(<unsigned long long>3 << sh)) | (st << sh)
+include "_blocks.pxi"  # the 2-bit matrix in blocks: `_st`, `_set`, `_reserve`, grid growth
 
 
 cdef inline PyObject *_enc(OutboxTable t, Item *it) noexcept:
@@ -50,6 +51,8 @@ cdef inline PyObject *_enc(OutboxTable t, Item *it) noexcept:
     return it.enc if it.enc != NULL else t.ents[it.slot].cur
 
 
+@cython.no_gc_clear  # a collected table must outlive its outboxes' `__dealloc__` (they give their slots back)
+@cython.auto_pickle(False)
 cdef class OutboxTable:
     """The outboxes of all clients (`Outboxes`' API): `open(cid)` gives a client's `COutbox` (the `Outbox` API),
     the fan-out calls queue the same bytes for many clients, `forget(eid)` says an entity is gone."""
@@ -66,7 +69,7 @@ cdef class OutboxTable:
         self._grow_e(256)
 
     def __dealloc__(self):
-        cdef Py_ssize_t s, vs, i
+        cdef Py_ssize_t s, vs, i, k
         for vs in range(self.n_vslots):
             for i in range(self.boxes[vs].n):
                 if self.boxes[vs].items[i].enc != NULL:
@@ -77,56 +80,63 @@ cdef class OutboxTable:
                 Py_DECREF(<object>self.ents[s].cur)
             if self.ents[s].eid != NULL:
                 Py_DECREF(<object>self.ents[s].eid)
+        for k in range((self.ecap >> BR) * self.nbv):
+            free(self.blk[k])
+        for k in range(self.n_pool):
+            free(self.pool[k])
+        free(self.pool)
+        free(self.blk)
+        free(self.blk_n)
         free(self.boxes)
         free(self.ents)
-        free(self.bits)
         free(self.vstamp)
         free(self.vslot_of)
 
     # -------------------------------------------------------------------------------------- growth, slots
+    def __copy__(self):
+        raise TypeError("an OutboxTable cannot be copied (it owns C arrays)")
+
+    def __deepcopy__(self, memo):
+        raise TypeError("an OutboxTable cannot be copied (it owns C arrays)")
+
+    def __reduce__(self):
+        raise TypeError("an OutboxTable cannot be pickled (it owns C arrays)")
+
+    # -------------------------------------------------------------------------------------- growth, slots
     cdef int _grow_v(self, Py_ssize_t need) except -1:
-        """Room for viewer slots below `need`: boxes, stamps, and every entity row widened (2 bits a viewer)."""
-        cdef Py_ssize_t cap, wpr, s
-        cdef unsigned long long *bits
+        """Room for viewer slots below `need`: boxes, stamps, and a wider block grid (no bits move)."""
+        cdef Py_ssize_t cap
         if need <= self.vcap:
             return 0
-        cap = max(need, 2 * self.vcap, 64)
-        cap = (cap + 31) // 32 * 32
-        wpr = cap // 32
-        bits = <unsigned long long *>calloc(max(self.ecap, 1) * wpr, sizeof(unsigned long long))
+        cap = max(need, 2 * self.vcap, 1 << BV)
+        cap = (cap + VMASK) >> BV << BV
         boxes = <Box *>realloc(self.boxes, cap * sizeof(Box))
-        if boxes != NULL:
-            self.boxes = boxes
-        stamp = <unsigned int *>realloc(self.vstamp, cap * sizeof(unsigned int))
-        if stamp != NULL:
-            self.vstamp = stamp
-        if bits == NULL or boxes == NULL or stamp == NULL:
-            free(bits)
+        if boxes == NULL:
             raise MemoryError()
+        self.boxes = boxes
+        stamp = <unsigned int *>realloc(self.vstamp, cap * sizeof(unsigned int))
+        if stamp == NULL:
+            raise MemoryError()
+        self.vstamp = stamp
+        _regrid(self, self.ecap >> BR, cap >> BV)
         memset(self.boxes + self.vcap, 0, (cap - self.vcap) * sizeof(Box))
         memset(self.vstamp + self.vcap, 0, (cap - self.vcap) * sizeof(unsigned int))
-        for s in range(self.ecap):
-            memcpy(bits + s * wpr, self.bits + s * self.wpr, self.wpr * sizeof(unsigned long long))
-        free(self.bits)
-        self.bits, self.vcap, self.wpr = bits, cap, wpr
+        self.vcap = cap
         return 0
 
     cdef int _grow_e(self, Py_ssize_t need) except -1:
-        """Room for entity slots below `need`."""
+        """Room for entity slots below `need`: entities and a taller block grid."""
         cdef Py_ssize_t cap
         if need <= self.ecap:
             return 0
-        cap = max(need, 2 * self.ecap, 256)
+        cap = max(need, 2 * self.ecap, 1 << BR)
+        cap = (cap + RMASK) >> BR << BR
         ents = <Ent *>realloc(self.ents, cap * sizeof(Ent))
         if ents == NULL:
             raise MemoryError()
         self.ents = ents
-        bits = <unsigned long long *>realloc(self.bits, cap * self.wpr * sizeof(unsigned long long))
-        if bits == NULL:
-            raise MemoryError()
-        self.bits = bits
+        _regrid(self, cap >> BR, self.nbv)
         memset(self.ents + self.ecap, 0, (cap - self.ecap) * sizeof(Ent))
-        memset(self.bits + self.ecap * self.wpr, 0, (cap - self.ecap) * self.wpr * sizeof(unsigned long long))
         self.ecap = cap
         return 0
 
@@ -203,22 +213,32 @@ cdef class OutboxTable:
             memset(self.vstamp, 0, self.vcap * sizeof(unsigned int))
             self.fgen = 1
         self.f_slot, self.f_before, self.f_hits, self.f_active = s, e.plain, 0, True
+        self.f_kbase, self.f_wbase = (s >> BR) * self.nbv, (s & RMASK) * RWORDS  # (no slot opens mid-fan-out)
         self.f_prev = e.cur  # its reference moves to f_prev until `end_plain`
         Py_INCREF(enc)
         e.cur = <PyObject *>enc
         return 0
 
     cdef int put_plain(self, int vs) except -1:
-        """The fan-out's bytes for viewer slot `vs` (once per fan-out; coalesced with a pending state)."""
-        cdef Py_ssize_t s = self.f_slot, i
-        cdef unsigned int st
+        """The fan-out's bytes for viewer slot `vs` (once per fan-out; coalesced with a pending state). The route's
+        hot path: `_st`/`_set` inlined here, the block and word found once."""
+        cdef Py_ssize_t s = self.f_slot, i, k
+        cdef unsigned long long *w
+        cdef unsigned long long st
+        cdef int sh
         if vs < 0 or self.vstamp[vs] == self.fgen:
             return 0
         self.vstamp[vs] = self.fgen
-        st = _st(self, s, vs)
+        k = self.f_kbase + (vs >> BV)
+        if self.blk[k] == NULL:
+            _reserve(self, s, vs)
+        w = &self.blk[k][self.f_wbase + ((vs & VMASK) >> 5)]
+        sh = (vs & 31) * 2
+        st = (w[0] >> sh) & 3
         if st == 0:
             self._append(vs, s, NULL)
-            _set(self, s, vs, 1)
+            w[0] |= <unsigned long long>1 << sh
+            self.blk_n[k] += 1
             self.ents[s].plain += 1
         elif st == 1:
             self.f_hits += 1
@@ -226,7 +246,7 @@ cdef class OutboxTable:
             i = self._find(vs, s)
             Py_DECREF(<object>self.boxes[vs].items[i].enc)
             self.boxes[vs].items[i].enc = NULL
-            _set(self, s, vs, 1)
+            w[0] &= ~(<unsigned long long>2 << sh)  # 3 -> 1: reads the shared bytes
             self.ents[s].plain += 1
         return 0
 
@@ -258,8 +278,9 @@ cdef class OutboxTable:
         between `begin_plain` and `end_plain` of the same slot (the route's LEAVEs: no stale scan for them)."""
         cdef Py_ssize_t i
         cdef Item *it
-        Py_INCREF(enc)
         if _st(self, s, vs) == 0:
+            _reserve(self, s, vs)
+            Py_INCREF(enc)
             try:
                 self._append(vs, s, <PyObject *>enc)
             except MemoryError:
@@ -267,6 +288,7 @@ cdef class OutboxTable:
                 raise
             _set(self, s, vs, 3)
             return 0
+        Py_INCREF(enc)
         it = &self.boxes[vs].items[self._find(vs, s)]
         if it.enc == NULL:
             self.ents[s].plain -= 1
@@ -361,19 +383,32 @@ cdef class OutboxTable:
         self._drop(vs, self.boxes[vs].n)
         free(self.boxes[vs].items)
         self.boxes[vs].items, self.boxes[vs].cap = NULL, 0
+        if self.free_vs is None:  # (never cleared by the collector: `no_gc_clear`; a guard all the same)
+            return
         try:
             self.free_vs.append(vs)
         except BaseException:  # only MemoryError is possible: the slot stays unused
             pass
 
+    cdef int _new_vslot(self) except -1:
+        """A viewer slot for a new outbox: a freed one, else the next one."""
+        cdef int vs
+        if self.free_vs:
+            return self.free_vs.pop()
+        self._grow_v(self.n_vslots + 1)
+        vs = self.n_vslots
+        self.n_vslots += 1
+        return vs
+
     # -------------------------------------------------------------------------------------- `Outboxes` API
     def open(self, long cid):
         """A new client's outbox."""
-        cdef int vs
         cdef Py_ssize_t n
         cdef COutbox ob
         if cid < 0 or cid in self._boxes:
             raise ValueError(f"client id {cid} is negative or open")
+        if cid > MAX_CID:
+            raise ValueError(f"client id {cid} is beyond the compiled outboxes' bound {MAX_CID}")
         if cid >= self.n_cid:
             n = max(cid + 1, 2 * self.n_cid, 1024)
             grown = <int *>realloc(self.vslot_of, n * sizeof(int))
@@ -381,16 +416,8 @@ cdef class OutboxTable:
                 raise MemoryError()
             memset(grown + self.n_cid, 0xff, (n - self.n_cid) * sizeof(int))  # -1: not open
             self.vslot_of, self.n_cid = grown, n
-        if self.free_vs:
-            vs = self.free_vs.pop()
-        else:
-            self._grow_v(self.n_vslots + 1)
-            vs = self.n_vslots
-            self.n_vslots += 1
-        ob = COutbox.__new__(COutbox)
-        ob.table, ob.vs, ob._control = self, vs, []
-        ob.max_states, ob.max_control = self.max_states, self.max_control
-        self.vslot_of[cid] = vs
+        ob = COutbox(self)
+        self.vslot_of[cid] = ob.vs
         self._boxes[cid] = ob
         return ob
 
@@ -449,6 +476,10 @@ cdef class OutboxTable:
     def slots_in_use(self):
         """(entity slots, viewer slots) in use: what tests check for leaks."""
         return self.n_eslots - len(self.free_es), self.n_vslots - len(self.free_vs)
+
+    def blocks_in_use(self):
+        """(blocks of the 2-bit matrix in use, emptied ones pooled): what tests check memory by."""
+        return self.n_blocks, self.n_pool
 
 
 include "_coutbox.pxi"  # COutbox: one client's outbox (the `Outbox` API) over this table
