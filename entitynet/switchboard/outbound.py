@@ -64,7 +64,7 @@ class OutboundMixin:
         """Clients with something new to write since the last call. With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
         dirty = self._dirty
-        self._dirty = set()
+        self._dirty = self._marks()
         self.replies_waiting = False
         if not check:
             return dirty
