@@ -18,6 +18,7 @@ cdef struct W:
     unsigned long long bits  # ... the members among them (never 0 in a set's array)
 
 cdef long long _MAX_ID = (1 << 40) - 1  # far beyond any client id (the compiled outboxes refuse ids >= 2**28)
+cdef long long _MAX_MARK = (1 << 28) - 1  # `_outbox.MAX_CID`: the dirty bitmap is dense, 32 MiB at most
 
 
 cdef inline long long _as_id(object v) except -2:
@@ -305,6 +306,8 @@ cdef class CidMarks:
         """Mark the ids `bits` of word `idx`."""
         cdef unsigned long long new
         if idx >= self.nw:
+            if idx > (_MAX_MARK >> 6):
+                raise ValueError("a client id beyond the compiled outboxes' bound")
             self._grow(idx + 1)
         new = bits & ~self.w[idx]
         if new:
@@ -313,9 +316,10 @@ cdef class CidMarks:
         return 0
 
     def add(self, object cid):
+        """Mark a client id (a non-negative int below 2**28, the compiled outboxes' bound: ValueError else)."""
         cdef long long x = _as_id(cid)
-        if x < 0:
-            raise ValueError(f"not a client id: {cid!r}")
+        if x < 0 or x > _MAX_MARK:
+            raise ValueError(f"not a client id the compiled outboxes take: {cid!r}")
         self.mark(x >> 6, <unsigned long long>1 << (x & 63))
 
     def discard(self, object cid):
