@@ -269,14 +269,22 @@ cdef ViewerSet _union_of_cells(dict subs, tuple cells, long long skip):
     return out
 
 
+cdef int _cmp_ll(const void *a, const void *b) noexcept nogil:
+    cdef long long x = (<const long long *>a)[0], y = (<const long long *>b)[0]
+    return (x > y) - (x < y)
+
+
 @cython.final
 @cython.auto_pickle(False)
 cdef class CidMarks:
     """The clients with news since the last `take_dirty` (the core's dirty set: add, discard, in, len, iteration,
-    |=) as a bitmap over client ids: the route marks a word of 64 viewers with one OR."""
+    |=) as a bitmap over client ids, so that the route marks a word of 64 viewers with one OR, and the list of
+    the words that became non-zero, so that `take` (the flush's `take_dirty`) visits those words only and clears
+    them in place: its cost follows the clients with news, not the highest client id ever marked."""
 
     cdef unsigned long long *w
-    cdef Py_ssize_t nw, count
+    cdef long long *touched  # words that went from 0 to non-zero since the last `take` (a word may recur)
+    cdef Py_ssize_t nw, count, nt, tcap
 
     def __cinit__(self, object ids=()):
         self._grow(16)
@@ -285,6 +293,7 @@ cdef class CidMarks:
 
     def __dealloc__(self):
         free(self.w)
+        free(self.touched)
 
     def __reduce__(self):
         return CidMarks, (list(self),)
@@ -305,15 +314,50 @@ cdef class CidMarks:
     cdef int mark(self, long long idx, unsigned long long bits) except -1:
         """Mark the ids `bits` of word `idx`."""
         cdef unsigned long long new
+        cdef long long *t
         if idx >= self.nw:
             if idx > (_MAX_MARK >> 6):
                 raise ValueError("a client id beyond the compiled outboxes' bound")
             self._grow(idx + 1)
         new = bits & ~self.w[idx]
         if new:
+            if self.w[idx] == 0:
+                if self.nt == self.tcap:
+                    t = <long long *>realloc(self.touched, max(16, 2 * self.tcap) * sizeof(long long))
+                    if t == NULL:
+                        raise MemoryError()
+                    self.touched, self.tcap = t, max(16, 2 * self.tcap)
+                self.touched[self.nt] = idx
+                self.nt += 1
             self.count += __builtin_popcountll(new)
             self.w[idx] |= new
         return 0
+
+    cdef list _ids(self, bint clear):
+        """The marked ids in ascending order (with `clear`, the marks are emptied on the way)."""
+        cdef list out = []
+        cdef Py_ssize_t i
+        cdef long long idx, prev = -1
+        cdef unsigned long long b
+        qsort(self.touched, self.nt, sizeof(long long), _cmp_ll)
+        for i in range(self.nt):
+            idx = self.touched[i]
+            if idx == prev:
+                continue
+            prev = idx
+            b = self.w[idx]
+            while b:
+                out.append((idx << 6) + __builtin_ctzll(b))
+                b &= b - 1
+            if clear:
+                self.w[idx] = 0
+        if clear:
+            self.nt = self.count = 0
+        return out
+
+    def take(self):
+        """The marked ids, ascending, as a list; the marks are empty afterwards (`take_dirty`)."""
+        return self._ids(True)
 
     def add(self, object cid):
         """Mark a client id (a non-negative int below 2**28, the compiled outboxes' bound: ValueError else)."""
@@ -352,15 +396,7 @@ cdef class CidMarks:
         return self.count
 
     def __iter__(self):
-        cdef list out = []
-        cdef Py_ssize_t i
-        cdef unsigned long long b
-        for i in range(self.nw):
-            b = self.w[i]
-            while b:
-                out.append((i << 6) + __builtin_ctzll(b))
-                b &= b - 1
-        return iter(out)
+        return iter(self._ids(False))
 
     def __eq__(self, other):
         if isinstance(other, (set, frozenset, CidMarks)):

@@ -62,8 +62,8 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         self.hello_timers = ExpiryHeap()  # client id -> handshake deadline
         self.outboxes = outbox_module.new_outboxes(config.max_pending, config.max_control)  # C arrays or dicts
         # the kinds of the id sets (subscribers, viewers; dirty marks): C word arrays with the compiled outboxes
-        self._viewer_set, self._marks = outbox_module.set_kinds(self.outboxes)
-        self._dirty: set[int] = self._marks()
+        self._viewer_set, marks = outbox_module.set_kinds(self.outboxes)
+        self._dirty: set[int] = marks()
         # a reply was queued outside its client's own frame (a cluster's QUERY answer, FOLLOW refusal, REDIRECT):
         # the reader will not write it, and the shell's flusher must not hold it for its latency budget
         self.replies_waiting = False

@@ -62,11 +62,14 @@ class OutboundMixin:
             self._dirty.discard(cid)
 
     def take_dirty(self, check: bool = True) -> Collection[int]:
-        """Clients with something new to write since the last call: a set of ids (the compiled path's
-        `CidMarks`, iterated in ascending order, or a Python set). With `check`, also enforces the outbox
+        """Clients with something new to write since the last call: their ids (a Python set, or on the compiled
+        path a list in ascending order, taken from the `CidMarks` in place). With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
         dirty = self._dirty
-        self._dirty = self._marks()
+        if type(dirty) is set:
+            self._dirty = set()
+        else:
+            dirty = dirty.take()  # visits only the marked words and clears them: nothing is allocated
         self.replies_waiting = False
         if not check:
             return dirty
