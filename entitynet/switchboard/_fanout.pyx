@@ -3,13 +3,13 @@
 
 Why: forwarding one PUBLISH to N viewers is, per viewer, a set insert (the new viewer set), a set difference
 (who lost the entity), an outbox store and a set insert (the dirty set), and in CPython each of these goes
-through the interpreter and builds a temporary set. `route` does them in one pass over the cells' subscribers
-with a per-client stamp array (a C array indexed by client id: "seen in this PUBLISH"), so the union, the
-deduplication of viewers in two cells and the difference against the old viewers cost a C array access each
-instead of a hashed set operation, and no temporary set is built; the outbox store is an append to the
-compiled outboxes' C arrays (`_outbox.pyx`), not a store into a dict per viewer. The tables stay the core's
-own Python sets and dicts (one home per state: `Switchboard.subscribers`, `EntityState.viewers`); this module
-keeps only scratch space. `publish_run` takes the rest of a common PUBLISH (the checks, the entity's fields,
+through the interpreter. On the compiled path the tables' id sets are C word arrays (`_viewsets.pxi`: the cell
+-> subscribers sets and each entity's viewer set are `ViewerSet`s, the dirty set is `CidMarks`, one kind per
+switchboard, chosen with its outboxes by `outbox.set_kinds`; they stay the core's only home of those sets): the
+union of the cells' subscribers is an OR of sorted words, who keeps, gains and loses the entity come out of one
+walk over the new and the old words (AND NOT), the dirty marks are one OR per 64 viewers, and no Python object is
+touched per viewer; the outbox store is an append to the compiled outboxes' C arrays (`_outbox.pyx`).
+`publish_run` takes the rest of a common PUBLISH (the checks, the entity's fields,
 the occupants, the UPDATE's bytes, the expiry) for a run of PUBLISHes in one C loop, so that the route is
 reached without a Python call per message; anything unusual it leaves to `Switchboard._publish`. The dict
 outboxes of `entitynet.switchboard.outbox` and `Switchboard._route_py` are the reference (and the fallback
@@ -20,9 +20,10 @@ from cpython.bytes cimport PyBytes_AS_STRING, PyBytes_FromStringAndSize, PyBytes
 from cpython.dict cimport PyDict_GetItem
 from cpython.long cimport PyLong_AsLong, PyLong_AsLongLongAndOverflow
 from cpython.ref cimport PyObject
-from cpython.set cimport PySet_Add
-from libc.stdlib cimport realloc
-from libc.string cimport memcpy, memset
+from libc.stdlib cimport free, malloc, qsort, realloc
+from libc.string cimport memcpy, memmove, memset
+
+cimport cython
 
 from entitynet.switchboard._outbox cimport OutboxTable
 
@@ -31,136 +32,94 @@ from entitynet.protocol.messages import LOCAL_ID_LIMIT, MAX_INT, UPDATE
 from entitynet.switchboard.occupancy import move as _move
 
 
-cdef extern from "Python.h":
-    void PyObject_GC_UnTrack(void *op)
-    ctypedef struct PySetObject:
-        Py_ssize_t used
-        Py_ssize_t mask
-
-
 # ---------------------------------------------------------------------------------------------- routing
-# stamp[cid] == _gen: the client was met in the current PUBLISH. One array for the process (the core is
-# single-threaded and a route call never re-enters), grown to the largest client id seen; cleared when the
-# generation counter wraps.
-cdef unsigned int *_stamp = NULL
-cdef Py_ssize_t _n_stamp = 0
-cdef unsigned int _gen = 0
-
-
-cdef int _reserve(Py_ssize_t n) except -1:
-    """Make `_stamp` hold client ids below `n`."""
-    global _stamp, _n_stamp
-    cdef Py_ssize_t size
-    cdef unsigned int *grown
-    if n <= _n_stamp:
-        return 0
-    size = max(n, 2 * _n_stamp, 1024)
-    grown = <unsigned int *>realloc(_stamp, size * sizeof(unsigned int))
-    if grown == NULL:
-        raise MemoryError()
-    memset(grown + _n_stamp, 0, (size - _n_stamp) * sizeof(unsigned int))
-    _stamp, _n_stamp = grown, size
-    return 0
-
-
-cdef unsigned int _next_gen():
-    global _gen
-    _gen += 1
-    if _gen == 0:  # wrapped: forget every stamp
-        memset(_stamp, 0, _n_stamp * sizeof(unsigned int))
-        _gen = 1
-    return _gen
+include "_viewsets.pxi"  # ViewerSet, CidMarks: the subscriber sets, viewer sets and dirty marks in C
 
 
 def route(object sb, object c, object e, tuple old, tuple new):
     """`Switchboard._route` for an entity without followers whose owner shows no identity, on a switchboard
-    whose outboxes are the compiled table (the caller checks): the same stores, LEAVEs, dirty marks, counters
-    and new viewer set, in one C pass."""
+    whose outboxes are the compiled table and whose sets are `ViewerSet`s and `CidMarks` (the caller checks):
+    the same stores, LEAVEs, dirty marks, counters and new viewer set, in one C pass."""
     _route(sb, c, e, old, new)
 
 
 cdef int _route(object sb, object c, object e, tuple old, tuple new) except -1:
-    """`route`'s body, also called by `publish_run` without a Python call in between. The stores are appends to
-    the compiled outboxes (`_outbox.OutboxTable`: `begin_plain`, `put_plain` per viewer, `end_plain`)."""
+    """`route`'s body, also called by `publish_run` without a Python call in between. The viewer set is the union
+    of the cells' subscriber sets (word ORs), who keeps or gains it and who loses it come out of one walk over
+    the new and the old words, and the stores are appends to the compiled outboxes (`_outbox.OutboxTable`:
+    `begin_plain`, `put_plain` per viewer, `end_plain`)."""
     cdef OutboxTable ot = <OutboxTable?>sb.outboxes
+    cdef CidMarks dirty = <CidMarks?>sb._dirty
     cdef long t = e.viewers_tick
-    cdef long valid_from = sb._valid_from
-    cdef long owner = c.cid
     cdef dict cell_tick = sb._cell_tick
-    cdef dict subs = sb.subscribers
-    cdef set dirty = sb._dirty
-    cdef set viewers, old_viewers
     cdef object eid = e.eid
-    cdef object cell, v, leave
+    cdef object cell, leave = None
     cdef PyObject *ct
-    cdef Py_ssize_t n_leaves, slot
-    cdef long iv
+    cdef ViewerSet nv, ov
+    cdef Py_ssize_t n_leaves = 0, slot, i, j
+    cdef long long idx, base
+    cdef unsigned long long nb, ob, b
     cdef int vs
-    cdef unsigned int gen
-    if t >= valid_from and (old is new or old == new):
+    ov = _as_viewer_set(e.viewers)
+    if t >= <long>sb._valid_from and (old is new or old == new):
         for cell in new:
             ct = PyDict_GetItem(cell_tick, cell)
             if ct != NULL and PyLong_AsLong(<object>ct) > t:
                 break
         else:  # nobody (un)subscribed to these cells: the viewers are the same
-            viewers = e.viewers
-            if not viewers:
+            if not ov.n:
                 return 0
             ot.begin_plain(ot.slot_for(eid), <bytes?>e.enc_plain)
             try:
-                for v in viewers:
-                    ot.put_plain(ot.vslot(PyLong_AsLong(v)))
-                    PySet_Add(dirty, v)
+                for i in range(ov.n):
+                    base, b = ov.w[i].idx << 6, ov.w[i].bits
+                    while b:
+                        ot.put_plain(ot.vslot(<long>(base + __builtin_ctzll(b))))
+                        b &= b - 1
+                    dirty.mark(ov.w[i].idx, ov.w[i].bits)
             finally:
                 ot.end_plain()
-            sb.stats["deliveries"] += len(viewers)
+            sb.stats["deliveries"] += ov.count
             return 0
-    _reserve(sb._next_cid)
-    gen = _next_gen()
-    viewers = set()
+    nv = _union_of_cells(sb.subscribers, new, c.cid)
     slot = ot.slot_for(eid)
-    n_leaves = 0
     ot.begin_plain(slot, <bytes?>e.enc_plain)
     try:
-        for cell in new:
-            ct = PyDict_GetItem(subs, cell)
-            if ct == NULL:
-                continue
-            for v in <set><object>ct:
-                iv = PyLong_AsLong(v)
-                if _stamp[iv] != gen and iv != owner:
-                    _stamp[iv] = gen
-                    ot.put_plain(ot.vslot(iv))
-                    PySet_Add(viewers, v)
-                    PySet_Add(dirty, v)
-        old_viewers = e.viewers
-        leave = None
-        for v in old_viewers:  # LEAVE for who lost it (before `end_plain`: their pending UPDATE is replaced)
-            iv = PyLong_AsLong(v)
-            if iv < _n_stamp and _stamp[iv] == gen:
-                continue
-            if leave is None:
-                leave = _encode_leave(eid)
-            vs = ot.vslot(iv)
-            if vs >= 0:
-                ot.put_enc(vs, slot, <bytes>leave)
-            PySet_Add(dirty, v)
-            n_leaves += 1
+        i = j = 0
+        while i < nv.n or j < ov.n:  # the new and the old words in step: keep or gain, lose
+            if j >= ov.n or (i < nv.n and nv.w[i].idx < ov.w[j].idx):
+                idx, nb, ob = nv.w[i].idx, nv.w[i].bits, 0
+                i += 1
+            elif i >= nv.n or ov.w[j].idx < nv.w[i].idx:
+                idx, nb, ob = ov.w[j].idx, 0, ov.w[j].bits
+                j += 1
+            else:
+                idx, nb, ob = nv.w[i].idx, nv.w[i].bits, ov.w[j].bits
+                i += 1
+                j += 1
+            base = idx << 6
+            b = nb
+            while b:
+                ot.put_plain(ot.vslot(<long>(base + __builtin_ctzll(b))))
+                b &= b - 1
+            b = ob & ~nb  # LEAVE for who lost it (before `end_plain`: their pending UPDATE is replaced)
+            if b:
+                if leave is None:
+                    leave = _encode_leave(eid)
+                n_leaves += __builtin_popcountll(b)
+                while b:
+                    vs = ot.vslot(<long>(base + __builtin_ctzll(b)))
+                    if vs >= 0:
+                        ot.put_enc(vs, slot, <bytes>leave)
+                    b &= b - 1
+            dirty.mark(idx, nb | ob)
     finally:
         ot.end_plain()
-    if (<PySetObject *>viewers).mask + 1 > 4 * (<PySetObject *>viewers).used + 8:
-        # grown one add at a time, the table can be 2-4 times what a union's presized one is: compact it (a copy
-        # presizes), so that the sets take no more memory than the reference's
-        viewers = set(viewers)
-    if viewers:
-        sb.stats["deliveries"] += len(viewers)
+    if nv.count:
+        sb.stats["deliveries"] += nv.count
     if n_leaves:
         sb.stats["leaves"] += n_leaves
-    # A set of client ids (ints) can be part of no reference cycle, yet a tracked set is walked by every young
-    # collection until it is promoted: at the standard load the live viewer sets (one per moving entity, each
-    # of a few hundred ids) made young collections of 15-30 ms of CPU. Untracked, the collector never sees them.
-    PyObject_GC_UnTrack(<void *>viewers)
-    e.viewers = viewers
+    e.viewers = nv
     e.targets = None
     e.viewers_tick = sb._tick
     return 0

@@ -61,7 +61,9 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         self.timers = ExpiryHeap()  # entity id -> validity deadline
         self.hello_timers = ExpiryHeap()  # client id -> handshake deadline
         self.outboxes = outbox_module.new_outboxes(config.max_pending, config.max_control)  # C arrays or dicts
-        self._dirty: set[int] = set()
+        # the kinds of the id sets (subscribers, viewers; dirty marks): C word arrays with the compiled outboxes
+        self._viewer_set, marks = outbox_module.set_kinds(self.outboxes)
+        self._dirty: set[int] = marks()
         # a reply was queued outside its client's own frame (a cluster's QUERY answer, FOLLOW refusal, REDIRECT):
         # the reader will not write it, and the shell's flusher must not hold it for its latency budget
         self.replies_waiting = False
@@ -309,7 +311,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         for cell in new:
             s = subs.get(cell)
             if s:
-                viewers |= s
+                viewers.update(s)
         if e.followers:
             viewers |= e.followers
         if c.cid in viewers or e.followers or e.owner.identity is not None:
@@ -320,7 +322,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         gone = e.viewers - viewers
         if gone:
             self._leave(eid, gone)
-        e.viewers = viewers
+        e.viewers = viewers if self._viewer_set is set else self._viewer_set(viewers)
         e.targets = None  # resolved when the set is reused (many entities change cells at every publish)
         e.viewers_tick = self._tick
 
@@ -412,7 +414,7 @@ class Switchboard(SubscriptionsMixin, OutboundMixin, QueriesMixin, MirrorMixin):
         if e.viewers:
             self._leave(eid, e.viewers)
         self.outboxes.forget(eid)
-        e.viewers = set()
+        e.viewers = self._viewer_set()
         e.targets = None
 
     def expire(self, now: float) -> int:

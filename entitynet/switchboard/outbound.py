@@ -11,6 +11,7 @@ client that does not read).
 from __future__ import annotations
 
 import logging
+from collections.abc import Collection
 from typing import TYPE_CHECKING
 
 from entitynet import protocol as P
@@ -60,11 +61,15 @@ class OutboundMixin:
         if c is not None and not len(c.outbox) and not c.outbox.close_after:
             self._dirty.discard(cid)
 
-    def take_dirty(self, check: bool = True) -> set[int]:
-        """Clients with something new to write since the last call. With `check`, also enforces the outbox
+    def take_dirty(self, check: bool = True) -> Collection[int]:
+        """Clients with something new to write since the last call: their ids (a Python set, or on the compiled
+        path a list in ascending order, taken from the `CidMarks` in place). With `check`, also enforces the outbox
         bounds (a shell that drains each outbox right away calls `check_outbox` then instead: one pass)."""
         dirty = self._dirty
-        self._dirty = set()
+        if type(dirty) is set:
+            self._dirty = set()
+        else:
+            dirty = dirty.take()  # visits only the marked words and clears them: nothing is allocated
         self.replies_waiting = False
         if not check:
             return dirty

@@ -246,6 +246,15 @@ def compiled_publish_run(outboxes: Any) -> Any:
     return COMPILED.publish_run if _in_use and type(outboxes) is TABLE else None  # type: ignore[union-attr]
 
 
+def set_kinds(outboxes: Any) -> tuple[Any, Any]:
+    """The kinds of a switchboard's id sets, (viewer and subscriber sets, dirty marks): the compiled route's
+    `_fanout.ViewerSet` and `_fanout.CidMarks` under the same conditions as `compiled_route`, else `set` twice.
+    One kind per switchboard, chosen with its outboxes, so that every set the route reads is one it can walk."""
+    if _in_use and type(outboxes) is TABLE:
+        return COMPILED.ViewerSet, COMPILED.CidMarks  # type: ignore[union-attr]
+    return set, set
+
+
 def compiled_in_use() -> bool:
     """Whether the compiled outboxes and loops are in use (the server logs it, the bench reports it)."""
     return _in_use

@@ -61,7 +61,7 @@ class SubscriptionsMixin:
         for cell in added:
             s = subs.get(cell)
             if s is None:
-                subs[cell] = {cid}
+                subs[cell] = self._viewer_set((cid,))
             else:
                 s.add(cid)
             cell_tick[cell] = tick

@@ -62,7 +62,7 @@ class EntityState:
         self.cells: tuple[int, ...] = ()
         self.validity_ms = 0
         self.payload = b""
-        self.viewers: set[int] = set()
+        self.viewers: set[int] = set()  # a `ViewerSet` once routed on the compiled path (`outbox.set_kinds`)
         self.followers: set[int] = set()
         self.enc_plain = b""
         self.enc_ident: bytes | None = None  # cached encoding with the owner's identity
