@@ -136,8 +136,10 @@ async def test_past_the_reply_bound_the_frame_is_fed_whole_and_the_ping_refused_
     assert any(isinstance(m, P.Error) and m.code == P.ErrorCode.TOO_MANY_REQUESTS for m in flat)
 
 
-async def test_a_hello_and_its_ping_in_one_frame():
+async def test_a_hello_and_its_ping_in_one_frame(monkeypatch):
     for quick in (True, False):
+        if not quick:
+            monkeypatch.setattr(Server, "_quick_tail", lambda self, conn, msgs: False)
         async with running(**QUIET) as server:
             c = await Raw.connect(server, hello=False)
             await c.send(P.Hello(P.PROTOCOL_VERSION, "", "test-digest"), P.Ping(4))
@@ -145,4 +147,4 @@ async def test_a_hello_and_its_ping_in_one_frame():
                 msgs = []
                 while not any(isinstance(m, P.Pong) for m in msgs):
                     msgs += await c.read()
-            assert [type(m) for m in msgs] == [P.Welcome, P.Pong]
+            assert [type(m) for m in msgs] == [P.Welcome, P.Pong]  # the WELCOME first, either way
