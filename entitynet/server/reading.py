@@ -86,7 +86,10 @@ class ReadingMixin:
                     end += 1
                     if t is P.Subscribe or t is P.Query:
                         break
-                if not self._feed_part(conn, msgs[start:end] if start or end < n else msgs, end >= last, answer):
+                part = msgs[start:end] if start or end < n else msgs
+                # answers wait for the trailing PING's frame where the whole frame's slice would have held it
+                joined = end == last < n and end - start < step and t is not P.Subscribe and t is not P.Query
+                if not self._feed_part(conn, part, end >= last, answer, write=not joined):
                     self._note_news()
                     return None  # the connection is closing (or gone)
                 answer = None
@@ -104,9 +107,10 @@ class ReadingMixin:
         return None
 
     def _feed_part(self, conn: _Conn, part: list[P.Message], frame_end: bool,
-                   answer: tuple[str, object] | None) -> bool:
-        """One slice to the core, and its answers (WELCOME, PONG, ERROR) written now, not at the next flush;
-        False when the connection is closing or gone."""
+                   answer: tuple[str, object] | None, write: bool = True) -> bool:
+        """One slice to the core, and its answers (WELCOME, PONG, ERROR) written now, not at the next flush
+        (with `write`; else they wait for the trailing PING's frame, which then goes the core's way with them);
+        False when the connection is closing or gone (a closing one's last words are written at once)."""
         sb = self.sb
         before = sb.stats["updates_in"]
         if answer is not None:
@@ -118,7 +122,7 @@ class ReadingMixin:
             self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
         self._rearm()
         ob = sb.outbox(conn.cid)
-        if ob is not None and (ob.has_control or ob.close_after):
+        if ob is not None and (ob.close_after or (write and ob.has_control)):
             self._try_write(conn)
             if not conn.busy:
                 sb.written_out(conn.cid)  # all of it went: no flusher wake-up for this client
