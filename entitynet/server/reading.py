@@ -67,42 +67,82 @@ class ReadingMixin:
         """Feed slices of one frame from message `start` on, synchronously: a slice ends after `feed_slice`
         messages or after a SUBSCRIBE or QUERY (their work grows with the entities in the cells). Returns None
         when the frame is done (or the connection is closing), else where to go on once the others were served:
-        the slices since `start` took `FEED_YIELD_S`. `answer` is a looked-up token for the first slice."""
-        sb = self.sb
+        the slices since `start` took `FEED_YIELD_S`. `answer` is a looked-up token for the first slice.
+
+        A frame that ends with its only PING (a lock step's SUBSCRIBE difference or PUBLISHes and their
+        barrier PING) is fed without it, and the PING is answered like a frame of its own (`_pong_now`: the
+        PONG and the states waiting, in one frame, past the outbox), or fed as one when the core says the PONG
+        must queue (`_quick_tail` says why the replies are the same either way)."""
         step = self.config.feed_slice
         n = len(msgs)
+        last = n - 1 if self._quick_tail(conn, msgs) else n
         began = time.perf_counter()
-        while start < n:
-            end = start
-            limit = min(n, start + step)
-            while end < limit:
-                t = type(msgs[end])
-                end += 1
-                if t is P.Subscribe or t is P.Query:
-                    break
-            before = sb.stats["updates_in"]
-            part = msgs[start:end] if start or end < n else msgs
-            if answer is not None:
-                with self.tokens.answering(*answer):
-                    sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
+        while True:
+            while start < last:
+                end = start
+                limit = min(last, start + step)
+                while end < limit:
+                    t = type(msgs[end])
+                    end += 1
+                    if t is P.Subscribe or t is P.Query:
+                        break
+                part = msgs[start:end] if start or end < n else msgs
+                # answers wait for the trailing PING's frame where the whole frame's slice would have held it
+                joined = end == last < n and end - start < step and t is not P.Subscribe and t is not P.Query
+                if not self._feed_part(conn, part, end >= last, answer, write=not joined):
+                    self._note_news()
+                    return None  # the connection is closing (or gone)
                 answer = None
-            else:
-                sb.receive(conn.cid, part, self.clock(), frame_end=end >= n)
-            if sb.stats["updates_in"] != before:  # a PING or SUBSCRIBE frame costs no Prometheus call
-                self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
-            self._rearm()
-            ob = sb.outbox(conn.cid)
-            if ob is not None and (ob.has_control or ob.close_after):
-                self._try_write(conn)  # answers (WELCOME, PONG, ERROR) go out now, not at the next flush
-                if not conn.busy:
-                    sb.written_out(conn.cid)  # all of it went: no flusher wake-up for this client
-            self._note_news()
-            if ob is None or ob.close_after:
-                return None
-            start = end
-            if start < n and time.perf_counter() - began >= FEED_YIELD_S and not _cheap_rest(msgs, start, step):
-                return start
+                start = end
+                if start < last and time.perf_counter() - began >= FEED_YIELD_S and not _cheap_rest(msgs, start, step):
+                    self._note_news()
+                    return start
+            if last == n or self._pong_now(conn, msgs[last]):
+                break
+            last = n  # the PONG must queue behind something: the PING fed as a frame of its own
+        # the flusher is told once the frame's synchronous run is done, not after each slice: nothing else runs
+        # in between, and a frame's last slice often writes what its first queued (a SUBSCRIBE's states go out
+        # with the PONG of the PING after it), which would have cost the flusher a wake-up that finds nothing
+        self._note_news()
         return None
+
+    def _feed_part(self, conn: _Conn, part: list[P.Message], frame_end: bool,
+                   answer: tuple[str, object] | None, write: bool = True) -> bool:
+        """One slice to the core, and its answers (WELCOME, PONG, ERROR) written now, not at the next flush
+        (with `write`; else they wait for the trailing PING's frame, which then goes the core's way with them);
+        False when the connection is closing or gone (a closing one's last words are written at once)."""
+        sb = self.sb
+        before = sb.stats["updates_in"]
+        if answer is not None:
+            with self.tokens.answering(*answer):
+                sb.receive(conn.cid, part, self.clock(), frame_end=frame_end)
+        else:
+            sb.receive(conn.cid, part, self.clock(), frame_end=frame_end)
+        if sb.stats["updates_in"] != before:  # a PING or SUBSCRIBE frame costs no Prometheus call
+            self.metrics.updates_in.inc(sb.stats["updates_in"] - before)
+        self._rearm()
+        ob = sb.outbox(conn.cid)
+        if ob is not None and (ob.close_after or (write and ob.has_control)):
+            self._try_write(conn)
+            if not conn.busy:
+                sb.written_out(conn.cid)  # all of it went: no flusher wake-up for this client
+        return ob is not None and not ob.close_after
+
+    def _quick_tail(self, conn: _Conn, msgs: list[P.Message]) -> bool:
+        """Whether the frame's last message, a PING, may be answered as a frame of its own after the rest
+        (plain TCP only: `_pong_now` writes to the socket). The replies are the same as the core's for the
+        whole frame: the PING is the frame's only request (no other PING or QUERY), and the frame has at most
+        `max_replies_per_frame` messages, each of which asks for at most one reply (an ERROR), so the PING is
+        within the frame's reply bound either way; the rest ends the core's frame first, which then has
+        nothing refused to report."""
+        n = len(msgs)
+        if conn.fd is None or n < 2 or type(msgs[-1]) is not P.Ping or n > self.sb.config.max_replies_per_frame:
+            return False
+        for m in msgs[:-1]:
+            t = type(m)
+            if t is P.Ping or t is P.Query:
+                return False
+        return True
 
     def _reject(self, conn: _Conn, err: P.ProtocolError) -> None:
         logs.event("protocol error", logging.INFO, cid=conn.cid, peer=conn.peer, code=int(err.code),

@@ -338,6 +338,7 @@ class OursTransport:
     def _open(self, port: int, hello: bytes) -> socket.socket:
         try:
             s = socket.create_connection(("127.0.0.1", port), timeout=self.timeout)
+            s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             s.sendall(hello)
         except OSError as exc:
             raise TransportError(f"cannot reach the entitynet server: {exc}") from None

@@ -112,3 +112,18 @@ def test_the_suite_reports_a_broker_failure_as_a_command_error(helsinki, helsink
     with pytest.raises(CommandError, match="mqtt-disc: cannot reach mosquitto"):
         e2e_bench._guarded(BY_NAME["mqtt-disc"], helsinki, helsinki_path, None, P, EXES, None, tmp_path,
                            lambda m: None, seen_at=radius_cells_at(helsinki, 300.0))
+
+
+def test_our_transport_turns_nagle_off_as_the_mqtt_and_redis_clients_do():
+    """gmqtt (asyncio) and redis-py set TCP_NODELAY on their sockets; ours must too, or a PING sent right after
+    a publisher's PUBLISH frame waits for the server's delayed ACK (about 40 ms a tick)."""
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as srv:
+        t = object.__new__(OursTransport)
+        t.timeout, t.proc = 2.0, None
+        s = t._open(srv.getsockname()[1], b"")
+        try:
+            assert s.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0
+        finally:
+            s.close()
