@@ -4,6 +4,7 @@ entities restarted on the survivor; no child process is left behind."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 
@@ -16,10 +17,21 @@ from sims.workers.local import LocalWorkers
 from sims.workers.sim import SAME_NOTE, WorkerSim
 from tests.sims.engine.test_routes import grid
 
-#: the timeout of the tests that silence a worker (SIGSTOP): long enough that a worker which is only slow (the
-#: 2-core CI machine running the suite: at 0.5 s both workers of a run were once declared dead in its first
-#: ticks) is not taken for the silenced one, short enough to wait out once per test
+#: the timeout of the tick in which a test silences a worker (SIGSTOP): long enough that the other worker, only
+#: slow (the 2-core CI machine running the suite: at 0.5 s both workers of a run were once declared dead), is not
+#: taken for the silenced one, short enough to wait out once per test
 SILENT_TIMEOUT_S = 3.0
+#: the timeout of the ticks before it: a worker slowed by a loaded machine must not be declared dead (and told to
+#: stop) before the test silences it (seen: worker 1 gone after 10 ticks at 3 s, the SIGSTOP then found no process)
+WARM_TIMEOUT_S = 60.0
+
+
+def _silence(sim: WorkerSim, pid: int) -> None:
+    """Stop worker `pid` (alive but silent) after checking that no worker was lost so far, and give the coming
+    tick the short timeout that declares it dead."""
+    assert not sim.deaths, f"a worker was lost before the test silenced one: {sim.deaths}"
+    sim.core.timeout = SILENT_TIMEOUT_S
+    os.kill(pid, signal.SIGSTOP)
 
 
 def config() -> SimConfig:
@@ -114,13 +126,14 @@ def test_when_every_worker_is_gone_the_run_ends_and_says_so(topo):
 
 def test_a_worker_too_slow_for_the_timeout_is_declared_dead_and_told_so(topo):
     link = LocalWorkers(2, topo, None)
-    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=SILENT_TIMEOUT_S)
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=WARM_TIMEOUT_S)
     try:
         sim.start()
-        os.kill(link.pids[1], signal.SIGSTOP)  # alive but silent: only the timeout can tell
+        _silence(sim, link.pids[1])  # alive but silent: only the timeout can tell
         sim.step()
         (death,) = sim.deaths
         assert death["worker"] == 1 and f"no answer to tick 1 within {SILENT_TIMEOUT_S:g} s" in death["why"]
+        sim.core.timeout = WARM_TIMEOUT_S  # worker 0, alone now, only slow on a loaded machine, stays
         os.kill(link.pids[1], signal.SIGCONT)
         for _ in range(3):
             sim.step()  # its late answer is stray; the run goes on with worker 0 alone
@@ -137,20 +150,21 @@ def test_an_entity_that_leaves_the_world_in_the_tick_its_worker_dies_is_unpublis
     silent in that very tick, never sends its UNPUBLISH: the coordinator sends it in its stead, or the server
     keeps a ghost of an entity that no longer exists until its validity runs out."""
     link = LocalWorkers(2, topo, None)
-    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=SILENT_TIMEOUT_S)
+    sim = WorkerSim(topo, config(), None, link, 2, transport="local", timeout=WARM_TIMEOUT_S)
     sw = LocalSwitch(sim)
     try:
         sw.exchange(*sim.start())
         for _ in range(10):
             sw.exchange(*sim.step())
         assert 13 in sim.world.agents and 13 in {e.local for e in sw.sb.entities.values()}
-        os.kill(link.pids[1], signal.SIGSTOP)
+        _silence(sim, link.pids[1])
         sw.exchange(*sim.step())
         assert [d["worker"] for d in sim.deaths] == [1] and 13 not in sim.world.agents  # left in this tick
         assert 13 not in {e.local for e in sw.sb.entities.values()}
         assert 13 not in sim.published_ids
     finally:
-        os.kill(link.pids[1], signal.SIGCONT)
+        with contextlib.suppress(ProcessLookupError):  # gone already: the assertion above says why
+            os.kill(link.pids[1], signal.SIGCONT)
         sim.close()
     assert no_children_left(link.pids)
 
