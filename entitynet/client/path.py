@@ -21,10 +21,11 @@ except ImportError:  # the pure method below
 class Path:
     """Consecutive directed edges with one coordinate s, so that long bodies, hairpins and short edges
     need no special cases. Paths are not changed in place (cached ids and cumulative lengths stay valid)."""
-    __slots__ = ("net", "edges", "cum", "_ids")
+    __slots__ = ("net", "edges", "cum", "_ids", "_sub")
 
     def __init__(self, net: NetView, edges: Sequence[DirEdge], *, _cum: list[float] | None = None) -> None:
         self._ids: list[int] | None = None
+        self._sub: tuple[int, Path] | None = None  # the last `suffix` (k, path): a publish asks it again
         if _cum is not None:  # a slice of a path already checked: no validation needed
             self.net, self.edges, self.cum = net, list(edges), _cum
             return
@@ -189,11 +190,24 @@ class Path:
         return out
 
     def suffix(self, k: int) -> Path:
-        """The path from edge k on (s shifts by cum[k]); no re-validation."""
-        if k == 0 and self.cum[0] == 0.0:  # c - 0.0 is c: the same coordinates (copied: no shared lists)
-            return Path(self.net, self.edges, _cum=list(self.cum))
+        """The path from edge k on (s shifts by cum[k]); no re-validation. Paths are not changed in place, so
+        the path itself is its suffix from edge 0 (where cum[0] is 0.0: c - 0.0 is c), and the last suffix made
+        is kept and handed out again (a publish asks for the same one while the tracker's path stays: issue 22)."""
+        if k == 0 and self.cum[0] == 0.0:
+            return self
+        sub = self._sub
+        if sub is not None and sub[0] == k:
+            return sub[1]
         c0 = self.cum[k]
-        return Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
+        path = Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
+        self._sub = (k, path)
+        return path
+
+    def part_from(self, s: float) -> tuple[Path, float]:
+        """The path from the edge holding s on (`suffix(index(s))`) and its shift of s (`cum` there): what a
+        publish sends."""
+        k = self.index(s)
+        return self.suffix(k), self.cum[k]
 
     def first_boundary_after(self, s: float, limit: float) -> float | None:
         """The first cell change in (s, min(limit, length)], or None (stops at the first one found)."""
