@@ -242,8 +242,17 @@ class Path:
         return Path(net, self.edges + ahead, _cum=cum)
 
     def reversed(self) -> Path:
-        """The same way travelled the other way (s becomes length - s): for an entity that turns round."""
-        return Path(self.net, [(e, -d) for e, d in reversed(self.edges)])
+        """The same way travelled the other way (s becomes length - s): for an entity that turns round. A path's
+        edges meet end to start, so turned round they do too: no check again, the lengths summed afresh in the
+        new order as the checking constructor sums them (`reversed_reference`)."""
+        edge_len = self.net.edge_len
+        edges = [(e, -d) for e, d in reversed(self.edges)]
+        cum = [0.0]
+        c = 0.0
+        for e, _d in edges:
+            c = c + edge_len[e]
+            cum.append(c)
+        return Path(self.net, edges, _cum=cum)
 
     def trimmed(self, keep_from: float) -> tuple[Path, float]:
         """Drop whole edges that end before `keep_from`; returns the new path and the shift of s."""
@@ -260,6 +269,11 @@ class Path:
 
     def __repr__(self) -> str:
         return f"Path({self.edges!r})"
+
+
+def reversed_reference(path: Path) -> Path:
+    """`Path.reversed` through the checking constructor (tests hold the two equal)."""
+    return Path(path.net, [(e, -d) for e, d in reversed(path.edges)])
 
 
 xy_reference = Path.xy  # the pure `Path.xy` (tests hold the compiled one equal to it)

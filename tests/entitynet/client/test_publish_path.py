@@ -13,10 +13,11 @@ from entitynet.client import netview
 from entitynet.client.fleet import FleetCore
 from entitynet.client.path import Path
 from entitynet.client.player import Player
-from entitynet.client.state import PATH_W
+from entitynet.client.state import I_COL, PATH_W
 from tests.entitynet.client.test_fleet import _run
 from tests.entitynet.client_fixtures import chain, cross, parallel
 
+_COLUMNS = __import__("entitynet.client.state", fromlist=["_COMPILED"])._COMPILED  # (before any test patches it)
 HOSTILE = (math.nan, math.inf, -math.inf, -0.0, 0.0, -1e300, 1e300, 5e-324)
 
 
@@ -65,21 +66,18 @@ def test_the_part_from_the_rows_arrays_is_the_paths_suffix(topo):
     assert checked > 100
 
 
-def test_the_part_from_a_path_held_as_an_object_and_a_wide_one():
-    """A path in its object only (the scalar code's, `pn` -1) or wider than the row's arrays: the object's part."""
-    net = netview(chain())
+def test_the_part_from_a_path_held_as_an_object():
+    """A lone Player's path is in its object only (the scalar code's, `pn` -1): the object's part."""
     p = Player(chain(), 1, "car", accuracy=4.0)
     for k in range(6):
         p.feed(10.0 + 8.0 * k, 0.5, float(k + 1))
     trk = p.tracker
-    assert trk._st.i[trk._ib + 14] < 0 or trk._st.paths[trk._row] is not None
+    assert trk._st.i[trk._ib + I_COL["pn"]] == -1
     for start in (*HOSTILE, 3.0, trk.path.length):
         got, shift = trk.path_from(start)
         k = trk.path.index(start)
         _same(got, _suffix_reference(trk.path, k))
         assert shift == trk.path.cum[k]
-    wide = Path(net, [(0, 1)] * 1)
-    assert len(wide.edges) <= PATH_W
 
 
 def test_a_paths_suffix_is_kept_and_equal_to_a_new_one():
@@ -124,3 +122,72 @@ def test_the_fleets_ticks_after_a_fix_give_the_lone_players_messages():
         assert dict(got) == {slots[i]: m for i, m in want.items() if m}, k
         spoke += sum(len(m) for m in want.values())
     assert spoke > 50
+
+
+@pytest.mark.parametrize("topo", [parallel(gap=12.0, length=300.0), chain(), cross(arm=100.0)])
+def test_a_path_turned_round_is_the_checked_one(topo):
+    """`Path.reversed` without the constructor's checks: the same edges and cumulative lengths (bit for bit) as
+    the checking constructor gives, on every path the twins' trackers held and on those turned round twice."""
+    from entitynet.client.path import reversed_reference
+
+    _a, _b, core, _ents = _run(topo, n=12, ticks=120)
+    seen = 0
+    for p in core.players:
+        if p is None or p.tracker is None or p.tracker.path is None:
+            continue
+        path = p.tracker.path
+        for q in (path, path.reversed(), path.suffix(len(path.edges) - 1)):
+            _same(q.reversed(), reversed_reference(q))
+            _same(q.reversed().reversed(), reversed_reference(reversed_reference(q)))
+            seen += 1
+    assert seen > 10
+
+
+def _copy_both(monkeypatch, path: Path, cap: int = 3, row: int = 1):
+    """`Record.path_to_arrays` of `path` into row `row`, compiled and pure: the two records' blocks (or the
+    errors)."""
+    from entitynet.client import state
+
+    if _COLUMNS is None:
+        pytest.skip("the compiled accessors are not built here")
+    out = []
+    for compiled in (_COLUMNS, None):
+        monkeypatch.setattr(state, "_COMPILED", compiled)
+        rec = state.Record(cap)
+        for _ in range(cap):
+            rec.new_row()
+        rec.paths[row] = path
+        rec.i[row * state.NI + state.I_COL["pn"]] = -1
+        try:
+            got = rec.path_to_arrays(row)
+        except (ValueError, TypeError, OverflowError) as err:
+            out.append(type(err))
+            continue
+        out.append((got, rec.pe.tobytes(), rec.pd.tobytes(), rec.pc.tobytes(), rec.i.tobytes()))
+    return out
+
+
+@pytest.mark.parametrize("topo", [parallel(gap=12.0, length=300.0), chain(), cross(arm=100.0)])
+def test_a_path_copied_into_a_row_in_c_is_the_references_copy(topo, monkeypatch):
+    _a, _b, core, _ents = _run(topo, n=8, ticks=80)
+    paths = [p.tracker.path for p in core.players if p is not None and p.tracker and p.tracker.path is not None]
+    assert paths
+    for path in paths:
+        a, b = _copy_both(monkeypatch, path)
+        assert a == b and a[0] is True
+
+
+def test_a_malformed_path_is_refused_by_both_copies(monkeypatch):
+    net = netview(chain())
+    good = Path(net, [(0, 1)])
+    for edges, cum in (([(0, 1)], [0.0]), ([(0, 1)], [0.0, 1.0, 2.0]), ([(0.5, 1)], [0.0, 1.0]),
+                       ([(0, 1)], [0.0, "x"]), ([(2**70, 1)], [0.0, 1.0]),
+                       ([(0, 1)], [0.0, math.nan]), ([(0, 1)] * (PATH_W + 1), [0.0] * (PATH_W + 2))):
+        bad = Path(net, edges, _cum=cum)
+        a, b = _copy_both(monkeypatch, bad)
+        if len(edges) > PATH_W:
+            assert a[0] is False and b[0] is False  # too wide: stays in its object
+        else:
+            assert a == b, (edges, cum, a, b)
+    a, b = _copy_both(monkeypatch, Path(net, good.edges, _cum=[0.0, math.inf]))
+    assert a == b
