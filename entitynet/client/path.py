@@ -21,11 +21,12 @@ except ImportError:  # the pure method below
 class Path:
     """Consecutive directed edges with one coordinate s, so that long bodies, hairpins and short edges
     need no special cases. Paths are not changed in place (cached ids and cumulative lengths stay valid)."""
-    __slots__ = ("net", "edges", "cum", "_ids", "_sub")
+    __slots__ = ("net", "edges", "cum", "_ids", "_sub", "_sub_k")
 
     def __init__(self, net: NetView, edges: Sequence[DirEdge], *, _cum: list[float] | None = None) -> None:
         self._ids: list[int] | None = None
-        self._sub: tuple[int, Path] | None = None  # the last `suffix` (k, path): a publish asks it again
+        self._sub: Path | None = None  # the last `suffix` made (from edge `_sub_k`): a publish asks it again
+        self._sub_k: int | None = None
         if _cum is not None:  # a slice of a path already checked: no validation needed
             self.net, self.edges, self.cum = net, list(edges), _cum
             return
@@ -195,12 +196,11 @@ class Path:
         is kept and handed out again (a publish asks for the same one while the tracker's path stays: issue 22)."""
         if k == 0 and self.cum[0] == 0.0:
             return self
-        sub = self._sub
-        if sub is not None and sub[0] == k:
-            return sub[1]
+        if self._sub_k == k:
+            return self._sub
         c0 = self.cum[k]
-        path = Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
-        self._sub = (k, path)
+        path = self._sub = Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
+        self._sub_k = k  # (two fields, not a (k, path) tuple: one object less for the collector a publish)
         return path
 
     def part_from(self, s: float) -> tuple[Path, float]:

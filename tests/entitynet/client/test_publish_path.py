@@ -191,3 +191,10 @@ def test_a_malformed_path_is_refused_by_both_copies(monkeypatch):
             assert a == b, (edges, cum, a, b)
     a, b = _copy_both(monkeypatch, Path(net, good.edges, _cum=[0.0, math.inf]))
     assert a == b
+
+
+def test_a_suffix_from_a_negative_edge_is_the_references():
+    net = netview(chain())
+    path = Path(net, [(0, 1)])
+    for k in (-1, 0, -1):
+        _same(path.suffix(k), _suffix_reference(path, k))
