@@ -136,3 +136,48 @@ def test_the_compiled_constants_are_the_coverages():
     c = compiled.constants()
     assert c == {"MAX_PUBLISH_CELLS": coverage.MAX_PUBLISH_CELLS, "LATERAL_AHEAD_TIME": coverage.LATERAL_AHEAD_TIME,
                  "LATERAL_AHEAD_MIN": coverage.LATERAL_AHEAD_MIN}
+
+
+def _time_to_both(ghost, d):
+    """(reference `NetworkModel.time_to`, compiled `GhostTravel`) at distance d: a float by bit pattern or the
+    error's name."""
+    out = []
+    for fn in (ghost.time_to, compiled.GhostTravel(ghost)):
+        try:
+            t = fn(d)
+            out.append("nan" if t != t else struct.pack("=d", t))
+        except (ArithmeticError, ValueError) as err:
+            out.append(type(err).__name__)
+    return out
+
+
+@needs_compiled
+def test_the_ghosts_travel_time_in_c_is_the_models():
+    """`GhostTravel` (the front's period's callable in the compiled cover) against `NetworkModel.time_to`: free
+    motion, accelerating to vmax, braking to a stop, a planned halt at a stop (the brake plan), and hostile
+    fields and distances."""
+    net = Player(chain(), 1, "car").net
+    path = Path(net, [(0, 1)])
+    rng = random.Random(7)
+    values = [0.0, -0.0, 1e-12, 1e-9, 2e-9, 0.5, 3.0, 13.9, 40.0, 1e6, -2.0]
+    seen = 0
+    for _ in range(3000):
+        v = rng.choice(values + [rng.uniform(0.0, 30.0)])
+        a = rng.choice([0.0, 1e-10, -1e-10, 1.5, -1.5, -8.0, rng.uniform(-4.0, 4.0)])
+        vmax = rng.choice([0.0, 5.0, 13.9, 30.0, rng.uniform(0.1, 40.0)])
+        stop = rng.choice([math.inf, rng.uniform(-5.0, 200.0), 0.0])
+        try:
+            ghost = network_model(3.0, path, rng.uniform(0.0, 50.0), v, a, vmax, 2, (4.5,), stop, 1.0)
+        except (ValueError, ArithmeticError):
+            continue
+        for d in (rng.uniform(0.0, 300.0), 1e-9, 0.0, -1.0, 1e300, math.inf, math.nan, rng.choice(HOSTILE)):
+            ref, out = _time_to_both(ghost, d)
+            assert out == ref, (ghost, d)
+            seen += 1
+    for v, a, vmax in ((math.nan, 1.0, 5.0), (math.inf, 0.0, 5.0), (-1e8, 1e-5, 5.0), (-3.0, -1.0, 5.0),
+                       (2.0, math.nan, 5.0), (2.0, 1.0, math.inf), (2.0, 1.0, -1.0), (-math.inf, 1.0, 5.0)):
+        ghost = network_model(0.0, path, 1.0, v, a, vmax, 2, (4.5,), math.inf, 1.0)
+        for d in (1e-300, 1e-9, 2e-9, 1.0, 1e300, math.inf, math.nan, -1.0):
+            ref, out = _time_to_both(ghost, d)
+            assert out == ref, (v, a, vmax, d)
+    assert seen > 10000
