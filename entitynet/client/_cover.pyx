@@ -25,7 +25,6 @@ from entitynet.client import kinematics as _kin
 from entitynet.client import limits as _lim
 from entitynet.client import occupation as _occ
 from entitynet.client.motion import NetworkModel
-from entitynet.client import lateral as _lat
 from entitynet.client.lateral import near_index
 
 #: `coverage.MAX_PUBLISH_CELLS`, `LATERAL_AHEAD_TIME` and `LATERAL_AHEAD_MIN` (coverage.py imports this module, so
@@ -36,8 +35,6 @@ cdef double AHEAD_MIN = 10.0
 cdef double A_EPS = _kin.A_EPS
 cdef double D_EPS = _kin.D_EPS
 cdef double HORIZON = _lim.HORIZON
-cdef double WIDE = _lat.WIDE
-cdef double AREA_BUCKET = _lat.AREA_BUCKET
 cdef double LOOKAHEAD = _occ.LOOKAHEAD
 
 
@@ -206,20 +203,14 @@ cdef tuple _behind(cov, path, double s, double lookahead, networks):
 
 cdef list _lateral(cov, trk, path, double s, double ahead, bint behind, double back_len, only, double lat):
     """`Coverage._lateral_cells` (`behind` False: `back_len` is the default, the margin and the body)."""
-    placer = trk.placer
-    near = near_index(placer)
+    near = near_index(trk.placer)
     cdef double back = back_len if behind else cov.margin + cov.body
-    table = near._table  # (`NearIndex.path_cells` and `areas_near` called past their wrappers where built)
-    cdef list out = (table.path_cells(path, s, lat, back, ahead, only) if lat <= WIDE and table is not None
-                     else near.path_cells(path, s, lat, back, ahead, only))
+    cdef list out = near.path_cells(path, s, lat, back, ahead, only)
     if only is not None:
         return out
     x, y = path.xy(s)
     area_cell = cov.net.area_cell
-    grid = placer._area_rows
-    areas = (_lat._areas_near(grid, AREA_BUCKET, x, y, lat) if grid is not None and _lat._areas_near is not None
-             else near.areas_near(x, y, lat))
-    for area in areas:  # an area next to the way: maybe inside it
+    for area in near.areas_near(x, y, lat):  # an area next to the way: maybe inside it
         if near.within_ring(area, x, y, lat):
             c = area_cell[area]
             if c not in out:
