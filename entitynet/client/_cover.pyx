@@ -165,10 +165,10 @@ def network_occupation(cov, ghost, trk, lateral):
     cdef bint behind = False
     if v == 0.0 and not has_route and cov.body == 0.0:
         # a walker standing still may turn and leave the other way (`Coverage._behind`)
-        back = _behind(cov, path, s, cov.lateral, networks)
-        _add(cells, <list>back[0])
-        validity = _min(validity, <double>back[1])
-        back_len = <double>back[5] - <double>back[4]
+        back = cov._behind(path, s, cov.lateral, networks)
+        _add(cells, back.cells)
+        validity = _min(validity, back.validity)
+        back_len = back.cover_end - back.cover_start
         behind = True
     lat = cov.lateral if lateral is None else lateral
     if lat > 0.0:
@@ -180,25 +180,6 @@ def network_occupation(cov, ghost, trk, lateral):
         _add(cells, _lateral(cov, trk, path, s, ahead, behind, back_len,
                              cov.route.edge_ids if has_route else None, lat))
     return _occ.make_occupation(tuple(cells), _wire(validity), o[2], o[3], o[4], cover_end)
-
-
-cdef object _way_back = None  # `coverage._way_back` (coverage.py imports this module: taken on first use)
-
-
-cdef tuple _behind(cov, path, double s, double lookahead, networks):
-    """`Coverage._behind(path, s, lookahead, networks)` as `occupy`'s fields (`occupy_parts`, the call the compiled
-    `occupy` makes with those arguments), not an `Occupation`: the path's edge at s turned round and followed by
-    the junction rule (`coverage._way_back`, shared per map), covered `lookahead` beyond the margin."""
-    global _way_back
-    if _way_back is None:
-        from entitynet.client.coverage import _way_back as way_back
-        _way_back = way_back
-    k = path.index(s)
-    e, d = path.edges[k]
-    cdef double s_back = path.cum[k + 1] - s, margin = cov.margin
-    way = _way_back(cov.net, (e, -d), networks, lookahead + margin + 80.0)
-    return occupy_parts(way, s_back, 0.0, 0.0, 0.0, cov.etype.vmax, networks, 0.0, margin, lookahead, None,
-                        _min(cov.max_validity, cov.heartbeat), 0.5, False, None, 40.0)
 
 
 cdef list _lateral(cov, trk, path, double s, double ahead, bint behind, double back_len, only, double lat):
