@@ -17,14 +17,12 @@ could not take in C (not finite, or beyond 1e12 s) goes to the pure `wire_validi
 before. tests/entitynet/client/test_cover_compiled.py holds the two equal on the map's publishes and hostile
 input."""
 
-from libc.math cimport INFINITY, fabs, isfinite, sqrt
+from libc.math cimport fabs
 
 from entitynet.client._occupy cimport occupy_parts
 
 from entitynet.client import kinematics as _kin
-from entitynet.client import limits as _lim
 from entitynet.client import occupation as _occ
-from entitynet.client.motion import NetworkModel
 from entitynet.client.lateral import near_index
 
 #: `coverage.MAX_PUBLISH_CELLS`, `LATERAL_AHEAD_TIME` and `LATERAL_AHEAD_MIN` (coverage.py imports this module, so
@@ -33,8 +31,6 @@ cdef Py_ssize_t MAX_CELLS = 64
 cdef double AHEAD_TIME = 12.0
 cdef double AHEAD_MIN = 10.0
 cdef double A_EPS = _kin.A_EPS
-cdef double D_EPS = _kin.D_EPS
-cdef double HORIZON = _lim.HORIZON
 cdef double LOOKAHEAD = _occ.LOOKAHEAD
 
 
@@ -70,56 +66,6 @@ cdef double _advance_d(double v, double a, double vmax, double dt):
             return v * dt + 0.5 * a * dt * dt
         return v * t_cap + 0.5 * a * t_cap * t_cap + vmax * (dt - t_cap)
     return v * dt
-
-
-cdef double _travel_time(double d, double v, double a, double vmax) except? -1.0:
-    """`kinematics.time_to_travel(d, v, a, vmax)`: the same operations in the same order (C's `sqrt` is IEEE's, as
-    `math.sqrt` is); a division by zero raises ZeroDivisionError as Python's does, a negative `sqrt` argument
-    ValueError (neither happens for a published ghost, whose speed is not negative)."""
-    cdef double t_cap, d_cap, disc, den
-    if not d > D_EPS:
-        return 0.0
-    a = 0.0 if (-A_EPS < a and a < A_EPS) else a
-    if a > 0.0 and v < vmax:
-        t_cap = (vmax - v) / a
-        d_cap = v * t_cap + 0.5 * a * t_cap * t_cap
-        if d > d_cap:
-            return t_cap + (d - d_cap) / vmax if vmax > 0.0 else INFINITY
-        disc = v * v + 2.0 * a * d
-        if disc < 0.0:
-            raise ValueError("math domain error")
-        den = v + sqrt(disc)
-        if den == 0.0:
-            raise ZeroDivisionError("float division by zero")
-        return 2.0 * d / den
-    if a < 0.0:
-        disc = v * v + 2.0 * a * d
-        if disc < 0.0:
-            return INFINITY
-        den = v + sqrt(disc)
-        return 2.0 * d / den if den > 0.0 else INFINITY
-    return d / v if v > 0.0 else INFINITY
-
-
-cdef class GhostTravel:
-    """`NetworkModel.time_to` of one ghost as a C callable (what `occupy` asks once a publish for the front's
-    period): the ghost's numbers read once, no Python frame per call. Only for a ghost of type `NetworkModel`
-    itself (a subclass may answer otherwise); tests/entitynet/client/test_cover_compiled.py holds it equal."""
-    cdef double s0, v, a, vmax, tb, sb, vb, b
-
-    def __init__(self, ghost):
-        self.s0, self.v, self.a, self.vmax = ghost.s0, ghost.v, ghost.a, ghost.vmax
-        self.tb, self.sb, self.vb, self.b = ghost.plan
-
-    def __call__(self, double d):
-        cdef double t
-        if not isfinite(self.tb) or self.s0 + d <= self.sb:
-            t = _travel_time(d, self.v, self.a, self.vmax)
-        elif not isfinite(self.b):  # `NetworkModel._brake_time`
-            t = INFINITY
-        else:
-            t = self.tb + _travel_time(self.s0 + d - self.sb, self.vb, -self.b, self.vb)
-        return t if t <= HORIZON else INFINITY
 
 
 cdef object _wire(double validity):
@@ -158,8 +104,7 @@ def network_occupation(cov, ghost, trk, lateral):
     cdef double mv = cov.max_validity, hb = cov.heartbeat
     networks = et.networks
     cdef tuple o = occupy_parts(path, s, et.length, v, a, vmax, networks, known, margin, look, None, _min(mv, hb),
-                                0.5, path.edges[-1] == trk.dead_end,
-                                GhostTravel(ghost) if type(ghost) is NetworkModel else ghost.time_to, 40.0)
+                                0.5, path.edges[-1] == trk.dead_end, ghost.time_to, 40.0)
     cdef list cells = o[0]
     cdef double validity = o[1], cover_end = o[5], back_len = 0.0, ahead, lat, d
     cdef bint behind = False
