@@ -6,9 +6,11 @@ is checked by measurement, not by a timed test. The run is the one docs/dead-rec
 `--warmup` simulated seconds, then `--seconds` more with `Player._publish` wrapped in a `time.thread_time_ns`
 timer (this thread's CPU time: other processes on a shared machine do not count, but cache and frequency effects
 do, so compare trees by alternated runs). The garbage collections inside the publishes and the fleet's steps are
-timed too (`gc.callbacks`) and given apart: a full collection costs ~0.2 s and comes every ~30-40 simulated s, so
-whether one falls in the window is chance, and the `_without_gc` figures are the ones that compare code. It also
-prints a digest of every message the fleet returned and every publish's bytes, so two trees (or the pure and the compiled path) can be shown to publish the same messages.
+timed too (`gc.callbacks`) and given apart, and the window starts right after a full collection (`gc.collect()`):
+a full collection costs ~0.2 s and comes every ~45-60 simulated s, so without that whether one fell in a 30 s
+window was chance (the phase differs between trees that allocate differently). It also prints a digest of every
+message the fleet returned and every publish's bytes, so two trees (or the pure and the compiled path) can be shown
+to publish the same messages.
 
 `python -m sims.bench.publish_cost [--entities 2000] [--warmup 20] [--seconds 30] [--out FILE.json]`
 (also runs as a script path, e.g. under another checkout's interpreter).
@@ -58,6 +60,7 @@ def measure(entities: int = 2000, warmup: int = 20, seconds: int = 30, seed: int
         spent[2] += collected[0] - g0
         return out
 
+    gc.collect()  # (the window starts right after a full collection in every tree: the same phase of the collector)
     h = hashlib.sha256()
     fleet_ns = fleet_gc = 0
     Player._publish = timed  # type: ignore[method-assign]
