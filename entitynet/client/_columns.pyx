@@ -9,6 +9,7 @@ contraction: `-ffp-contract=off`, so that the C operations round as Python's do)
 
 from cpython.array cimport array
 from cpython.number cimport PyNumber_Index
+from libc.math cimport INFINITY
 
 
 cdef class FloatCol:
@@ -228,3 +229,37 @@ def kalman_row(array f, Py_ssize_t b, bint accel, double z, double t, double r):
     p[8] = p22 - k2 * p02
     p[9] = t0
     return p[0], p[1]
+
+
+
+def path_into_row(array pe, array pd, array pc, Py_ssize_t row, Py_ssize_t width, list edges, list cum):
+    """`Record.path_to_arrays`' copy of a `Path` (its `edges` and `cum`) into row `row` of the path blocks (edge
+    and direction ints, cumulative lengths, inf after the last), in C: no array built per call. The same
+    values as the reference's slice assignments; a path wider than `width` (or than 64), a `cum` that is not
+    one longer than `edges`, a row outside the blocks or a value that is no int / float is refused
+    (ValueError / IndexError / TypeError) with nothing written."""
+    cdef Py_ssize_t n = len(edges), b = row * width, c = row * (width + 1), k
+    cdef long long ev[64]
+    cdef long long dv[64]
+    cdef double sv[65]
+    cdef tuple de
+    if n > width or n > 64 or len(cum) != n + 1:
+        raise ValueError("a path's cum must be one longer than its edges, and the edges fit the row")
+    if row < 0 or b + width > len(pe) or b + width > len(pd) or c + width + 1 > len(pc):
+        raise IndexError("the row is outside the path blocks")
+    for k in range(n):  # (all converted first, as the reference builds its arrays before writing)
+        de = edges[k]
+        ev[k] = PyNumber_Index(de[0])  # (an int, as array("q") takes: a float is refused, not truncated)
+        dv[k] = PyNumber_Index(de[1])
+    for k in range(n + 1):
+        sv[k] = cum[k]
+    cdef long long *e = pe.data.as_longlongs + b
+    cdef long long *d = pd.data.as_longlongs + b
+    cdef double *s = pc.data.as_doubles + c
+    for k in range(n):
+        e[k] = ev[k]
+        d[k] = dv[k]
+    for k in range(n + 1):
+        s[k] = sv[k]
+    for k in range(n + 1, width + 1):
+        s[k] = INFINITY

@@ -21,10 +21,12 @@ except ImportError:  # the pure method below
 class Path:
     """Consecutive directed edges with one coordinate s, so that long bodies, hairpins and short edges
     need no special cases. Paths are not changed in place (cached ids and cumulative lengths stay valid)."""
-    __slots__ = ("net", "edges", "cum", "_ids")
+    __slots__ = ("net", "edges", "cum", "_ids", "_sub", "_sub_k")
 
     def __init__(self, net: NetView, edges: Sequence[DirEdge], *, _cum: list[float] | None = None) -> None:
         self._ids: list[int] | None = None
+        self._sub: Path | None = None  # the last `suffix` made (from edge `_sub_k`): a publish asks it again
+        self._sub_k: int | None = None
         if _cum is not None:  # a slice of a path already checked: no validation needed
             self.net, self.edges, self.cum = net, list(edges), _cum
             return
@@ -189,11 +191,23 @@ class Path:
         return out
 
     def suffix(self, k: int) -> Path:
-        """The path from edge k on (s shifts by cum[k]); no re-validation."""
-        if k == 0 and self.cum[0] == 0.0:  # c - 0.0 is c: the same coordinates (copied: no shared lists)
-            return Path(self.net, self.edges, _cum=list(self.cum))
+        """The path from edge k on (s shifts by cum[k]); no re-validation. Paths are not changed in place, so
+        the path itself is its suffix from edge 0 (where cum[0] is 0.0: c - 0.0 is c), and the last suffix made
+        is kept and handed out again (a publish asks for the same one while the tracker's path stays: issue 22)."""
+        if k == 0 and self.cum[0] == 0.0:
+            return self
+        if self._sub_k == k:
+            return self._sub
         c0 = self.cum[k]
-        return Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
+        path = self._sub = Path(self.net, self.edges[k:], _cum=[c - c0 for c in self.cum[k:]])
+        self._sub_k = k  # (two fields, not a (k, path) tuple: one object less for the collector a publish)
+        return path
+
+    def part_from(self, s: float) -> tuple[Path, float]:
+        """The path from the edge holding s on (`suffix(index(s))`) and its shift of s (`cum` there): what a
+        publish sends."""
+        k = self.index(s)
+        return self.suffix(k), self.cum[k]
 
     def first_boundary_after(self, s: float, limit: float) -> float | None:
         """The first cell change in (s, min(limit, length)], or None (stops at the first one found)."""
@@ -228,8 +242,17 @@ class Path:
         return Path(net, self.edges + ahead, _cum=cum)
 
     def reversed(self) -> Path:
-        """The same way travelled the other way (s becomes length - s): for an entity that turns round."""
-        return Path(self.net, [(e, -d) for e, d in reversed(self.edges)])
+        """The same way travelled the other way (s becomes length - s): for an entity that turns round. A path's
+        edges meet end to start, so turned round they do too: no check again, the lengths summed afresh in the
+        new order as the checking constructor sums them (`reversed_reference`)."""
+        edge_len = self.net.edge_len
+        edges = [(e, -d) for e, d in reversed(self.edges)]
+        cum = [0.0]
+        c = 0.0
+        for e, _d in edges:
+            c = c + edge_len[e]
+            cum.append(c)
+        return Path(self.net, edges, _cum=cum)
 
     def trimmed(self, keep_from: float) -> tuple[Path, float]:
         """Drop whole edges that end before `keep_from`; returns the new path and the shift of s."""
@@ -246,6 +269,11 @@ class Path:
 
     def __repr__(self) -> str:
         return f"Path({self.edges!r})"
+
+
+def reversed_reference(path: Path) -> Path:
+    """`Path.reversed` through the checking constructor (tests hold the two equal)."""
+    return Path(path.net, [(e, -d) for e, d in reversed(path.edges)])
 
 
 xy_reference = Path.xy  # the pure `Path.xy` (tests hold the compiled one equal to it)

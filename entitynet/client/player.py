@@ -282,12 +282,12 @@ class Player(PlayerState):
                 s_abs, v, a = g.s_at(stop_at), 0.0, 0.0
             else:
                 s_abs, v, a = g.s_at(t), g.speed_at(t), g.a
-            path, s = g.path, s_abs
+            path_from, s = g.path.part_from, s_abs
         else:
             kf = trk.kf
             s = kf.s
             v, a = (kf.v, kf.a) if from_ghost else self.estimate.motion(self, t)
-            path = trk.path
+            path_from = trk.path_from  # (from the row's arrays where the path is there only)
             if self.rules.reposition:
                 v = a = 0.0
             if v < et.v_stop and len(trk.recent_s) >= 2:
@@ -299,9 +299,8 @@ class Player(PlayerState):
         v = min(v, et.vmax)  # a noisy filter must not publish a walker at 6 m/s
         a = min(max(a, -et.amax), et.amax) if et.accel else 0.0
         start_s = s - self.body - self.margin
-        k0 = path.index(start_s)
-        sub = path.suffix(k0)
-        s_sub = s - path.cum[k0]
+        sub, c0 = path_from(start_s)  # the path from the edge holding start_s on, and its shift of s
+        s_sub = s - c0
         # an accelerating vehicle is expected to reach its usual cruising speed, not the type's maximum
         vmax = et.vmax
         if a > 0.0 and trk.vpeak > v:

@@ -9,6 +9,8 @@ lines each to map onto columns; the tracker's decisions read better without them
 
 from __future__ import annotations
 
+from bisect import bisect_right
+
 from entitynet.client.filters import RowKinematic
 from entitynet.client.network import DirEdge
 from entitynet.client.path import Path
@@ -104,6 +106,25 @@ class TrackerState(Bound):
                                                     strict=True)),
                                  _cum=st.pc[row * (PATH_W + 1) : row * (PATH_W + 1) + n + 1].tolist())
         return p
+
+    def path_from(self, start: float) -> tuple[Path, float]:
+        """The path followed from the edge holding `start` on (`path.suffix(path.index(start))`) and its shift
+        of s (`path.cum` there). Where the path is in the row's arrays only (the fleet core trimmed or extended
+        it), the part is built from them at once: the whole path as an object is not needed for a publish."""
+        st, row = self._st, self._row
+        n = st.i[self._ib + _PN]
+        if n <= 0 or st.paths[row] is not None:
+            return self.path.part_from(start)
+        c = row * (PATH_W + 1)
+        k = bisect_right(st.pc, start, c, c + n + 1) - 1 - c  # (`Path.index` over the same values)
+        k = 0 if k < 0 else (k if k < n else n - 1)
+        cum = st.pc[c + k : c + n + 1].tolist()
+        c0 = cum[0]
+        if k or c0 != 0.0:  # (`Path.suffix`: from edge 0 with cum[0] 0.0 the same coordinates)
+            cum = [x - c0 for x in cum]
+        b = row * PATH_W
+        edges = list(zip(st.pe[b + k : b + n].tolist(), st.pd[b + k : b + n].tolist(), strict=True))
+        return Path(self.net, edges, _cum=cum), c0
 
     @property
     def path(self) -> Path | None:

@@ -154,6 +154,12 @@ class Record:
         n = len(path.edges)
         if n > PATH_W:
             return False
+        if _COMPILED is not None:  # the same copy in C (`_columns.path_into_row`)
+            _COMPILED.path_into_row(self.pe, self.pd, self.pc, row, PATH_W, path.edges, path.cum)
+            i[k] = n
+            return True
+        if len(path.cum) != n + 1:  # (a slice of another length would resize the block)
+            raise ValueError("a path's cum must be one longer than its edges, and the edges fit the row")
         b = row * PATH_W
         self.pe[b : b + n] = array("q", [de[0] for de in path.edges])
         self.pd[b : b + n] = array("q", [de[1] for de in path.edges])
