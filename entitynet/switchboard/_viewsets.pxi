@@ -284,7 +284,8 @@ cdef class CidMarks:
 
     cdef unsigned long long *w
     cdef long long *touched  # words that went from 0 to non-zero since the last `take` (a word may recur)
-    cdef Py_ssize_t nw, count, nt, tcap
+    cdef Py_ssize_t nw, count, tcap
+    cdef readonly Py_ssize_t nt  # entries of `touched` (readable for the tests: it must not grow without news)
 
     def __cinit__(self, object ids=()):
         self._grow(16)
@@ -375,6 +376,8 @@ cdef class CidMarks:
         if self.w[x >> 6] & bit:
             self.w[x >> 6] &= ~bit
             self.count -= 1
+            if self.count == 0:  # every word is zero: forget them, or a reader that writes its replies itself
+                self.nt = 0      # (`written_out`, no flush) would grow `touched` by a word per reply for good
 
     def __ior__(self, other):
         cdef ViewerSet s

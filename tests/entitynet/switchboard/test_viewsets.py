@@ -98,6 +98,21 @@ def test_iterating_a_set_while_changing_it_sees_a_snapshot():
     assert len(m) == 0 and not m and list(m) == []
 
 
+def test_marks_discarded_without_a_take_leave_nothing_behind():
+    """A reader answering PINGs itself marks and discards (`written_out`) with no flush and no `take_dirty` in
+    between: the list of touched words grew by one entry per reply without bound (a reviewer's finding)."""
+    m = CidMarks()
+    for i in range(10_000):
+        m.add(i % 3)
+        m.discard(i % 3)
+    assert m.nt == 0 and len(m) == 0 and m.take() == []
+    m.add(5)
+    m.add(700)
+    m.discard(5)
+    assert m.nt == 2 and list(m) == [700]  # while a mark stands its word is kept, and the emptied one with it
+    assert m.take() == [700] and m.nt == 0
+
+
 # -------------------------------------------------------------------------------------- the core with many words
 N_CELLS = 5
 client = st.integers(0, 11)
@@ -173,3 +188,35 @@ def test_the_compiled_switchboard_uses_the_compiled_sets():
         assert type(make(n_cells=N_CELLS)._dirty) is set
     finally:
         outbox.use_compiled(was)
+
+
+def _two_slow_consumers(_steps, compiled: bool) -> tuple:
+    """Two viewers over their outbox bound in one flush, whose ids (1 and 9) a Python set of 8 slots keeps in the
+    order 9, 1 (the reviewer's case): dropping one first changes what the other's entities leave."""
+    outbox.use_compiled(compiled)
+    sb = make(n_cells=10, max_pending=2)
+
+    def hello() -> int:
+        c = sb.connect(0.0)
+        sb.receive(c, [P.Hello(P.PROTOCOL_VERSION, "", "d")], 0.0)
+        return c
+
+    a = hello()
+    for _ in range(7):
+        sb.disconnect(sb.connect(0.0), 0.0)
+    b, pub = hello(), hello()
+    sb.take_dirty()
+    for c in (a, b, pub):
+        sb.outbox(c).drain()
+    sb.receive(a, [P.Subscribe((0,), ())], 0.0)
+    sb.receive(b, [P.Subscribe((1,), ())], 0.0)
+    sb.receive(b, [P.Ping(1), P.Publish(0, 1, (0,), 10_000, b"b")], 0.0)  # b has news before a
+    sb.receive(pub, [P.Publish(i, 1, (0, 1), 10_000, b"p") for i in range(3)], 0.0)  # both over the bound
+    sb.take_dirty()
+    return (a, b), sb.stats["leaves"], sb.stats["slow_consumers"], sb.outbox(pub).drain()
+
+
+def test_slow_consumers_are_dropped_in_the_same_order_on_both_paths():
+    compiled, pure = on_both_paths(_two_slow_consumers, None)
+    assert compiled[0] == (1, 9) and compiled[2] == 2
+    assert compiled == pure
