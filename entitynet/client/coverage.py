@@ -10,7 +10,6 @@ and the published ghost, and changes neither.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
 
 from entitynet.client.entities import EntityType
@@ -29,6 +28,7 @@ from entitynet.client.occupation import (
     wire_validity,
     with_cells,
 )
+from entitynet.client.optional_c import compiled
 from entitynet.client.path import Path, follow
 from entitynet.client.placement import ring_distance
 from entitynet.client.route import Route
@@ -40,12 +40,7 @@ MAX_PUBLISH_CELLS = 64
 LATERAL_AHEAD_TIME = 12.0
 LATERAL_AHEAD_MIN = 10.0
 
-_COMPILED = None
-if not os.environ.get("ENTITYNET_PURE_PYTHON"):
-    try:  # the network model's cover compiled (entitynet/client/_cover.pyx; optional in setup.py)
-        from entitynet.client import _cover as _COMPILED  # type: ignore[attr-defined,no-redef]
-    except ImportError:  # `Coverage.occupation` below, the reference
-        _COMPILED = None
+_COMPILED = compiled("_cover")  # the network model's cover compiled; else `Coverage.occupation` below
 _network_occupation = _COMPILED.network_occupation if _COMPILED is not None else None
 
 

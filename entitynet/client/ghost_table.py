@@ -24,7 +24,6 @@ holds are reused, when the version count doubles (`_compact`).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterable
 from itertools import chain
 
@@ -33,6 +32,7 @@ import numpy as np
 from entitynet.client.limits import HORIZON
 from entitynet.client.motion import Model
 from entitynet.client.network import NetView
+from entitynet.client.optional_c import compiled
 from entitynet.client.payload import PayloadError, decode
 from entitynet.protocol import Leave, Update
 
@@ -102,12 +102,7 @@ def queue_messages(msgs: list, col: int, version_of: dict, rows: list, row_of: d
 
 
 _queue = queue_messages
-try:  # the per-message step compiled, where pip built it (setup.py; optional)
-    from entitynet.client import _ghost_queue as _COMPILED  # type: ignore[attr-defined]
-except ImportError:
-    _COMPILED = None
-if os.environ.get("ENTITYNET_PURE_PYTHON"):
-    _COMPILED = None
+_COMPILED = compiled("_ghost_queue")  # the per-message step compiled
 if _COMPILED is not None:
     _queue = _COMPILED.queue_messages
 

@@ -21,24 +21,17 @@ and to `ring_distance(...) <= r`):
 from __future__ import annotations
 
 import math
-import os
 from bisect import bisect_left, bisect_right
 from collections.abc import Container
 
+from entitynet.client.optional_c import compiled
 from entitynet.client.path import Path
 from entitynet.client.placement import AREA_BUCKET, Placer, ring_distance
 
-try:  # the compiled ring distance, where pip built it (setup.py; optional)
-    from entitynet.client import _lateral as _COMPILED  # type: ignore[attr-defined]
-except ImportError:  # the pure reference
-    _COMPILED = None
-try:  # the candidate loop over C tables of the map, the whole `way_cells` (setup.py; optional)
-    from entitynet.client._waytable import WayTable as _WayTable  # type: ignore[import-not-found]
-    from entitynet.client._waytable import areas_near as _areas_near  # type: ignore[import-not-found]
-except ImportError:
-    _WayTable = _areas_near = None
-if os.environ.get("ENTITYNET_PURE_PYTHON"):  # the pure references only
-    _COMPILED = _WayTable = _areas_near = None
+_COMPILED = compiled("_lateral")  # the compiled ring distance
+_WAYTABLE = compiled("_waytable")  # the candidate loop over C tables of the map, the whole `way_cells`
+_WayTable = _WAYTABLE.WayTable if _WAYTABLE is not None else None
+_areas_near = _WAYTABLE.areas_near if _WAYTABLE is not None else None
 
 #: the largest query radius (m) that `edges_near` and `way_cells` answer from the one bucket holding the
 #: position (each bucket also lists the edges whose boxes reach within WIDE + 1 m of it): about two thirds of the

@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import heapq
 import math
-import os
 from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from entitynet.client.frozen import maker
 from entitynet.client.kinematics import INF, advance, time_to_travel
+from entitynet.client.optional_c import compiled
 from entitynet.client.path import Path
 
 #: metres the occupation reaches past the body and its margin up to the next choice of way when no route is
@@ -383,11 +383,6 @@ def occupy_area(x: float, y: float, vx: float, vy: float, ring_xy, area_cell: in
 #: the pure `occupy` above: the reference the compiled one is held equal to (tests/entitynet/client/
 #: test_occupy_compiled.py), and the one used where pip did not build `_occupy` or ENTITYNET_PURE_PYTHON is set
 occupy_reference = occupy
-_COMPILED = None
-if not os.environ.get("ENTITYNET_PURE_PYTHON"):
-    try:  # `occupy` compiled as a whole (entitynet/client/_occupy.pyx; optional in setup.py)
-        from entitynet.client import _occupy as _COMPILED  # type: ignore[attr-defined,no-redef]
-    except ImportError:  # the pure function above
-        _COMPILED = None
+_COMPILED = compiled("_occupy")  # `occupy` compiled as a whole; else the pure function above
 if _COMPILED is not None:
     occupy = _COMPILED.occupy  # noqa: F811 (the compiled twin of the reference above)

@@ -13,7 +13,6 @@ ghost by *decoding its own payload*, so it extrapolates exactly what every recei
 from __future__ import annotations
 
 import math
-import os
 
 import msgpack
 
@@ -29,6 +28,7 @@ from entitynet.client.motion import (
     network_model,
 )
 from entitynet.client.network import NetView
+from entitynet.client.optional_c import compiled
 from entitynet.client.path import Path
 
 VERSION = 1
@@ -118,12 +118,7 @@ def _encode_network_checked(t0: float, path: Path, s0: float, v: float, a: float
 
 
 encode_network_reference = encode_network  # the pure function (tests hold the compiled one equal to it)
-try:  # the quantisation compiled, where pip built it (setup.py; optional)
-    from entitynet.client import _payload as _COMPILED  # type: ignore[attr-defined]
-except ImportError:
-    _COMPILED = None
-if os.environ.get("ENTITYNET_PURE_PYTHON"):
-    _COMPILED = None
+_COMPILED = compiled("_payload")  # the quantisation compiled
 if _COMPILED is not None:
     _encode_network_c = _COMPILED.encode_network
 
