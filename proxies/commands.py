@@ -77,6 +77,9 @@ def _common(p) -> None:
                    help="retire a vehicle without news for this long (default 300)")
     p.add_argument("--metrics-port", type=port(), metavar="PORT", help="serve Prometheus /metrics here")
     p.add_argument("--duration", type=positive_seconds(), metavar="S", help="stop after this many seconds")
+    p.add_argument("--unreachable-after", type=positive_seconds(86400), default=UNREACHABLE_AFTER, metavar="S",
+                   help="say the server is unreachable after this many seconds without a first connection "
+                        f"(default {UNREACHABLE_AFTER:g}; it keeps retrying)")
 
 
 def _say(msg: str) -> None:
@@ -135,7 +138,8 @@ def _run_shell(args, topo, book, make_poller) -> int:
         async with trio.open_nursery() as n:
             start = time.monotonic()  # before the first connection: an unreachable server must not stop the clock
             n.start_soon(shell.run, make_poller(shell))
-            n.start_soon(_say_while_unreachable, shell, "{}:{}".format(*args.server))
+            n.start_soon(_say_while_unreachable, shell, "{}:{}".format(*args.server),
+                         getattr(args, "unreachable_after", UNREACHABLE_AFTER))
             while args.duration is None or time.monotonic() - start < args.duration:
                 await trio.sleep(min(10.0, args.duration or 10.0))
                 c = shell.fleet.counters
@@ -162,15 +166,16 @@ def _run_shell(args, topo, book, make_poller) -> int:
 UNREACHABLE_AFTER, UNREACHABLE_REPEAT = 5.0, 300.0
 
 
-async def _say_while_unreachable(shell, server: str) -> None:
-    """One line when the server has not answered after a few seconds (the connection keeps retrying by
-    itself), then rarely while it stays so: before, a proxy of an unreachable server ran silently forever."""
+async def _say_while_unreachable(shell, server: str, after: float = UNREACHABLE_AFTER) -> None:
+    """One line when the server has not answered after `after` seconds (`--unreachable-after`; the connection
+    keeps retrying by itself), then rarely while it stays so: before, a proxy of an unreachable server ran
+    silently forever."""
     import trio
 
-    waited = UNREACHABLE_AFTER
-    await trio.sleep(UNREACHABLE_AFTER)
+    waited = after
+    await trio.sleep(after)
     while shell.conn.connects == 0:
-        _say(f"server {server} unreachable, retrying" + (f" ({waited:.0f} s)" if waited > UNREACHABLE_AFTER else ""))
+        _say(f"server {server} unreachable, retrying" + (f" ({waited:.0f} s)" if waited > after else ""))
         await trio.sleep(UNREACHABLE_REPEAT)
         waited += UNREACHABLE_REPEAT
 
