@@ -12,6 +12,19 @@ def test_the_proxy_command_is_registered_through_the_entry_point_group():
     assert args.proxy_command == "replay" and callable(args.func)
 
 
+def test_the_unreachable_notice_waits_five_seconds_unless_told(capsys):
+    """`--unreachable-after` (default 5 s, as before the option) takes positive seconds only."""
+    import pytest
+
+    base = ["proxy", "gtfs-rt", "--vehicle-positions", "http://x/vp", "--server", "127.0.0.1:1", "--gtfs", "f.zip"]
+    assert cli.build_parser().parse_args(base).unreachable_after == 5.0
+    assert cli.build_parser().parse_args([*base, "--unreachable-after", "0.5"]).unreachable_after == 0.5
+    for bad in ("0", "-1", "nan", "inf"):
+        with pytest.raises(SystemExit):
+            cli.build_parser().parse_args([*base, "--unreachable-after", bad])
+        assert "--unreachable-after" in capsys.readouterr().err
+
+
 def test_proxy_errors_are_clean(tmp_path, capsys, line_feed):
     assert cli.main(["proxy", "replay", "--gtfs", str(tmp_path / "missing.zip"), "--port", "0"]) == 2
     assert "entitynet: error: cannot read GTFS feed" in capsys.readouterr().err
@@ -126,13 +139,14 @@ def test_an_unreachable_server_is_reported_and_the_duration_still_ends_the_run(t
     with socket.socket() as probe:  # a port nothing listens on (bound, never listening: connections are refused)
         probe.bind(("127.0.0.1", 0))
         dead = probe.getsockname()[1]
-        argv = _gtfsrt_argv(tmp_path, line_topo, line_feed, "--server", f"127.0.0.1:{dead}", "--duration", "6")
+        argv = _gtfsrt_argv(tmp_path, line_topo, line_feed, "--server", f"127.0.0.1:{dead}", "--duration", "2",
+                            "--unreachable-after", "0.5")  # (the notice's default is 5 s)
         t0 = time.monotonic()
         try:
             proc = subprocess.run([sys.executable, "-m", "entitynet", *argv], cwd=tmp_path, capture_output=True,
                                   text=True, timeout=60, env={**os.environ, "ENTITYNET_CACHE": str(tmp_path)})
         except subprocess.TimeoutExpired as exc:
-            raise AssertionError(f"still running after 60 s with --duration 6: {exc.stderr}") from None
+            raise AssertionError(f"still running after 60 s with --duration 2: {exc.stderr}") from None
     assert time.monotonic() - t0 < 40
     assert f"server 127.0.0.1:{dead} unreachable, retrying" in proc.stderr, proc.stderr
     assert proc.stderr.count("unreachable") == 1 and "Traceback" not in proc.stderr, proc.stderr
