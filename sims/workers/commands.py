@@ -42,6 +42,9 @@ def add_options(p: argparse.ArgumentParser) -> None:
                                                   "else the bundled HSL extract); must match the coordinator's")
     w.add_argument("--nats-token", default=None, metavar="TOKEN", help="the NATS server's auth token")
     w.add_argument("--once", action="store_true", help="exit after one run")
+    w.add_argument("--coordinator-silence", type=bounded_float(2.0, 3600), default=None, metavar="S",
+                   help="give a run up when its coordinator has been silent this long, or for the run's "
+                        "--worker-timeout if longer (default 5; at least 2: the coordinator says alive each second)")
     w.set_defaults(func=run_worker)
 
 
@@ -144,11 +147,14 @@ def run_worker(args: argparse.Namespace) -> int:
     build = share_builder(topo, args.gtfs)
 
     from sims.workers.nats_link import leaf_text, only, serve_worker
+    from sims.workers.worker import SILENCE_MIN_S
+
+    silence_min = SILENCE_MIN_S if args.coordinator_silence is None else args.coordinator_silence
 
     t0 = time.monotonic()
     try:
-        runs = trio.run(lambda: serve_worker(args.nats, build, say, once=args.once,
-                                            token=args.nats_token))
+        runs = trio.run(lambda: serve_worker(args.nats, build, say, once=args.once, token=args.nats_token,
+                                            silence_min=silence_min))
     except BaseException as exc:  # noqa: BLE001 (one line for a NATS that cannot be reached, else re-raised)
         if only(exc, (OSError, trio.TooSlowError)) is None:
             raise

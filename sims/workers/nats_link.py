@@ -28,7 +28,7 @@ import trio
 from entitynet.cluster.nats_client import NatsClient, parse_servers
 from sims.engine.collector import settle_after_start
 from sims.workers import wire
-from sims.workers.worker import WorkerCore
+from sims.workers.worker import SILENCE_MIN_S, WorkerCore
 
 HELLO = "entitynet.sim.hello"
 #: frames waiting for the coordinator's thread, at most (a tick's output is one frame per worker, or a few parts)
@@ -210,15 +210,17 @@ class NatsWorkers:
 
 
 async def serve_worker(url: str, build, say: Callable[[str], None], *, once: bool = False,
-                       token: str | None = None, connect_timeout: float = 1.0, settle: bool = True) -> int:
+                       token: str | None = None, connect_timeout: float = 1.0, settle: bool = True,
+                       silence_min: float = SILENCE_MIN_S) -> int:
     """`entitynet sim worker`: announce this worker on NATS, take part in runs (`build` makes the share of a
     run from its assign frame), until Ctrl-C / SIGTERM, or after one run with `once`; the number of runs.
     `settle`: the process is the worker's own, so once its first run has started, what it holds is frozen out
-    of garbage collection (`sims.engine.collector`)."""
+    of garbage collection (`sims.engine.collector`). `silence_min`: a run whose coordinator is silent for this
+    long (or its worker timeout, if longer) is given up."""
     import signal
 
     worker = f"{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(3)}".replace(".", "_")
-    core = WorkerCore(worker, socket.gethostname(), os.getpid(), build)
+    core = WorkerCore(worker, socket.gethostname(), os.getpid(), build, silence_min)
     send, received = trio.open_memory_channel[bytes](256)
     dropped = 0
 

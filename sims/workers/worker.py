@@ -30,9 +30,10 @@ Build = Callable[[dict, dict, int, int], WorkerShare]
 class WorkerCore:
     """One worker: `receive(frame, now)` returns the frames to send back; `expire(now)` gives up a silent run."""
 
-    def __init__(self, worker: str, host: str, pid: int, build: Build):
+    def __init__(self, worker: str, host: str, pid: int, build: Build, silence_min: float = SILENCE_MIN_S):
         self.worker, self.host, self.pid = worker, host, pid
         self.build = build
+        self.silence_min = silence_min  # `sim worker --coordinator-silence`: never give a run up sooner
         self.run: str | None = None
         self.index = -1
         self.share: WorkerShare | None = None
@@ -81,7 +82,7 @@ class WorkerCore:
 
     def expire(self, now: float) -> bool:
         """Give the run up when the coordinator has been silent for longer than its timeout (True then)."""
-        limit = max(self.timeout, SILENCE_MIN_S)
+        limit = max(self.timeout, self.silence_min)
         if self.run is not None and now - self.heard > limit:
             self._end(f"the coordinator was silent for over {limit:g} s")
             return True
