@@ -45,3 +45,26 @@ def test_a_run_that_ended_early_exits_with_status_1_and_says_why():
     assert run_status(SimpleNamespace(ended_early="every worker is gone (the last, worker 1, at tick 9)"),
                       said.append) == 1
     assert said == ["the run ended early: every worker is gone (the last, worker 1, at tick 9)"]
+
+
+def test_the_coordinator_silence_a_worker_waits_is_five_seconds_unless_told(capsys):
+    """`sim worker --coordinator-silence` (default: the core's minimum, which its help names) takes 2 s or more:
+    the coordinator says alive each second, so less would give live runs up."""
+    from types import SimpleNamespace
+
+    from entitynet.cli import build_parser
+    from sims.workers.worker import SILENCE_MIN_S, WorkerCore
+
+    parser = build_parser()
+    base = ["sim", "worker", "--nats", "nats://127.0.0.1:4222"]
+    assert parser.parse_args(base).coordinator_silence is None and SILENCE_MIN_S == 5.0
+    assert parser.parse_args([*base, "--coordinator-silence", "2"]).coordinator_silence == 2.0
+    for bad in ("1.9", "0", "nan", "inf"):
+        with pytest.raises(SystemExit):
+            parser.parse_args([*base, "--coordinator-silence", bad])
+        assert "--coordinator-silence" in capsys.readouterr().err
+    core = WorkerCore("w", "h", 1, build=None, silence_min=2.0)
+    core.run, core.index, core.timeout, core.heard = "r", 0, 1.0, 10.0
+    core.share = SimpleNamespace(counters=dict)  # (what `bye` carries)
+    assert not core.expire(11.9) and core.expire(12.1)
+    assert core.ended == "the coordinator was silent for over 2 s"
