@@ -77,11 +77,11 @@ def test_viewers_in_two_processes_are_measured_and_gathered(helsinki, helsinki_p
 
 
 def test_a_viewer_process_killed_mid_run_is_named_and_the_run_ends_on_time(helsinki, helsinki_path):
-    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 6.0, kill_at=0.3)
+    rep, lines, vp = _run(helsinki, helsinki_path, _config(), 2, 4.0, kill_at=0.3)  # (killed at ~0.8 s)
     deaths = rep["viewer_processes"]["deaths"]
     assert [d["index"] for d in deaths] == [0] and deaths[0]["pid"] == vp.pids[0]
     assert deaths[0]["viewers"] == 3
-    assert rep["sim_time_s"] == 6.0
+    assert rep["sim_time_s"] == 4.0
     assert rep["viewer_processes"]["measured_viewers"] == 3  # the survivor's viewers only, and it says so
     assert rep["truth_vs_viewer"]["all"]["visible_entity_samples"] > 0
     assert any("viewer process 0" in line and "gone" in line for line in lines)
