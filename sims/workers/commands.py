@@ -28,6 +28,9 @@ def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nats", metavar="URL", help="take the workers from other machines over NATS (nats://HOST:PORT; "
                                                  "start `entitynet sim worker --nats URL` on each)")
     p.add_argument("--nats-token", default=None, metavar="TOKEN", help="with --nats: the NATS server's auth token")
+    p.add_argument("--nats-connect-timeout", type=bounded_float(0.1, 60), default=1.0, metavar="S",
+                   help="with --nats: how long one attempt to connect to a NATS server may take (default 1; a far "
+                        "or slow server may need more)")
     p.add_argument("--worker-timeout", type=bounded_float(0.1, 600), default=10.0, metavar="S",
                    help="a worker that does not answer a tick within S seconds is declared dead and its entities "
                         "handed to the others (default 10)")
@@ -41,6 +44,8 @@ def add_options(p: argparse.ArgumentParser) -> None:
     w.add_argument("--gtfs", metavar="FEED", help="GTFS zip (default: the coordinator's path if it exists here, "
                                                   "else the bundled HSL extract); must match the coordinator's")
     w.add_argument("--nats-token", default=None, metavar="TOKEN", help="the NATS server's auth token")
+    w.add_argument("--nats-connect-timeout", type=bounded_float(0.1, 60), default=1.0, metavar="S",
+                   help="how long one attempt to connect to a NATS server may take (default 1)")
     w.add_argument("--once", action="store_true", help="exit after one run")
     w.add_argument("--coordinator-silence", type=bounded_float(2.0, 3600), default=None, metavar="S",
                    help="give a run up when its coordinator has been silent this long, or for the run's "
@@ -88,7 +93,8 @@ def make_sim(args: argparse.Namespace, topo, config, schedule, *, shards: int = 
     if nats:
         from sims.workers.nats_link import NatsWorkers
 
-        link = NatsWorkers(args.nats, token=getattr(args, "nats_token", None), say=say)
+        link = NatsWorkers(args.nats, token=getattr(args, "nats_token", None), say=say,
+                           connect_timeout=getattr(args, "nats_connect_timeout", 1.0))
         try:
             names = link.choose(args.workers, args.join_timeout)
         except RuntimeError:
@@ -154,7 +160,7 @@ def run_worker(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     try:
         runs = trio.run(lambda: serve_worker(args.nats, build, say, once=args.once, token=args.nats_token,
-                                            silence_min=silence_min))
+                                            connect_timeout=args.nats_connect_timeout, silence_min=silence_min))
     except BaseException as exc:  # noqa: BLE001 (one line for a NATS that cannot be reached, else re-raised)
         if only(exc, (OSError, trio.TooSlowError)) is None:
             raise
