@@ -68,3 +68,17 @@ def test_the_coordinator_silence_a_worker_waits_is_five_seconds_unless_told(caps
     core.share = SimpleNamespace(counters=dict)  # (what `bye` carries)
     assert not core.expire(11.9) and core.expire(12.1)
     assert core.ended == "the coordinator was silent for over 2 s"
+
+
+def test_the_nats_connect_timeout_is_one_second_unless_told(capsys):
+    """`--nats-connect-timeout` on `sim` and `sim worker`: 1 s a try by default (as before the option), 0.1 to 60."""
+    from entitynet.cli import build_parser
+
+    parser = build_parser()
+    for base in (["sim", "--nats", "nats://127.0.0.1:4222"], ["sim", "worker", "--nats", "nats://127.0.0.1:4222"]):
+        assert parser.parse_args(base).nats_connect_timeout == 1.0
+        assert parser.parse_args([*base, "--nats-connect-timeout", "0.1"]).nats_connect_timeout == 0.1
+        for bad in ("0", "0.05", "61", "nan"):
+            with pytest.raises(SystemExit):
+                parser.parse_args([*base, "--nats-connect-timeout", bad])
+            assert "--nats-connect-timeout" in capsys.readouterr().err

@@ -136,10 +136,11 @@ def test_bad_urls_and_no_nats_there_are_clear_errors(grid_path, capsys):
     assert main(["sim", "worker", "--nats", "http://x:1"]) == 2
     assert "--nats: bad NATS server" in capsys.readouterr().err
     port = free_port()
-    assert main(["sim", "--nats", f"nats://127.0.0.1:{port}", "--topology", str(grid_path), "--gtfs", "none",
+    quick = ["--nats-connect-timeout", "0.1"]  # (the first connect gives up after 2 x 0.1 + 1 s, not 2 x 1 + 1)
+    assert main(["sim", "--nats", f"nats://127.0.0.1:{port}", *quick, "--topology", str(grid_path), "--gtfs", "none",
                  "--entities", "4", "--viewers", "1", "--duration", "1"]) == 2
     assert f"cannot reach NATS at nats://127.0.0.1:{port}" in capsys.readouterr().err
-    assert main(["sim", "worker", "--nats", f"nats://127.0.0.1:{port}", "--topology", str(grid_path)]) == 2
+    assert main(["sim", "worker", "--nats", f"nats://127.0.0.1:{port}", *quick, "--topology", str(grid_path)]) == 2
     assert "cannot reach NATS" in capsys.readouterr().err
 
 
@@ -236,11 +237,13 @@ def test_ctrl_c_ends_a_run_with_local_workers_cleanly(grid_path, tmp_path):
 def test_a_wrong_nats_token_is_a_clear_error_on_both_sides(grid_path, capsys):
     with NatsCluster(1, token="s3cret") as cluster:
         url = cluster.urls
-        assert main(["sim", "--nats", url, "--nats-token", "wrong", "--topology", str(grid_path), "--gtfs", "none",
-                     "--entities", "4", "--viewers", "1", "--duration", "1"]) == 2
+        quick = ["--nats-connect-timeout", "0.1"]  # (refused each try: the first connect's deadline is the wait)
+        assert main(["sim", "--nats", url, "--nats-token", "wrong", *quick, "--topology", str(grid_path), "--gtfs",
+                     "none", "--entities", "4", "--viewers", "1", "--duration", "1"]) == 2
         err = capsys.readouterr().err
         assert f"cannot reach NATS at {url}" in err and "Traceback" not in err
-        assert main(["sim", "worker", "--nats", url, "--nats-token", "wrong", "--topology", str(grid_path)]) == 2
+        assert main(["sim", "worker", "--nats", url, "--nats-token", "wrong", *quick, "--topology",
+                     str(grid_path)]) == 2
         assert f"cannot reach NATS at {url}" in capsys.readouterr().err
 
 
