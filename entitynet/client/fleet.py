@@ -123,6 +123,7 @@ class FleetCore:
         for j, f in enumerate(_CONST):
             setattr(self, f, self.cm[:, j])
         self._ghosts: list = [None] * cap if old == 0 else self._ghosts + [None] * (cap - old)
+        self._ghost_cols = None  # `_fleet.GhostCols` over the ghost columns, taken again after they grew
         self._cap = cap
 
     # ---- slots ---------------------------------------------------------------------------------------------
@@ -334,8 +335,11 @@ class FleetCore:
                     ghost.stop_s)
             path = ghost.path
             k = compiled()
-            if k is not None:  # (the same values, written in one call: `_fleet.ghost_row`)
-                k.ghost_row(self.gm, self.ge, self.gd, self.gc, self.gn, s, nums, path)
+            if k is not None:  # (the same values, written in one call through the columns taken once)
+                cols = self._ghost_cols
+                if cols is None:
+                    cols = self._ghost_cols = k.GhostCols(self.gm, self.ge, self.gd, self.gc, self.gn)
+                cols.write(s, nums, path)
             else:
                 self.gm[s] = nums
                 n = self.gn[s] = len(path.edges)

@@ -208,3 +208,73 @@ def test_ghost_row_writes_what_the_reference_writes():
         K.ghost_row(core.gm, core.ge, core.gd, core.gc, core.gn, len(core.gm), tuple(core.gm[0]), p.ghost.path)
     with pytest.raises(ValueError):
         K.ghost_row(core.gm, core.ge, core.gd, core.gc, core.gn, 0, (1.0,), p.ghost.path)
+
+
+class _P:
+    """A path as `GhostCols.write` reads it (edges, cumulative lengths)."""
+
+    def __init__(self, edges, cum):
+        self.edges, self.cum = edges, cum
+
+
+def test_ghost_cols_write_what_ghost_row_writes_hostile_numbers_included():
+    """`_fleet.GhostCols` (the columns taken once, the fleet core's holder) against `ghost_row` on the same rows:
+    hostile numbers, a path of one edge and of the widest a row holds; refusals write nothing."""
+    from entitynet.client.fleet import FleetCore, W
+
+    a, b = FleetCore(capacity=4), FleetCore(capacity=4)
+    cols = K.GhostCols(b.gm, b.ge, b.gd, b.gc, b.gn)
+    nums = tuple(HOSTILE[:11].tolist())
+    one = _P([(7, -1)], [0.0, 12.5])
+    wide = _P([(e, 1 if e % 2 else -1) for e in range(W)], [float(k) * 1.5 for k in range(W + 1)])
+    for s, path in ((0, one), (3, wide), (1, one), (1, wide)):
+        K.ghost_row(a.gm, a.ge, a.gd, a.gc, a.gn, s, nums, path)
+        cols.write(s, nums, path)
+    for name in ("gm", "ge", "gd", "gc", "gn"):
+        assert _same(getattr(a, name), getattr(b, name)), name
+    before = {name: getattr(b, name).copy() for name in ("gm", "ge", "gd", "gc", "gn")}
+    with pytest.raises(IndexError):
+        cols.write(4, nums, one)
+    with pytest.raises(IndexError):
+        cols.write(-1, nums, one)
+    with pytest.raises(ValueError):
+        cols.write(0, nums[:10], one)
+    with pytest.raises(ValueError):
+        cols.write(0, nums, _P([], [0.0]))
+    with pytest.raises(ValueError):
+        cols.write(0, nums, _P(wide.edges + [(1, 1)], wide.cum + [99.0]))
+    with pytest.raises(ValueError):
+        cols.write(0, nums, _P([(1, 1)], [0.0]))
+    for name, was in before.items():
+        assert _same(was, getattr(b, name)), name
+    with pytest.raises(ValueError):
+        K.GhostCols(b.gm, b.ge, b.gd, b.gc[:2], b.gn)
+
+
+def test_the_fleets_ghost_columns_are_taken_again_after_they_grow():
+    """The fleet core's holder of the ghost columns follows a growth of the record: a ghost written after the
+    fleet grew lands in the new columns (the twin fleets' messages and columns agree with the numpy path)."""
+    was = fleet_kernels.compiled_in_use()
+    try:
+        fleet_kernels.use_compiled(True)
+        _a, _b, core, _ents = _run(cross(arm=100.0), seed=2)
+        assert core._ghost_cols is not None and len(core.gm) > 4  # (grew past its first 4 slots while adding)
+        rows = [s for s in range(len(core.players)) if core.players[s] is not None and core._ghosts[s] is not None]
+        written = {n: getattr(core, n)[rows].copy() for n in ("gm", "ge", "gd", "gc", "gn")}
+        core._grow()  # (new blocks holding the old rows, as after a growth)
+        assert core._ghost_cols is None  # taken again at the next new ghost, over the blocks as they are now
+        s = rows[0]
+        core.gm[s], core.ge[s], core.gn[s] = 0.0, 0, 0  # (the new blocks' row wiped: the write must land there)
+        core._ghosts[s] = None
+        core._refresh(s)
+        assert core._ghost_cols is not None
+        assert _same(core.gm[s], written["gm"][0]) and _same(core.ge[s], written["ge"][0])
+        assert core.gn[s] == written["gn"][0]
+        fleet_kernels.use_compiled(False)
+        for s in rows:
+            core._ghosts[s] = None
+            core._refresh(s)
+    finally:
+        fleet_kernels.use_compiled(was)
+    for name, got in written.items():
+        assert _same(got, getattr(core, name)[rows]), name
