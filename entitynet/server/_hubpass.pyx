@@ -6,8 +6,8 @@ Why: a lock step's PING costs the server more in Python around the system calls 
 the recogniser, the prefix, `os.writev` and its exception handling) than in the calls themselves. Here the read
 goes into one reusable buffer, the PING shape is recognised and the PONG's prefix packed in C, and `read(2)` and
 `writev(2)` are called directly (non-blocking sockets: the GIL is held, the calls return at once). Whether the
-PONG may go now, and its bytes, stay the core's (`Switchboard.quick_pong`). Same inputs, same effects, same
-bytes on the wire as the reference; tests compare them.
+PONG may go now stays the core's (`Switchboard.pong_clear`); the PONG itself is encoded here, as `quick_pong`
+encodes it. Same inputs, same effects, same bytes on the wire as the reference; tests compare them.
 """
 
 from libc.errno cimport EAGAIN, EINTR, errno
