@@ -7,9 +7,11 @@ server ran this path in the interpreter: `os.read` into a new bytes object, the 
 compiled twin reads into one reusable buffer, recognises the PING and packs the prefix in C and calls
 `read(2)`/`writev(2)` directly (the sockets are non-blocking: the GIL is held, the calls return at once); a read
 that is not a lone PING becomes a bytes object only then and goes the server's general way (`_hub_bytes`).
-What the PONG may carry and whether it may go at once stays the core's decision (`Switchboard.quick_pong`),
-called alike by both. `use_compiled` picks one for the process (ENTITYNET_PURE_PYTHON=1 forces the
-reference); tests run both on the same bytes and compare what they write and what they leave behind.
+Whether the PONG may go at once stays the core's decision (`Switchboard.pong_clear`, which `quick_pong` asks
+too); the reference takes the PONG's bytes from `quick_pong`, the compiled twin encodes the same bytes in C (no
+`Ping`, `Pong` or bytes object per PING: that was about half of what the core's part cost). `use_compiled`
+picks one for the process (ENTITYNET_PURE_PYTHON=1 forces the reference); tests run both on the same bytes and
+compare what they write and what they leave behind.
 
 The server side these functions use (entitynet.server.reading, `ReadingMixin`): `config.read_size`, `sb`,
 `clock()`, `pacer`, the `written`/`frames` counters, `_hub_eof(conn)`, `_hub_bytes(conn, data)` and

@@ -46,12 +46,18 @@ class OutboundMixin:
         reply bound (`max_replies_per_frame` >= 1), so nothing is counted or refused. Why: a lock step's
         barrier PINGs every client once per tick, and through `receive` and the outbox each cost more than
         the write itself."""
-        c = self.clients.get(cid)
-        if c is None or not c.ready or c.closing or c.outbox.close_after:
-            return None
-        if c.outbox.has_control if states_ok else len(c.outbox):
+        if not self.pong_clear(cid, states_ok):
             return None
         return P.encode_message(P.Pong(ping.client_ms, P.now_ms(max(now, 0.0))))
+
+    def pong_clear(self, cid: int, states_ok: bool = False) -> bool:
+        """`quick_pong`'s decision alone: whether a PONG written now, past the outbox, overtakes nothing. Why
+        apart: the compiled read path (entitynet.server._hubpass) encodes the PONG itself, in C, and asks the
+        core only this; the PONG's bytes are the same (tests compare them)."""
+        c = self.clients.get(cid)
+        if c is None or not c.ready or c.closing or c.outbox.close_after:
+            return False
+        return not (c.outbox.has_control if states_ok else len(c.outbox))
 
     def written_out(self, cid: int) -> None:
         """The shell has just written everything queued for `cid` itself (a reader answering its client's PING

@@ -43,7 +43,8 @@ class _Scope:
 class FakeServer:
     """The server side `hubpass` uses, recording every call; a real core behind it."""
 
-    def __init__(self, read_size: int = 64, states_answer: bool = True):
+    def __init__(self, read_size: int = 64, states_answer: bool = True, now: object = NOW):
+        self.now = now
         self.sb = Switchboard(SwitchConfig(n_cells=16, digest="d", open_mode=True, seed=1))
         self.config = SimpleNamespace(read_size=read_size)
         self.pacer = SimpleNamespace(n=0)
@@ -53,7 +54,7 @@ class FakeServer:
         self.states_answer = states_answer
 
     def clock(self) -> float:
-        return NOW
+        return self.now  # type: ignore[return-value]
 
     def _hub_eof(self, conn) -> None:
         self.calls.append(("eof",))
@@ -67,9 +68,9 @@ class FakeServer:
         return self.states_answer
 
 
-def _setup(read_size: int = 64, hello: bool = True, states_answer: bool = True):
+def _setup(read_size: int = 64, hello: bool = True, states_answer: bool = True, now: object = NOW):
     """A server with one client connection over a socket pair: (server, conn, the client's socket)."""
-    server = FakeServer(read_size, states_answer)
+    server = FakeServer(read_size, states_answer, now)
     ours, theirs = socket.socketpair()
     ours.setblocking(False)
     theirs.settimeout(2.0)
@@ -267,5 +268,39 @@ def test_the_compiled_recogniser_matches_the_reference_on_arbitrary_bytes():
     @given(st.one_of(st.binary(max_size=20), pings))
     def check(data):
         assert hubpass.COMPILED.lone_ping_ms(data) == hubpass.PURE.lone_ping_ms(data)
+
+    check()
+
+
+def _run_or_raise(impl, chunks: list[bytes], **kw) -> dict | tuple[str, str]:
+    try:
+        return _run(impl, chunks, **kw)
+    except Exception as exc:  # the reference's ValueError for a clock now_ms refuses: the same from both
+        return (type(exc).__name__, str(exc))
+
+
+@pytest.mark.parametrize("now", [0.0, -0.0, -5.0, 0.0005, 0.0015, 0.0025, 1.0004999, 12.3455, NOW, 2**43 + 0.5,
+                                 9.007199254740991e12, 9.007199254740992e12, 1e300, float("inf"), float("-inf"),
+                                 float("nan"), 7, True])
+def test_the_compiled_pong_matches_the_core_on_any_clock(now):
+    """The compiled path encodes the PONG itself (`now_ms` rounding, msgpack widths): the same frame, the same
+    refusal (a NaN or infinite clock raises as `now_ms` does), for ordinary, boundary and hostile clocks."""
+    for ms in (0, 127, 128, 65_536, 2**32, P.MAX_INT):
+        chunks = [P.encode_frame([P.Ping(ms)])]
+        ref = _run_or_raise(hubpass.PURE, chunks, now=now)
+        if hubpass.COMPILED is not None:
+            assert _run_or_raise(hubpass.COMPILED, chunks, now=now) == ref
+        if isinstance(ref, dict):
+            assert ref["wire"] == P.encode_frame([P.Pong(ms, P.now_ms(max(now, 0.0)))])
+
+
+def test_the_compiled_pong_encoder_matches_encode_message():
+    if hubpass.COMPILED is None:
+        pytest.skip("not built")
+
+    @settings(max_examples=200, deadline=None)
+    @given(st.integers(0, P.MAX_INT), st.integers(0, 2**64 - 1))
+    def check(client_ms, server_ms):
+        assert hubpass.COMPILED.pong_bytes(client_ms, server_ms) == P.encode_message(P.Pong(client_ms, server_ms))
 
     check()
