@@ -40,6 +40,10 @@ def register(sub) -> None:
     p.add_argument("--flush-fill", type=bounded_int(1, 1_000_000), default=8, metavar="N",
                    help="flush before the latency budget once N messages per waiting connection are queued "
                         "(default 8)")
+    p.add_argument("--flush-min-frame", type=bounded_int(1, 1_000_000), default=1, metavar="N",
+                   help="a connection with fewer than N states queued (and nothing else) waits for the next flush, "
+                        "once: fewer, fuller writes; adds at most one flush interval (--flush-ms, or the latency "
+                        "budget at light load) to those states' latency (default 1 = off; docs/switch.md)")
     p.add_argument("--pace-ms", type=bounded_float(0, 1000), default=0.0, metavar="MS",
                    help="at light load wake at most once per MS, reading everything that arrived meanwhile in one "
                         "go (adds up to MS of latency; default 0 = off; docs/switch.md)")
@@ -76,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
         tls_cert=args.tls_cert, tls_key=args.tls_key, topology=args.topology, open_mode=args.open,
         users_db=args.users_db, flush_interval=args.flush_ms / 1000.0,
         flush_min_interval=args.flush_min_ms / 1000.0, latency_budget=args.latency_budget_ms / 1000.0,
-        flush_fill=args.flush_fill, pace=args.pace_ms / 1000.0, gc_full_every=args.gc_full_every or None,
+        flush_fill=args.flush_fill, flush_min_frame=args.flush_min_frame, pace=args.pace_ms / 1000.0,
+        gc_full_every=args.gc_full_every or None,
         switch={"grace_s": args.grace}, log_json=args.log_json,
     )
     if args.cluster:

@@ -44,27 +44,32 @@ cdef inline Py_ssize_t _prefix(unsigned char *buf, Py_ssize_t n, Py_ssize_t size
 
 
 def flush_short(object dirty, dict conns, double now, Py_ssize_t max_messages, Py_ssize_t sure_fit,
-                Py_ssize_t max_body, long lat_n):
+                Py_ssize_t max_body, long lat_n, Py_ssize_t hold_below=0):
     """See `flush_short_py`: the same loop, the same results."""
     cdef Py_ssize_t n_msgs = 0, n_frames = 0, n, blen, hl, sent
     cdef unsigned char head[9]
     cdef iovec iov[2]
     cdef object conn, fd_obj, taken, body, since
     cdef int fd, err
-    cdef list samples = [], slow = [], blocked = [], failed = []
+    cdef bint fresh
+    cdef list samples = [], slow = [], blocked = [], failed = [], held = []
     monotonic = time.monotonic
     for cid in dirty:
         conn = conns.get(cid)
         if conn is None:
             continue
         since = conn.dirty_since
-        if since is None:
+        fresh = since is None
+        if fresh:
             conn.dirty_since = now
         if conn.busy or conn.closed:
             continue
         fd_obj = conn.fd
         if fd_obj is None:
             slow.append(conn)
+            continue
+        if fresh and hold_below > 1 and conn.outbox.holds_few(hold_below):
+            held.append(cid)
             continue
         taken = conn.outbox.take_states(max_messages, sure_fit, max_body)
         if taken is None:
@@ -103,4 +108,4 @@ def flush_short(object dirty, dict conns, double now, Py_ssize_t max_messages, P
             conn.rest = ((<char *>head)[:hl] + body)[sent:]
             conn.busy = True
             blocked.append(conn)
-    return n_msgs, n_frames, lat_n, samples, slow, blocked, failed
+    return n_msgs, n_frames, lat_n, samples, slow, blocked, failed, held

@@ -59,6 +59,9 @@ def check_flush_policy(config: ServerConfig) -> None:
     f = config.flush_fill
     if isinstance(f, bool) or not isinstance(f, int) or not 1 <= f <= 1_000_000:
         raise ConfigError(f"--flush-fill must be a whole number from 1 to 1000000, not {f!r}")
+    m = config.flush_min_frame
+    if isinstance(m, bool) or not isinstance(m, int) or not 1 <= m <= 1_000_000:
+        raise ConfigError(f"--flush-min-frame must be a whole number from 1 to 1000000, not {m!r}")
 
 
 @dataclass
@@ -90,6 +93,9 @@ class ServerConfig:
     # connection are queued first; 0 flushes as soon as the loop is idle (docs/switch.md, "CPU that falls ...")
     latency_budget: float = 0.02
     flush_fill: int = 8  # queued messages per dirty connection that make a flush worth doing before the budget
+    # a connection whose frame would carry fewer than this many states (and nothing else) waits for the next
+    # flush, once (a frame costs a writev whatever it carries); 1 = every frame goes at once (flushloop.py)
+    flush_min_frame: int = 1
     pace: float = 0.0  # at light load the loop wakes at most once per this (s): entitynet/server/pacing.py; 0 = off
     gc_full_every: float | None = None  # full garbage collections only this often (s); None = Python's (gcpolicy)
     stall_timeout: float = 5.0  # a write blocked this long without progress (client not reading) drops it

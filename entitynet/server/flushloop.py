@@ -42,34 +42,44 @@ class FlushConn:
 
 
 def flush_short_py(dirty: Iterable[int], conns: dict, now: float, max_messages: int, sure_fit: int, max_body: int,
-                   lat_n: int) -> tuple[int, int, int, list[float], list, list, list]:
+                   lat_n: int, hold_below: int = 0) -> tuple[int, int, int, list[float], list, list, list, list]:
     """Write one frame to every connection in `dirty` (client ids) that takes the short path.
 
     Per connection: none (gone) is skipped; `dirty_since` is set to `now` when unset; a busy or closed one is
-    skipped (its writer takes the news when it is done); one without a plain socket, or whose outbox
-    `take_states` refuses, goes to `slow`. The frame (length prefix and array header, then the joined states)
+    skipped (its writer takes the news when it is done); one without a plain socket goes to `slow`. A small
+    frame waits once: a connection this flush is the first to find with news (`dirty_since` was unset) whose
+    outbox holds only states, fewer than `hold_below` (`Outbox.holds_few`), is not written but goes to `held`
+    (its id; the caller marks it dirty again), so that the next flush writes its news with whatever arrived
+    meanwhile (a frame costs a `writev` whatever it carries; held once, the next flush writes it whatever its
+    size, so the added latency is bounded by one flush interval). One whose outbox `take_states` refuses goes to
+    `slow`. The frame (length prefix and array header, then the joined states)
     is written with one `writev`: written whole, the connection's latency is sampled every `LATENCY_EVERY`
     frames and `dirty_since` cleared; partly written, the rest goes to `conn.rest`, `conn.busy` is set and the
     connection goes to `blocked` (its writer finishes it); a failed write puts it in `failed` (peer gone).
 
-    Returns (messages, frames, lat_n, latency samples in s, slow, blocked, failed)."""
+    Returns (messages, frames, lat_n, latency samples in s, slow, blocked, failed, held)."""
     n_msgs = n_frames = 0
     samples: list[float] = []
     slow: list = []
     blocked: list = []
     failed: list = []
+    held: list = []
     writev = os.writev
     for cid in dirty:
         conn = conns.get(cid)
         if conn is None:
             continue
-        if conn.dirty_since is None:
+        fresh = conn.dirty_since is None
+        if fresh:
             conn.dirty_since = now
         if conn.busy or conn.closed:
             continue
         fd = conn.fd
         if fd is None:
             slow.append(conn)
+            continue
+        if fresh and hold_below > 1 and conn.outbox.holds_few(hold_below):
+            held.append(cid)
             continue
         taken = conn.outbox.take_states(max_messages, sure_fit, max_body)
         if taken is None:
@@ -95,7 +105,7 @@ def flush_short_py(dirty: Iterable[int], conns: dict, now: float, max_messages: 
             conn.rest = (head + body)[sent:]
             conn.busy = True
             blocked.append(conn)
-    return n_msgs, n_frames, lat_n, samples, slow, blocked, failed
+    return n_msgs, n_frames, lat_n, samples, slow, blocked, failed, held
 
 
 PURE: Any = SimpleNamespace(flush_short=flush_short_py)
@@ -121,9 +131,9 @@ def compiled_in_use() -> bool:
 
 
 def flush_short(dirty: Iterable[int], conns: dict, now: float, max_messages: int, sure_fit: int, max_body: int,
-                lat_n: int) -> tuple[int, int, int, list[float], list, list, list]:
+                lat_n: int, hold_below: int = 0) -> tuple[int, int, int, list[float], list, list, list, list]:
     """`flush_short_py` or its compiled twin, whichever `use_compiled` selected."""
-    return _impl.flush_short(dirty, conns, now, max_messages, sure_fit, max_body, lat_n)
+    return _impl.flush_short(dirty, conns, now, max_messages, sure_fit, max_body, lat_n, hold_below)
 
 
 use_compiled(not os.environ.get("ENTITYNET_PURE_PYTHON"))

@@ -173,9 +173,14 @@ class WritingMixin:
         those it cannot serve (replies, a close, more than one frame, WebSocket or TLS) take `_try_write`."""
         stats = self.sb.stats
         self._queued_mark = stats["deliveries"] + stats["leaves"]
-        n_msgs, n_frames, self._lat_n, samples, slow, blocked, failed = flush_short(
+        n_msgs, n_frames, self._lat_n, samples, slow, blocked, failed, held = flush_short(
             self.sb.take_dirty(check=False), self.conns, time.monotonic(), self._fast_batch, self._sure_fit,
-            self._max_body, self._lat_n)
+            self._max_body, self._lat_n, self.config.flush_min_frame)
+        if held:  # small frames wait for the next flush (once): it comes within the latency budget
+            self.sb.mark_dirty(held)
+            if not self._news.is_set():
+                self._news_at = trio.current_time()
+                self._news.set()
         self.written += n_msgs
         self.frames += n_frames
         for s in samples:

@@ -89,6 +89,11 @@ cdef class COutbox:
                 return n, self.table._join_take(self.vs, n)
         return None
 
+    def holds_few(self, Py_ssize_t k):
+        """`Outbox.holds_few`: only states pending, fewer than `k` of them."""
+        cdef Py_ssize_t n = self.table.boxes[self.vs].n
+        return 0 < n < k and not self._control and not self._close_after and not self._overflow
+
     def drain(self, max_messages=None, max_bytes=None):
         """`Outbox.drain`: control first, then states in first-queued order, within the bounds (at least one)."""
         cdef list control = self._control, out

@@ -11,7 +11,7 @@ client that does not read).
 from __future__ import annotations
 
 import logging
-from collections.abc import Collection
+from collections.abc import Collection, Iterable
 from typing import TYPE_CHECKING
 
 from entitynet import protocol as P
@@ -30,6 +30,13 @@ class OutboundMixin:
     def has_news(self) -> bool:
         """Something was queued for some client since the last `take_dirty` (the shell's flusher waits for it)."""
         return bool(self._dirty)
+
+    def mark_dirty(self, cids: Iterable[int]) -> None:
+        """Name these clients in the next `take_dirty` again: the shell's flush held their small frames for the
+        next flush (`entitynet.server.flushloop.flush_short`, `hold_below`); what they hold stays queued."""
+        dirty = self._dirty
+        for cid in cids:
+            dirty.add(cid)
 
     def dirty_count(self) -> int:
         """How many clients have news since the last `take_dirty`: the shell's flusher sizes its wait by it

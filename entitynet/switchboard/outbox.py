@@ -107,6 +107,12 @@ class Outbox:
 
     take_states = take_states_py
 
+    def holds_few(self, k: int) -> bool:
+        """Whether only states are pending (no replies, no close, not over bounds) and fewer than `k` of them:
+        a frame the flush may hold for one more flush (`flushloop.flush_short`'s `hold_below`), since a frame
+        costs a `writev` whatever it carries and a reply or a close must never wait."""
+        return 0 < len(self._states) < k and not self._control and not self._close_after and not self._overflow
+
     def drain(self, max_messages: int | None = None, max_bytes: int | None = None) -> list[bytes]:
         """Take queued messages for one frame: control first, then entity states in first-queued order.
 

@@ -60,6 +60,8 @@ class ReplayResult:
     core_s: float = field(default=0.0, compare=False)
     # with sockets: CPU seconds of the flushes through the server's flush loop (take, frame, writev), and frames
     flush_s: float = field(default=0.0, compare=False)
+    # with `hold_below`: states that waited one more flush in a held small frame (each waited one `flush_ms` more)
+    held_states: int = field(default=0, compare=False)
 
     @property
     def core_us_per_delivery(self) -> float:
@@ -137,9 +139,11 @@ class _Wire:
 
 def replay(topo, *, entities: int = 2000, viewers: int = 300, seconds: float = 11.0, seed: int = 7,
            publisher_connections: int = 4, flush_ms: float = 10.0, radius_m: float = 500.0,
-           sockets: bool = False) -> ReplayResult:
+           sockets: bool = False, hold_below: int = 0) -> ReplayResult:
     """Run the switch benchmark's workload through a fresh `Switchboard` for `seconds` of simulated time
     (with `sockets`, flushed through the server's flush loop onto loopback TCP; see the module docstring).
+    `hold_below` (with `sockets`) is the server's `flush_min_frame`: fewer states than it wait one more flush,
+    once (the digest then differs from the pinned one: frames move to later flushes).
 
     Seeds and derived streams are those of `sims.bench.switch_bench.run` (viewers from `seed`, movers from
     `seed + 1`); the simulated clock starts at 1000 s and advances by the benchmark's 5 ms tick.
@@ -155,6 +159,7 @@ def replay(topo, *, entities: int = 2000, viewers: int = 300, seconds: float = 1
     clock = time.process_time  # CPU time of this process: preemption by other processes is not counted
     core = [0.0]
     flush_cpu = [0.0]
+    held_states = [0]
     wire = _Wire() if sockets else None
     conns: dict[int, FlushConn] = {}
     codec = sb.config.codec
@@ -184,11 +189,15 @@ def replay(topo, *, entities: int = 2000, viewers: int = 300, seconds: float = 1
         else:
             core[0] += clock() - t
             t = clock()
-            _n, _f, _lat, _s, slow, blocked, _failed = flush_short(dirty, conns, now, 20_000, sure_fit, max_body, 0)
+            res = flush_short(dirty, conns, now, 20_000, sure_fit, max_body, 0, hold_below)
+            slow, blocked, held = res[4], res[5], res[7]
             flush_cpu[0] += clock() - t
+            if held:
+                sb.mark_dirty(held)
+                held_states[0] += sum(len(conns[cid].outbox) for cid in held)
             for conn in blocked:
                 wire.finish(conn)
-            sent = {cid for cid in dirty if cid in conns} - {c.cid for c in slow}
+            sent = {cid for cid in dirty if cid in conns} - {c.cid for c in slow} - set(held)
             for conn in slow:  # replies (WELCOME) in front of states: drained, as the server's long path does
                 if msgs := conn.outbox.drain():
                     drained[conn.cid] = msgs
@@ -259,7 +268,7 @@ def replay(topo, *, entities: int = 2000, viewers: int = 300, seconds: float = 1
     if wire is not None:
         wire.close()
     return ReplayResult(h_fwd.hexdigest(), h_ctl.hexdigest(), updates_in, counts["deliveries"], counts["leaves"],
-                        counts["frames"], counts["control"], expired, core[0], flush_cpu[0])
+                        counts["frames"], counts["control"], expired, core[0], flush_cpu[0], held_states[0])
 
 
 if __name__ == "__main__":  # pragma: no cover - a small report tool
@@ -272,6 +281,8 @@ if __name__ == "__main__":  # pragma: no cover - a small report tool
     ap.add_argument("--viewers", type=int, default=300)
     ap.add_argument("--seconds", type=float, default=11.0)
     ap.add_argument("--sockets", action="store_true", help="flush through the server's flush loop onto loopback TCP")
+    ap.add_argument("--hold-below", type=int, default=0,
+                    help="with --sockets: hold frames of fewer states for one more flush (serve --flush-min-frame)")
     ns = ap.parse_args()
     if ns.topology:
         from topology.artifact import load
@@ -281,7 +292,8 @@ if __name__ == "__main__":  # pragma: no cover - a small report tool
         from entitynet.topology_cache import bundled_topology
 
         topo, _path = bundled_topology(None, with_pvs=False)
-    res = replay(topo, entities=ns.entities, viewers=ns.viewers, seconds=ns.seconds, sockets=ns.sockets)
+    res = replay(topo, entities=ns.entities, viewers=ns.viewers, seconds=ns.seconds, sockets=ns.sockets,
+                 hold_below=ns.hold_below)
     print(json.dumps({**asdict(res), "core_us_per_delivery": res.core_us_per_delivery,
                       "flush_us_per_frame": res.flush_us_per_frame,
                       "total_us_per_delivery": res.total_us_per_delivery}, indent=2))

@@ -79,10 +79,11 @@ def _case(seed: int):
     return dirty, conns, socks
 
 
-def _run(impl, seed: int, max_messages: int = 100, sure_fit: int = 50, max_body: int = 20_000, lat_n0: int = 0):
+def _run(impl, seed: int, max_messages: int = 100, sure_fit: int = 50, max_body: int = 20_000, lat_n0: int = 0,
+         hold_below: int = 0):
     dirty, conns, socks = _case(seed)
-    res = impl.flush_short(dirty, conns, 7.0, max_messages, sure_fit, max_body, lat_n0)
-    n_msgs, n_frames, lat_n, samples, slow, blocked, failed = res
+    res = impl.flush_short(dirty, conns, 7.0, max_messages, sure_fit, max_body, lat_n0, hold_below)
+    n_msgs, n_frames, lat_n, samples, slow, blocked, failed, held = res
     received = {}
     for cid, srv, cli in socks:
         if cli.fileno() >= 0:
@@ -94,7 +95,7 @@ def _run(impl, seed: int, max_messages: int = 100, sure_fit: int = 50, max_body:
     return {
         "counts": (n_msgs, n_frames, lat_n, len(samples)),
         "slow": [c.cid for c in slow], "blocked": [c.cid for c in blocked], "failed": [c.cid for c in failed],
-        "received": received, "fields": fields,
+        "held": held, "received": received, "fields": fields,
     }
 
 
@@ -177,8 +178,53 @@ def test_a_partial_write_leaves_the_rest_for_the_writer(flush_path):
     for e in range(50):
         ob.put_state(e, P.encode_update(e + P.LOCAL_ID_LIMIT, 1, (1,), 1000, b"p" * 2000))
     conn = flushloop.FlushConn(1, ob, srv.fileno())
-    *_c, slow, blocked, failed = flushloop.flush_short([1], {1: conn}, 1.0, 100, 100, 1 << 20, 0)
+    *_c, slow, blocked, failed, _held = flushloop.flush_short([1], {1: conn}, 1.0, 100, 100, 1 << 20, 0)
     assert blocked == [conn] and not slow and not failed
     assert conn.busy and conn.rest and len(ob) == 0 and conn.dirty_since == 1.0  # latency counted when done
+    srv.close()
+    cli.close()
+
+
+@pytest.mark.parametrize("hold_below", [-5, 0, 1, 2, 5, 41, 2**40])
+@pytest.mark.parametrize("seed", range(4))
+def test_both_loops_hold_the_same_small_frames(seed, hold_below):
+    """`hold_below`: both loops hold the same connections (fresh ones with only states, fewer than it) and
+    write the same bytes to the rest; hostile values (negative, 0, 1: off; huge: every fresh state-only one)."""
+    if flushloop.COMPILED is None:
+        pytest.skip("the compiled flush loop was not built (no Cython or C compiler at install time)")
+    pure = _run(flushloop.PURE, seed, hold_below=hold_below)
+    comp = _run(flushloop.COMPILED, seed, hold_below=hold_below)
+    assert comp == pure
+    if hold_below <= 1:
+        assert pure["held"] == []
+
+
+def test_a_small_frame_is_held_once_then_written(flush_path):
+    """A fresh connection with fewer states than `hold_below` is held (nothing written, its states kept,
+    `dirty_since` set: the flush that first saw it), and the next flush writes it whatever its size; a reply
+    queued beside the states is never held; with as many states as `hold_below` it is written at once."""
+    srv, cli = _pair()
+    ob = Outbox(max_states=100, max_control=2)
+    ob.put_state(1, P.encode_leave(1 + P.LOCAL_ID_LIMIT))
+    conn = flushloop.FlushConn(1, ob, srv.fileno())
+    res = flushloop.flush_short([1], {1: conn}, 3.0, 100, 100, 1 << 20, 0, 4)
+    assert res[:2] == (0, 0) and res[7] == [1] and len(ob) == 1 and conn.dirty_since == 3.0
+    assert _read_all(cli) == b""
+    res = flushloop.flush_short([1], {1: conn}, 4.0, 100, 100, 1 << 20, 0, 4)
+    assert res[:2] == (1, 1) and res[7] == [] and len(ob) == 0 and conn.dirty_since is None
+    for k, control in ((4, True), (3, False)):
+        for e in range(3):
+            ob.put_state(e, P.encode_leave(e + P.LOCAL_ID_LIMIT))
+        if control:
+            ob.put_control(P.encode_message(P.Pong(1, 2)))
+        res = flushloop.flush_short([1], {1: conn}, 5.0, 100, 100, 1 << 20, 0, k)
+        assert res[7] == []  # a reply waits for nobody; 3 states are not fewer than 3
+        if control:
+            assert res[4] == [conn]  # the writer's long path
+            ob.drain()
+            conn.dirty_since = None
+        else:
+            assert res[:2] == (3, 1)
+    _read_all(cli)
     srv.close()
     cli.close()

@@ -47,7 +47,9 @@ step = st.one_of(
 
 
 def _observe(ob) -> tuple:
-    return (len(ob), ob.n_states, ob.n_control, ob.has_control, ob.close_after, ob.over_bounds)
+    # holds_few: the flush's "hold a small frame once" test (entitynet/server/flushloop.py), hostile k included
+    holds = tuple(ob.holds_few(k) for k in (-(2**40), 0, 1, 2, 3, 13, 2**40))
+    return (len(ob), ob.n_states, ob.n_control, ob.has_control, ob.close_after, ob.over_bounds, holds)
 
 
 def _play(table, steps: list[tuple]) -> list:

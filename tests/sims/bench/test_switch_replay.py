@@ -42,3 +42,12 @@ def test_the_socket_path_delivers_exactly_the_pinned_frames(helsinki, flush_path
     got = {k: getattr(res, k) for k in PINNED}
     assert got == PINNED
     assert res.flush_s > 0 and res.flush_us_per_frame == res.flush_s * 1e6 / res.frames
+
+
+def test_held_small_frames_deliver_the_same_states_in_fewer_frames(helsinki, flush_path):
+    """`hold_below` (the server's `--flush-min-frame`): every state still arrives (the same deliveries and
+    LEAVEs as the pin), in fewer frames, and the states that waited a flush are counted; both loops alike."""
+    res = replay(helsinki, **SMALL, sockets=True, hold_below=3)
+    assert (res.deliveries, res.leaves) == (PINNED["deliveries"], PINNED["leaves"])
+    assert res.frames < PINNED["frames"] and 0 < res.held_states < res.deliveries
+    assert res.digest != PINNED["digest"]  # frames moved to later flushes
