@@ -263,8 +263,8 @@ def run(args, progress) -> dict[str, Any]:
                   if summary["entitynet"]["bytes_per_viewer_s"] else None for name in summary if name != "entitynet"}
         | {"mosquitto_over_entitynet_server_cpu": tg["server_cpu_ratio_mosquitto_over_ours"],
            "mqtt_disc_error_p95_m": mq["error_p95_m"]},
-        "notes": ["Measured on a shared 2-core VM while other helpers' jobs loaded it; CPU figures are "
-                  "per-process counters (psutil) over the ticks only, medians of alternated repetitions.",
+        "notes": ["CPU figures are per-process counters (psutil) over the ticks only, medians of alternated "
+                  "repetitions; how busy the machine was is the load average below.",
                   "Lock step: every tick's messages reach every viewer (a per-system barrier) before the truth is "
                   "sampled, so the error figures do not depend on how the machine scheduled the run.",
                   f"Machine load average (1, 5, 15 min) at the start {load_before} and the end {load_after}."],
