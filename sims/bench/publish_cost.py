@@ -25,10 +25,9 @@ import json
 import time
 
 
-def measure(entities: int = 2000, warmup: int = 20, seconds: int = 30, seed: int = 5) -> dict:
-    """Run the simulation and return the publish count, the mean CPU us per publish, the fleet's CPU us per
-    entity-step and the digest of the messages (during the measured seconds)."""
-    from entitynet.client.player import Player
+def warmed_sim(entities: int, warmup: int, seconds: int, seed: int):
+    """The measured run's simulation, started and stepped `warmup` simulated seconds: the one setup every publish
+    measurement shares (`publish_together` too), so their figures are of the same run. `seconds` is only checked."""
     from entitynet.topology_cache import bundled_topology
     from sims.engine.sim import Sim, SimConfig
 
@@ -39,6 +38,15 @@ def measure(entities: int = 2000, warmup: int = 20, seconds: int = 30, seed: int
     sim.start()
     for _ in range(warmup):
         sim.step()
+    return sim
+
+
+def measure(entities: int = 2000, warmup: int = 20, seconds: int = 30, seed: int = 5) -> dict:
+    """Run the simulation and return the publish count, the mean CPU us per publish, the fleet's CPU us per
+    entity-step and the digest of the messages (during the measured seconds)."""
+    from entitynet.client.player import Player
+
+    sim = warmed_sim(entities, warmup, seconds, seed)
     inner = Player._publish
     spent = [0, 0, 0]  # ns, publishes, ns of garbage collections inside them
     clock = time.thread_time_ns

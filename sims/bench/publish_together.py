@@ -31,16 +31,9 @@ def measure(entities: int = 2000, warmup: int = 20, seconds: int = 10, seed: int
     """Per tick the four passes' CPU us per cover; their medians over the ticks and the covers counted."""
     from entitynet.client.modes import EDGE
     from entitynet.client.motion import NetworkModel
-    from entitynet.topology_cache import bundled_topology
-    from sims.engine.sim import Sim, SimConfig
+    from sims.bench.publish_cost import warmed_sim
 
-    if not (0 < entities <= 100_000 and 0 <= warmup <= 3600 and 0 < seconds <= 3600):
-        raise ValueError("entities in (0, 100000], warmup in [0, 3600], seconds in (0, 3600]")
-    topo, _path = bundled_topology()
-    sim = Sim(topo, SimConfig(entities=entities, viewers=0, transit=False, tick_hz=1.0, seed=seed, core="fleet"))
-    sim.start()
-    for _ in range(warmup):
-        sim.step()
+    sim = warmed_sim(entities, warmup, seconds, seed)
     core = sim.fleet.fleet_core
     clock = time.thread_time_ns
     passes: dict[str, list[float]] = {k: [] for k in ("together", "together_again", "by_edge", "first", "again")}

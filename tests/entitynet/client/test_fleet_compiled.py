@@ -186,6 +186,20 @@ def test_twin_fleets_give_the_same_messages_through_both_kernels(topo, seed):
     assert runs[True][1]["vector_near"] > 0 and runs[True][1]["vector_best_on"] > 0
 
 
+def _rows_rewritten_by_the_reference(core, rows) -> None:
+    """Every row's ghost read again into the derived columns by `_refresh`'s numpy assignments (the compiled
+    kernels off; the caller restores the switch)."""
+    fleet_kernels.use_compiled(False)
+    for s in rows:
+        core._ghosts[s] = None
+        core._refresh(s)
+
+
+def _assert_columns(core, rows, written) -> None:
+    for name, got in written.items():
+        assert _same(got, getattr(core, name)[rows]), name
+
+
 def test_ghost_row_writes_what_the_reference_writes():
     """`_fleet.ghost_row` (a new ghost read into the derived columns) against `_refresh`'s numpy assignments."""
     was = fleet_kernels.compiled_in_use()
@@ -195,14 +209,10 @@ def test_ghost_row_writes_what_the_reference_writes():
         rows = [s for s in range(len(core.players)) if core.players[s] is not None and core._ghosts[s] is not None]
         assert len(rows) > 5
         written = {n: getattr(core, n)[rows].copy() for n in ("gm", "ge", "gd", "gc", "gn")}
-        fleet_kernels.use_compiled(False)
-        for s in rows:
-            core._ghosts[s] = None
-            core._refresh(s)
+        _rows_rewritten_by_the_reference(core, rows)
     finally:
         fleet_kernels.use_compiled(was)
-    for name, got in written.items():
-        assert _same(got, getattr(core, name)[rows]), name
+    _assert_columns(core, rows, written)
     p = core.players[rows[0]]
     with pytest.raises(IndexError):
         K.ghost_row(core.gm, core.ge, core.gd, core.gc, core.gn, len(core.gm), tuple(core.gm[0]), p.ghost.path)
@@ -270,11 +280,7 @@ def test_the_fleets_ghost_columns_are_taken_again_after_they_grow():
         assert core._ghost_cols is not None
         assert _same(core.gm[s], written["gm"][0]) and _same(core.ge[s], written["ge"][0])
         assert core.gn[s] == written["gn"][0]
-        fleet_kernels.use_compiled(False)
-        for s in rows:
-            core._ghosts[s] = None
-            core._refresh(s)
+        _rows_rewritten_by_the_reference(core, rows)
     finally:
         fleet_kernels.use_compiled(was)
-    for name, got in written.items():
-        assert _same(got, getattr(core, name)[rows]), name
+    _assert_columns(core, rows, written)
