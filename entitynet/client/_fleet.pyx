@@ -363,18 +363,11 @@ def best_on_rows(geo, const long[:, :] pe, const long[:, :] pd, const double[:, 
     return ok_a, e_a, off_a, px_a, py_a, d_a
 
 
-def ghost_row(double[:, ::1] gm, long[:, ::1] ge, long[:, ::1] gd, double[:, ::1] gc, long[::1] gn, Py_ssize_t s,
-              tuple nums, path):
-    """`FleetCore._refresh`'s read of a new ghost into slot s's derived columns: its numbers `nums` (the
-    `_GHOST` columns, in order) into gm, its path's edges, directions and cumulative lengths (+inf past them)
-    into ge, gd, gc and their count into gn (the same values as the reference's numpy assignments)."""
-    GhostCols(gm, ge, gd, gc, gn).write(s, nums, path)
-
-
 cdef class GhostCols:
-    """`ghost_row` over columns taken once: the fleet core keeps one per size of its derived columns (made again
-    when they grow) and writes each new ghost through it. Why: taking the five arrays' buffers was most of a
-    `ghost_row` call (about 3 of 3.5 us, measured warm), once per publish."""
+    """A new ghost read into slot s's derived columns (`fleet.ghost_row_py`'s writes, the reference) over columns
+    taken once: the fleet core keeps one per size of its derived columns (made again when they grow) and writes
+    each new ghost through it. Why: taking the five arrays' buffers was most of a one-call write that took them
+    each time (about 3 of 3.5 us, measured warm), once per publish."""
     cdef double[:, ::1] gm, gc
     cdef long[:, ::1] ge, gd
     cdef long[::1] gn
@@ -386,7 +379,7 @@ cdef class GhostCols:
         self.gm, self.ge, self.gd, self.gc, self.gn = gm, ge, gd, gc, gn
 
     def write(self, Py_ssize_t s, tuple nums, path):
-        """Slot s's ghost: `ghost_row`'s writes (an IndexError for a slot outside the columns, a ValueError for
+        """Slot s's ghost: `ghost_row_py`'s writes (an IndexError for a slot outside the columns, a ValueError for
         numbers or a path that do not fit a row, nothing written then)."""
         cdef list edges = path.edges, cum = path.cum
         cdef Py_ssize_t n = len(edges), w = self.ge.shape[1], j

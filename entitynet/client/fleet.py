@@ -79,6 +79,18 @@ def _deadline(p: Player) -> float:
     return d - (1e-6 + abs(d) * 1e-12)
 
 
+def ghost_row_py(gm, ge, gd, gc, gn, s: int, nums: tuple, path) -> None:
+    """A new ghost read into slot s's derived columns: its numbers (the `_GHOST` columns) into gm, its path's
+    edges, directions and cumulative lengths (+inf past them) into ge, gd, gc and their count into gn. The
+    reference that `_fleet.GhostCols.write` is tested against."""
+    gm[s] = nums
+    n = gn[s] = len(path.edges)
+    ge[s, :n] = [de[0] for de in path.edges]
+    gd[s, :n] = [de[1] for de in path.edges]
+    gc[s, : n + 1] = path.cum
+    gc[s, n + 1:] = math.inf
+
+
 class FleetCore:
     """Players in slots (a removed player's slot goes to a later add; `order` keeps the order of the adds),
     stepped together."""
@@ -341,12 +353,7 @@ class FleetCore:
                     cols = self._ghost_cols = k.GhostCols(self.gm, self.ge, self.gd, self.gc, self.gn)
                 cols.write(s, nums, path)
             else:
-                self.gm[s] = nums
-                n = self.gn[s] = len(path.edges)
-                self.ge[s, :n] = [de[0] for de in path.edges]
-                self.gd[s, :n] = [de[1] for de in path.edges]
-                self.gc[s, : n + 1] = path.cum
-                self.gc[s, n + 1:] = math.inf
+                ghost_row_py(self.gm, self.ge, self.gd, self.gc, self.gn, s, nums, path)
         if not self.consts[s]:
             rules, placer, et = p.rules, trk.placer, trk.etype
             self.cm[s] = [placer.switch_margin if trk.switch_margin is None else trk.switch_margin,

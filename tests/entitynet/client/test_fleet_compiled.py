@@ -201,7 +201,7 @@ def _assert_columns(core, rows, written) -> None:
 
 
 def test_ghost_row_writes_what_the_reference_writes():
-    """`_fleet.ghost_row` (a new ghost read into the derived columns) against `_refresh`'s numpy assignments."""
+    """`_fleet.GhostCols` (a new ghost read into the derived columns) against `_refresh`'s numpy assignments."""
     was = fleet_kernels.compiled_in_use()
     try:
         fleet_kernels.use_compiled(True)
@@ -215,9 +215,9 @@ def test_ghost_row_writes_what_the_reference_writes():
     _assert_columns(core, rows, written)
     p = core.players[rows[0]]
     with pytest.raises(IndexError):
-        K.ghost_row(core.gm, core.ge, core.gd, core.gc, core.gn, len(core.gm), tuple(core.gm[0]), p.ghost.path)
+        K.GhostCols(core.gm, core.ge, core.gd, core.gc, core.gn).write(len(core.gm), tuple(core.gm[0]), p.ghost.path)
     with pytest.raises(ValueError):
-        K.ghost_row(core.gm, core.ge, core.gd, core.gc, core.gn, 0, (1.0,), p.ghost.path)
+        K.GhostCols(core.gm, core.ge, core.gd, core.gc, core.gn).write(0, (1.0,), p.ghost.path)
 
 
 class _P:
@@ -227,10 +227,11 @@ class _P:
         self.edges, self.cum = edges, cum
 
 
-def test_ghost_cols_write_what_ghost_row_writes_hostile_numbers_included():
-    """`_fleet.GhostCols` (the columns taken once, the fleet core's holder) against `ghost_row` on the same rows:
-    hostile numbers, a path of one edge and of the widest a row holds; refusals write nothing."""
-    from entitynet.client.fleet import FleetCore, W
+def test_ghost_cols_write_what_the_numpy_reference_writes_hostile_numbers_included():
+    """`_fleet.GhostCols` (the columns taken once, the fleet core's holder) against `fleet.ghost_row_py` (the
+    numpy reference) on the same rows: hostile numbers, a path of one edge and of the widest a row holds;
+    refusals write nothing."""
+    from entitynet.client.fleet import FleetCore, W, ghost_row_py
 
     a, b = FleetCore(capacity=4), FleetCore(capacity=4)
     cols = K.GhostCols(b.gm, b.ge, b.gd, b.gc, b.gn)
@@ -238,7 +239,7 @@ def test_ghost_cols_write_what_ghost_row_writes_hostile_numbers_included():
     one = _P([(7, -1)], [0.0, 12.5])
     wide = _P([(e, 1 if e % 2 else -1) for e in range(W)], [float(k) * 1.5 for k in range(W + 1)])
     for s, path in ((0, one), (3, wide), (1, one), (1, wide)):
-        K.ghost_row(a.gm, a.ge, a.gd, a.gc, a.gn, s, nums, path)
+        ghost_row_py(a.gm, a.ge, a.gd, a.gc, a.gn, s, nums, path)
         cols.write(s, nums, path)
     for name in ("gm", "ge", "gd", "gc", "gn"):
         assert _same(getattr(a, name), getattr(b, name)), name
