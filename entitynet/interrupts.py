@@ -63,7 +63,7 @@ def forget_unhandled_flag() -> None:
     CPython sets it when a KeyboardInterrupt leaves a string `exec`/`eval` (caught later or not) and, under
     `python -m`, ends the process by SIGINT instead of our exit status. Every string eval resets the flag when it
     starts, so a trivial one clears it; elsewhere it is harmless."""
-    exec("pass", {})  # noqa: S102 - a constant string: its only effect is that reset
+    exec("pass", {})  # a constant string: its only effect is that reset
 
 
 def caused_by_interrupt(exc: BaseException) -> bool:
