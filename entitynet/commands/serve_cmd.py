@@ -111,8 +111,13 @@ def check_options(args: argparse.Namespace) -> None:
 
 
 def _message(exc: BaseException) -> str:
+    """The one line of a ConfigError or OSError: other OSErrors come from binding the ports, a refused NATS
+    token (an OSError, so that it is found here) from joining the cluster."""
+    from entitynet.cluster.nats_client import NatsAuthorizationError
     from entitynet.server import ConfigError
 
-    return str(exc) if isinstance(exc, ConfigError) else f"cannot listen: {exc}"
+    if isinstance(exc, ConfigError):
+        return str(exc)
+    return f"cannot join the cluster: {exc}" if isinstance(exc, NatsAuthorizationError) else f"cannot listen: {exc}"
 
 
