@@ -18,7 +18,7 @@ import sys
 from collections.abc import Callable, Iterator
 from importlib.metadata import entry_points
 
-from entitynet import __version__
+from entitynet import __version__, interrupts
 
 #: modules providing subcommands (each defines `register(subparsers)`)
 COMMAND_MODULES = [
@@ -76,7 +76,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Parse, set up logging, run the command; user errors become exit status 2 and Ctrl-C exit status 130,
     each with one line on stderr and no traceback (also when they arrive inside an exception group, as they do
-    out of a trio nursery)."""
+    out of a trio nursery, when Python had to drop the KeyboardInterrupt, or when it turned into another error:
+    see `entitynet.interrupts`)."""
+    with interrupts.catching_interrupts():
+        status = _run(argv)
+        return _interrupted() if status != 130 and interrupts.take_lost_interrupt() else status
+
+
+def _run(argv: list[str] | None) -> int:
+    """`main` less the watch for dropped interrupts: the command, and what each way out of it means."""
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -99,6 +107,10 @@ def main(argv: list[str] | None = None) -> int:
                 isinstance(e, KeyboardInterrupt) or _is_cancellation(e) for e in found):
             return _interrupted()
         raise  # a bug: its traceback is what a report needs
+    except Exception as exc:
+        if interrupts.caused_by_interrupt(exc):  # e.g. a RuntimeError around a Ctrl-C in class creation
+            return _interrupted()
+        raise
 
 
 def _command_failed(exc: CommandError) -> int:
@@ -107,6 +119,7 @@ def _command_failed(exc: CommandError) -> int:
 
 
 def _interrupted() -> int:
+    interrupts.forget_unhandled_flag()  # else `python -m entitynet` may die by SIGINT instead of exiting 130
     print("entitynet: interrupted", file=sys.stderr)
     return 130
 

@@ -149,10 +149,11 @@ def _run_shell(args, topo, book, make_poller) -> int:
 
     from entitynet.cli import leaves
     from entitynet.connection import HandshakeRefused
+    from entitynet.interrupts import run_until_interrupted
 
     refused = None
     try:
-        trio.run(main)
+        run_until_interrupted(main)
     except BaseException as exc:  # noqa: B036 - only a refusal (maybe inside exception groups) is ours to report
         refused = next((e for e in leaves(exc) if isinstance(e, HandshakeRefused)), None)
         if refused is None:
@@ -266,5 +267,7 @@ def run_replay(args) -> int:
             if args.truth:
                 n.start_soon(record_truth, service, args.truth)
 
-    trio.run(main)
+    from entitynet.interrupts import run_until_interrupted
+
+    run_until_interrupted(main)  # a Ctrl-C anywhere in the run is a clean stop (status 130)
     return 0

@@ -11,6 +11,9 @@ anyway). `on_reconnect` tells the owner, which re-requests snapshots; `on_discon
 it had is gone (once per loss: failed attempts to reconnect are only logged at DEBUG), so the owner can say so.
 
 `echo: false` in CONNECT: NATS never delivers a switchboard's own publications back to it.
+
+The first connection retries refused ports until its deadline (a server may be starting), but a server that
+refuses our credentials fails it at once (`NatsAuthorizationError`): a wrong token stays wrong.
 """
 
 from __future__ import annotations
@@ -34,6 +37,15 @@ Handler = Callable[[str, str | None, bytes], None]
 
 class NatsConnectionLost(trio.BrokenResourceError):
     """A flush whose connection was lost before the server answered: what was written on it may be lost."""
+
+
+class NatsAuthorizationError(ConnectionError):
+    """The server refused our credentials on the first connection (-ERR 'Authorization Violation'). A
+    ConnectionError (an OSError) so that the callers' "cannot reach NATS" reporting takes it as it is."""
+
+
+#: -ERR texts (lower case) by which nats-server refuses credentials
+AUTH_REFUSALS = ("authorization violation",)
 
 
 class _Flush:
@@ -101,6 +113,7 @@ class NatsClient:
         self._writing = False  # the writer task is inside a send: nobody else may write to the socket
         self._nursery: trio.Nursery | None = None
         self._connected_ev = trio.Event()
+        self._refused: NatsAuthorizationError | None = None  # the first connection's credentials were refused
         self._closed = False
         self._inbox_prefix = f"_INBOX.{secrets.token_hex(8)}"
         self._requests: dict[str, Handler] = {}
@@ -120,6 +133,10 @@ class NatsClient:
             self._nursery.cancel_scope.cancel()
             await self._nursery_cm.__aexit__(type(exc), exc, exc.__traceback__)
             raise
+        if self._refused is not None:  # `_run` has returned: the nursery closes at once, with nothing to raise
+            self._closed = True
+            await self._nursery_cm.__aexit__(None, None, None)
+            raise self._refused
         return self
 
     async def __aexit__(self, *exc) -> bool | None:
@@ -152,6 +169,10 @@ class NatsClient:
                     await self._session(host, port, first)
                 except (OSError, trio.BrokenResourceError, trio.ClosedResourceError, trio.TooSlowError,
                         N.NatsProtocolError, ssl.SSLError) as exc:
+                    if first and isinstance(exc, NatsAuthorizationError):  # never connected: stop trying
+                        self._refused = exc
+                        self._connected_ev.set()
+                        return
                     self._lost_why = self._lost_why or str(exc) or type(exc).__name__
                     log.debug("NATS connection to %s:%s ended or failed: %s", host, port, exc)
                 if self.connected:
@@ -187,6 +208,9 @@ class NatsClient:
             await stream.send_all(hello + N.PING)
             while True:  # the PONG to our PING means CONNECT and every SUB were accepted
                 ev = await self._next(stream, parser)
+                if isinstance(ev, N.Err) and ev.text.lower().startswith(AUTH_REFUSALS):
+                    raise NatsAuthorizationError(f"NATS at {host}:{port} refused the credentials ({ev.text}): "
+                                                 "a wrong or missing token")
                 if isinstance(ev, N.Err):
                     raise N.NatsProtocolError(f"NATS refused the connection: {ev.text}")
                 if isinstance(ev, N.Pong):

@@ -65,8 +65,7 @@ def run(args: argparse.Namespace) -> int:
     clear line for the user) instead of a traceback."""
     import logging
 
-    import trio
-
+    from entitynet.interrupts import run_until_interrupted
     from entitynet.server import ConfigError, ServerConfig, logs, serve_until_signal
 
     if logging.getLogger().level > logging.INFO:  # the server's and the cluster link's events are shown
@@ -89,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
 
         config.cluster = cluster_config_from(args)
     try:
-        trio.run(serve_until_signal, config)
+        run_until_interrupted(serve_until_signal, config)  # a Ctrl-C while it starts: 130, not a traceback
     except BaseExceptionGroup as group:  # raised inside the server's nurseries: the first user-facing cause
         # the first user-facing cause (a ListenError names its option and port); anything else is a bug
         first = next((e for e in leaves(group) if isinstance(e, ConfigError | OSError)), None)
@@ -112,8 +111,13 @@ def check_options(args: argparse.Namespace) -> None:
 
 
 def _message(exc: BaseException) -> str:
+    """The one line of a ConfigError or OSError: other OSErrors come from binding the ports, a refused NATS
+    token (an OSError, so that it is found here) from joining the cluster."""
+    from entitynet.cluster.nats_client import NatsAuthorizationError
     from entitynet.server import ConfigError
 
-    return str(exc) if isinstance(exc, ConfigError) else f"cannot listen: {exc}"
+    if isinstance(exc, ConfigError):
+        return str(exc)
+    return f"cannot join the cluster: {exc}" if isinstance(exc, NatsAuthorizationError) else f"cannot listen: {exc}"
 
 

@@ -7,13 +7,14 @@ import pytest
 from entitynet.cluster.natsd import NatsCluster, NatsServerMissing, nats_server_binary
 
 
-def _cluster(n: int):
-    """`n` real nats-server nodes on loopback, stopped after the test; a clean skip without the binary."""
+def _cluster(n: int, token: str | None = None):
+    """`n` real nats-server nodes on loopback (wanting `token` when given), stopped after the test; a clean skip
+    without the binary."""
     try:
         nats_server_binary()
     except NatsServerMissing as exc:
         pytest.skip(str(exc))
-    with NatsCluster(n) as c:
+    with NatsCluster(n, token=token) as c:
         yield c
 
 
@@ -21,6 +22,12 @@ def _cluster(n: int):
 def nats_server():
     """One nats-server node."""
     yield from _cluster(1)
+
+
+@pytest.fixture
+def nats_server_with_token():
+    """One nats-server node that wants the token `s3cret`."""
+    yield from _cluster(1, token="s3cret")
 
 
 @pytest.fixture

@@ -107,3 +107,21 @@ def test_serve_cluster_option_errors(small_town, tmp_path, capsys):
     assert main([*base, "--cluster", "nats://127.0.0.1:1", "--shard", "0", "--regions", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.count("entitynet: error:") == 5 and "Traceback" not in err
+
+
+def test_serve_cluster_with_a_refused_nats_token_is_one_line_at_once(small_town, capsys, monkeypatch,
+                                                                     nats_server_with_token):
+    """A wrong (or missing) --nats-token: one line naming the refusal, at once (it was a TooSlowError traceback
+    after the whole first-connect deadline)."""
+    import time
+
+    monkeypatch.delenv("ENTITYNET_NATS_TOKEN", raising=False)
+
+    base = ["serve", "--topology", str(small_town), "--open", "--port", "0", "--cluster", nats_server_with_token.urls,
+            "--shard", "0", "--shards", "1"]
+    for token in (["--nats-token", "wrong"], []):
+        t0 = time.monotonic()
+        assert main([*base, *token]) == 2
+        err = capsys.readouterr().err
+        assert "entitynet: error: cannot join the cluster: NATS at" in err and "Authorization Violation" in err, err
+        assert "Traceback" not in err and time.monotonic() - t0 < 4.0

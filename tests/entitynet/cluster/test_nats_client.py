@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 import trio
 
-from entitynet.cluster.nats_client import NatsClient, parse_servers
+from entitynet.cli import leaves
+from entitynet.cluster.nats_client import NatsAuthorizationError, NatsClient, parse_servers
 
 
 async def _until(pred, timeout: float = 5.0) -> None:
@@ -142,3 +143,32 @@ async def test_a_batch_written_from_the_caller_keeps_its_order_with_the_writer_t
         a.publish_batch([("en.c.9", b"last", None)])  # a small batch on an idle socket: written at once
         assert not a._out and a.writes == small + 1
         await _until(lambda: got[-1] == b"last")
+
+
+async def test_a_refused_token_fails_the_first_connect_at_once(nats_server_with_token):
+    """-ERR 'Authorization Violation' ends the first connect with a clear error, not after the whole deadline
+    (connect_timeout x max(2, servers) + 1 s: 11 s here) spent retrying a token that stays wrong; the right
+    token still connects."""
+    url = nats_server_with_token.urls
+    for token in ("wrong", None):
+        t0 = trio.current_time()
+        with pytest.raises(NatsAuthorizationError, match="Authorization Violation") as caught:
+            async with NatsClient(url, name="t", token=token, connect_timeout=5.0):
+                pytest.fail("connected with a wrong token")
+        assert trio.current_time() - t0 < 3.0
+        assert "token" in str(caught.value) and isinstance(caught.value, OSError)  # callers report OSErrors
+    async with NatsClient(url, name="t", token="s3cret") as nc:
+        await nc.flush()
+
+
+async def test_a_refused_port_is_retried_until_the_deadline():
+    """A port nobody listens on yet (a server that is starting) is retried for the whole first-connect deadline."""
+    with trio.socket.socket() as probe:  # bound, never listening: connections are refused
+        await probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+        t0 = trio.current_time()
+        with pytest.raises(BaseException) as caught:  # the client's nursery wraps it in a group
+            async with NatsClient(f"nats://127.0.0.1:{port}", name="t", connect_timeout=0.2):
+                pytest.fail("connected to a closed port")
+    assert [type(e) for e in leaves(caught.value)] == [trio.TooSlowError]
+    assert trio.current_time() - t0 >= 0.2 * 2 + 1 - 0.05
