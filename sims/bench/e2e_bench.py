@@ -98,10 +98,11 @@ def run_one(system: System, topo, artifact: Path, schedule, p: RunParams, exes: 
         from sims.bench.e2e_peers import mosquitto
 
         with mosquitto(exes["mosquitto"], log_dir, progress) as (proc, port, version):
+            cpu = _cpu_of(proc)
             rep = run_system(topo, schedule, system, p, lambda on: MqttTransport(
                 port, p.publishers, p.viewers, on, proc=proc, timeout=p.timeout_s), cell_boxes, progress,
-                _cpu_of(proc), seen_at)
-            rep["broker"] = version
+                cpu, seen_at)
+            rep["broker"], rep["server_cpu_clock"] = version, cpu.clock
             return rep
     from sims.bench.switch_systems import started
 
@@ -117,8 +118,10 @@ def run_one(system: System, topo, artifact: Path, schedule, p: RunParams, exes: 
         else:
             def connect(on):
                 return RedisTransport(port, p.publishers, p.viewers, on, proc=proc, timeout=p.timeout_s)
-        rep = run_system(topo, schedule, system, p, connect, cell_boxes, progress, _cpu_of(proc), seen_at)
+        cpu = _cpu_of(proc)
+        rep = run_system(topo, schedule, system, p, connect, cell_boxes, progress, cpu, seen_at)
         rep["broker"] = sp.get("redis_version", "entitynet serve (this checkout)")
+        rep["server_cpu_clock"] = cpu.clock  # "ns", or "ticks" where a thread ended or Linux keeps no schedstat
         return rep
 
 

@@ -31,6 +31,12 @@ class ProcessCpu:
         self._origin: tuple[float, float] | None = None
         self._last = 0.0
         self.fine = Path(f"/proc/{pid}/task").is_dir() and self._fine() is not None
+        self.ticks_used = not self.fine  # a reading fell back to the ticks (a thread ended), or all do
+
+    @property
+    def clock(self) -> str:
+        """What the last figure was counted in, for the report: "ns" or "ticks"."""
+        return "ticks" if self.ticks_used else "ns"
 
     def _fine(self) -> float | None:
         """Sum of the live threads' nanoseconds on the CPU, in seconds; None where it cannot be read."""
@@ -79,5 +85,6 @@ class ProcessCpu:
             return self._last
         d_coarse, d_fine = coarse[0] - self._origin[0], fine - self._origin[1]
         rounding = (coarse[1] + 1) * TICK_S
-        self._last = self._origin[0] + (d_fine if d_coarse - d_fine <= rounding else d_coarse)
+        self.ticks_used = d_coarse - d_fine > rounding
+        self._last = self._origin[0] + (d_coarse if self.ticks_used else d_fine)
         return self._last

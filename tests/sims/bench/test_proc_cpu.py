@@ -54,7 +54,7 @@ def test_a_spin_is_measured_finer_than_a_tick():
     proc = _child(0.123)
     try:
         spent, cpu = _measure(proc)
-        assert cpu.fine
+        assert cpu.fine and cpu.clock == "ns"
         assert 0.123 - 0.003 <= spent <= 0.123 + 0.02, spent  # the spin's own overshoot is microseconds
         # not a whole number of ticks, as a psutil reading is (a nanosecond figure lands within 10 ns of one
         # about once in 10^6 runs)
@@ -69,8 +69,9 @@ def test_a_thread_that_ends_between_readings_is_not_lost():
     """The ended thread's nanoseconds leave the live threads' sum; the thread group's ticks keep them."""
     proc = _child(0.05, thread_s=0.3)
     try:
-        spent, _cpu = _measure(proc)
+        spent, cpu = _measure(proc)
         assert spent >= 0.3 + 0.05 - 0.03, spent
+        assert cpu.clock == "ticks"  # and the report says so
     finally:
         proc.kill()
         proc.wait()
@@ -90,7 +91,7 @@ def test_without_schedstat_the_coarse_figure_is_used(monkeypatch):
     try:
         monkeypatch.setattr(ProcessCpu, "_fine", lambda self: None)
         spent, cpu = _measure(proc)
-        assert not cpu.fine
+        assert not cpu.fine and cpu.clock == "ticks"
         assert abs(spent / proc_cpu.TICK_S - round(spent / proc_cpu.TICK_S)) < 1e-6  # whole ticks
         assert 0.0 <= spent <= 0.05 + 0.05
     finally:
