@@ -12,8 +12,9 @@ it had is gone (once per loss: failed attempts to reconnect are only logged at D
 
 `echo: false` in CONNECT: NATS never delivers a switchboard's own publications back to it.
 
-The first connection retries refused ports until its deadline (a server may be starting), but a server that
-refuses our credentials fails it at once (`NatsAuthorizationError`): a wrong token stays wrong.
+The first connection retries refused ports until its deadline (a server may be starting) and then fails with
+`NatsUnreachableError`, naming the URLs, the deadline and the last attempt's failure; a server that refuses our
+credentials fails it at once (`NatsAuthorizationError`): a wrong token stays wrong.
 """
 
 from __future__ import annotations
@@ -39,9 +40,18 @@ class NatsConnectionLost(trio.BrokenResourceError):
     """A flush whose connection was lost before the server answered: what was written on it may be lost."""
 
 
-class NatsAuthorizationError(ConnectionError):
-    """The server refused our credentials on the first connection (-ERR 'Authorization Violation'). A
-    ConnectionError (an OSError) so that the callers' "cannot reach NATS" reporting takes it as it is."""
+class NatsConnectFailed(ConnectionError):
+    """The first connection failed for good, and the text says why in one line. A ConnectionError (an OSError)
+    so that the callers' "cannot reach NATS" reporting takes it as it is; raised bare, never in a group."""
+
+
+class NatsAuthorizationError(NatsConnectFailed):
+    """The server refused our credentials on the first connection (-ERR 'Authorization Violation')."""
+
+
+class NatsUnreachableError(NatsConnectFailed):
+    """No server completed the handshake within the first connection's deadline (it was a bare TooSlowError in
+    a nursery's group, which no caller could report: `entitynet serve --cluster` ended in a traceback)."""
 
 
 #: -ERR texts (lower case) by which nats-server refuses credentials
@@ -83,6 +93,7 @@ class NatsClient:
                  connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None,
                  on_disconnect: Callable[[str], None] | None = None, on_batch: Callable[[], None] | None = None):
         self.servers = parse_servers(servers)
+        self.urls = servers if isinstance(servers, str) else ",".join(servers)  # as given: for error messages
         self.name = name
         self.token = token
         self.tls = tls
@@ -114,6 +125,7 @@ class NatsClient:
         self._nursery: trio.Nursery | None = None
         self._connected_ev = trio.Event()
         self._refused: NatsAuthorizationError | None = None  # the first connection's credentials were refused
+        self._first_failure: str | None = None  # why the last attempt of the first connection failed
         self._closed = False
         self._inbox_prefix = f"_INBOX.{secrets.token_hex(8)}"
         self._requests: dict[str, Handler] = {}
@@ -125,14 +137,19 @@ class NatsClient:
         self._nursery_cm = trio.open_nursery()
         self._nursery = await self._nursery_cm.__aenter__()
         self._nursery.start_soon(self._run)
+        deadline = self.connect_timeout * max(2, len(self.servers)) + 1
         try:
-            with trio.fail_after(self.connect_timeout * max(2, len(self.servers)) + 1):
+            with trio.fail_after(deadline):
                 await self._connected_ev.wait()
         except BaseException as exc:  # cancelled or timed out while connecting: close the nursery we opened
             self._closed = True
             self._nursery.cancel_scope.cancel()
-            await self._nursery_cm.__aexit__(type(exc), exc, exc.__traceback__)
-            raise
+            if not isinstance(exc, trio.TooSlowError):
+                await self._nursery_cm.__aexit__(type(exc), exc, exc.__traceback__)
+                raise
+            await self._nursery_cm.__aexit__(None, None, None)  # `_run` was only cancelled: nothing to raise
+            last = f" (last try: {self._first_failure})" if self._first_failure else ""
+            raise NatsUnreachableError(f"no NATS server answered at {self.urls} within {deadline:g} s{last}") from None
         if self._refused is not None:  # `_run` has returned: the nursery closes at once, with nothing to raise
             self._closed = True
             await self._nursery_cm.__aexit__(None, None, None)
@@ -174,6 +191,8 @@ class NatsClient:
                         self._connected_ev.set()
                         return
                     self._lost_why = self._lost_why or str(exc) or type(exc).__name__
+                    if first and not self.connected:
+                        self._first_failure = self._attempt_failure(host, port, exc)
                     log.debug("NATS connection to %s:%s ended or failed: %s", host, port, exc)
                 if self.connected:
                     first = False
@@ -187,6 +206,20 @@ class NatsClient:
                 if self._closed:
                     return
                 await trio.sleep(self.reconnect_wait)
+
+    def _attempt_failure(self, host: str, port: int, exc: BaseException) -> str:
+        """One failed attempt in words, with the server it was made to: trio's `open_tcp_stream` says only "all
+        attempts to connect to ... failed" and keeps each address's own error (Connection refused, ...) in its
+        cause; an attempt that hung is a bare TooSlowError."""
+        cause = exc.__cause__
+        if isinstance(cause, BaseExceptionGroup) and isinstance(cause.exceptions[0], OSError):
+            leaf = cause.exceptions[0]
+            why = os.strerror(leaf.errno) if leaf.errno else str(leaf)
+        elif isinstance(exc, trio.TooSlowError):
+            why = f"no answer within {self.connect_timeout:g} s"
+        else:
+            why = str(exc) or type(exc).__name__
+        return f"{host}:{port}: {why}"
 
     async def _session(self, host: str, port: int, first: bool) -> None:
         with trio.fail_after(self.connect_timeout):

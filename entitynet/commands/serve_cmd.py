@@ -111,13 +111,14 @@ def check_options(args: argparse.Namespace) -> None:
 
 
 def _message(exc: BaseException) -> str:
-    """The one line of a ConfigError or OSError: other OSErrors come from binding the ports, a refused NATS
-    token (an OSError, so that it is found here) from joining the cluster."""
-    from entitynet.cluster.nats_client import NatsAuthorizationError
+    """The one line of a ConfigError or OSError: a NatsConnectFailed (a refused NATS token, or no NATS server
+    answering within the first connect's deadline: OSErrors, so that they are found here) comes from joining the
+    cluster, other OSErrors from binding the ports."""
+    from entitynet.cluster.nats_client import NatsConnectFailed
     from entitynet.server import ConfigError
 
     if isinstance(exc, ConfigError):
         return str(exc)
-    return f"cannot join the cluster: {exc}" if isinstance(exc, NatsAuthorizationError) else f"cannot listen: {exc}"
+    return f"cannot join the cluster: {exc}" if isinstance(exc, NatsConnectFailed) else f"cannot listen: {exc}"
 
 

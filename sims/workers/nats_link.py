@@ -50,7 +50,7 @@ def up_subject(run: str) -> str:
 def leaf_text(exc: BaseException) -> str:
     """What went wrong, in words: the first leaf of an exception group (trio's nurseries wrap errors; walked by
     the CLI's one walker, `entitynet.cli.leaves`), by its text or else its type's name ("TooSlowError" for a
-    connect that timed out)."""
+    first flush that got no answer; a first connect that got none says so in its own text)."""
     from entitynet.cli import leaves
 
     exc = next(leaves(exc), exc)
