@@ -85,6 +85,14 @@ def parse_servers(spec: str | Sequence[str]) -> list[tuple[str, int]]:
     return out
 
 
+def _shown(url: str) -> str:
+    """A server URL as an error message may show it: a `user:password@` in it (ignored here: the token is
+    its own option) is dropped, so a refusal printed to a log or a terminal carries no secret."""
+    url = url.strip()
+    scheme, sep, rest = url.rpartition("://")
+    return f"{scheme}{sep}{rest.rpartition('@')[2]}"
+
+
 class NatsClient:
     """Use as `async with NatsClient(servers, name=...) as nc:` (connects, runs reader and writer)."""
 
@@ -93,7 +101,8 @@ class NatsClient:
                  connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None,
                  on_disconnect: Callable[[str], None] | None = None, on_batch: Callable[[], None] | None = None):
         self.servers = parse_servers(servers)
-        self.urls = servers if isinstance(servers, str) else ",".join(servers)  # as given: for error messages
+        self.urls = ",".join(_shown(s) for s in (servers.split(",") if isinstance(servers, str) else servers)
+                             if s.strip())  # for error messages: as given, less any user:password@
         self.name = name
         self.token = token
         self.tls = tls

@@ -188,3 +188,13 @@ async def test_a_server_that_never_answers_fails_the_first_connect_naming_it():
         async with NatsClient(f"nats://127.0.0.1:{port}", name="t", connect_timeout=0.3):
             pytest.fail("connected to a server that never answered")
     await listener.aclose()
+
+
+def test_an_error_message_shows_the_urls_without_credentials():
+    """A user:password@ in a server URL is ignored for the handshake (the token is its own option), and must not
+    reach a terminal or a log through the first connect's error text."""
+    from entitynet.cluster.nats_client import NatsClient
+
+    nc = NatsClient("nats://alice:s3cret@127.0.0.1:4222, tls://127.0.0.2:4223,127.0.0.1:4224")
+    assert nc.urls == "nats://127.0.0.1:4222,tls://127.0.0.2:4223,127.0.0.1:4224"
+    assert "s3cret" not in NatsClient(["nats://tok@h:1"]).urls
