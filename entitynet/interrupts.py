@@ -86,9 +86,16 @@ def run_until_interrupted(async_fn: Callable[..., Awaitable[T]], *args) -> T | N
     Why a signal receiver from the first moment of the run: with trio's own SIGINT handler a KeyboardInterrupt is
     raised inside task code, which can lose it (a weakref callback) and leave the service running. Before the
     receiver is open the task is KI-protected, so trio only marks an early SIGINT pending and raises it at the
-    next checkpoint. An interrupt dropped before the run (during the command's loading) ends it at once."""
+    next checkpoint. An interrupt dropped before the run (during the command's loading) ends it at once.
+
+    Off the main thread (a command run from a worker thread, as a test or an embedding program may) it is plain
+    `trio.run`: Python delivers signals to the main thread alone, and a signal receiver cannot be opened there."""
+    import threading
+
     import trio
 
+    if threading.current_thread() is not threading.main_thread():
+        return trio.run(async_fn, *args)
     interrupted = False
 
     async def cancel_on_sigint(signals, run: trio.CancelScope, watch: trio.CancelScope) -> None:

@@ -112,6 +112,26 @@ def test_a_run_that_ends_by_itself_returns_its_value():
     assert run_until_interrupted(answer, 21) == 42
 
 
+def test_a_run_on_another_thread_than_the_main_one_runs_as_plain_trio():
+    """Signals reach the main thread alone and trio refuses a signal receiver elsewhere: a command run from a
+    worker thread (tests/proxies/test_proxy_shell.py runs `_run_shell` so) failed with RuntimeError."""
+    import threading
+
+    import trio
+
+    from entitynet.interrupts import run_until_interrupted
+
+    async def answer(x: int) -> int:
+        await trio.sleep(0)
+        return 2 * x
+
+    got: list[object] = []
+    worker = threading.Thread(target=lambda: got.append(run_until_interrupted(answer, 21)))
+    worker.start()
+    worker.join(30)
+    assert got == [42]
+
+
 def test_an_error_caused_by_an_interrupt_is_recognised_and_a_plain_one_is_not():
     from entitynet.interrupts import caused_by_interrupt
 
