@@ -36,6 +36,7 @@ class ClusterConfig:
     tls: ssl.SSLContext | None = None  # TLS to NATS
     heartbeat_s: float = 0.5
     dead_after_s: float = 2.0
+    connect_timeout_s: float = 2.0  # one NATS connect attempt (NatsClient's connect_timeout)
     redirect_viewers: bool = True  # a client without entities whose cells lie mostly elsewhere moves there
     # cell -> neighbour cells (topology.regions.cell_adjacency): publishers near a border are served on here
     # within a band of `publisher_margin_cells` and for `publisher_linger_s` (roaming.py); None: no band
@@ -108,7 +109,8 @@ class ClusterLink:
         clock = server.clock
         address = cfg.address or f"{server.config.host}:{server.port}"
         nc = NatsClient(cfg.servers, name=f"entitynet-shard-{cfg.shard}", token=cfg.token, tls=cfg.tls,
-                        on_reconnect=self._reconnected, on_disconnect=self._lost, on_batch=self._after_read)
+                        connect_timeout=cfg.connect_timeout_s, on_reconnect=self._reconnected,
+                        on_disconnect=self._lost, on_batch=self._after_read)
         async with nc, trio.open_nursery() as nursery:
             self._nursery = nursery
             self.nc = nc

@@ -24,7 +24,11 @@ DEAD_AFTER = 2.0
 
 #: the options of `serve` that only mean something with --cluster (dest -> option)
 CLUSTER_ONLY = {"shard": "--shard", "regions": "--regions", "shards": "--shards", "advertise": "--advertise",
-                "nats_token": "--nats-token", "nats_ca": "--nats-ca", "dead_after": "--dead-after"}
+                "nats_token": "--nats-token", "nats_ca": "--nats-ca", "dead_after": "--dead-after",
+                "nats_connect_timeout": "--nats-connect-timeout"}
+#: seconds a NATS connect attempt may take (`serve --nats-connect-timeout`; the first connect's deadline is
+#: this x max(2, servers) + 1 s)
+NATS_CONNECT_TIMEOUT = 2.0
 
 DEFAULT_STATE = Path(os.environ.get("ENTITYNET_CLUSTER_STATE", Path.home() / ".cache/entitynet/cluster.json"))
 
@@ -43,6 +47,9 @@ def add_cluster_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--nats-ca", metavar="PEM", help="CA bundle for TLS to NATS (tls:// or a server that needs it)")
     g.add_argument("--dead-after", type=bounded_float(0.5, 3600), metavar="S",
                    help=f"a shard silent this long is dead and its regions pass on (default {DEAD_AFTER:g} s)")
+    g.add_argument("--nats-connect-timeout", type=bounded_float(0.1, 60), metavar="S",
+                   help=f"one NATS connect attempt's timeout (default {NATS_CONNECT_TIMEOUT:g} s); joining gives up "
+                        "after this x max(2, servers) + 1 s with one line (a far or slow NATS may need more)")
 
 
 def cluster_config_from(args: argparse.Namespace):
@@ -80,6 +87,8 @@ def cluster_config_from(args: argparse.Namespace):
     return ClusterConfig(args.cluster, args.shard, regions, address=args.advertise,
                          token=args.nats_token or os.environ.get("ENTITYNET_NATS_TOKEN"), tls=tls,
                          heartbeat_s=min(0.5, dead_after / 4), dead_after_s=dead_after,
+                         connect_timeout_s=(NATS_CONNECT_TIMEOUT if args.nats_connect_timeout is None
+                                            else args.nats_connect_timeout),
                          cell_adjacency=[sorted(a) for a in cell_adjacency(topo)])  # publishers' border band
 
 

@@ -23,6 +23,7 @@ def no_server(monkeypatch):
     ["--dead-after", "nan"], ["--dead-after", "inf"], ["--flush-min-ms", "nan"], ["--grace=-1"],
     ["--latency-budget-ms", "nan"], ["--latency-budget-ms=-1"], ["--latency-budget-ms", "1001"],
     ["--flush-fill", "0"], ["--flush-fill", "2.5"], ["--pace-ms", "nan"], ["--pace-ms=-1"], ["--pace-ms", "1001"],
+    ["--nats-connect-timeout", "0"], ["--nats-connect-timeout", "nan"], ["--nats-connect-timeout", "61"],
 ])
 def test_out_of_range_values_are_usage_errors(town_path, extra, no_server, capsys):
     with pytest.raises(SystemExit) as info:
@@ -38,6 +39,7 @@ def test_out_of_range_values_are_usage_errors(town_path, extra, no_server, capsy
     (["--shards", "2", "--dead-after", "5"], ["--shards", "--dead-after", "--cluster"]),
     (["--regions", "map.json"], ["--regions", "--cluster"]),
     (["--advertise", "10.0.0.1:7400"], ["--advertise", "--cluster"]),
+    (["--nats-connect-timeout", "3"], ["--nats-connect-timeout", "--cluster"]),
 ])
 def test_options_that_would_be_ignored_or_capped_are_refused(town_path, extra, names, no_server, capsys):
     assert main(["serve", "--topology", str(town_path), "--open", "--port", "0", *extra]) == 2
