@@ -54,6 +54,9 @@ class NatsUnreachableError(NatsConnectFailed):
     a nursery's group, which no caller could report: `entitynet serve --cluster` ended in a traceback)."""
 
 
+#: seconds one connect attempt may take by default (the first connection's deadline: this x max(2, servers) + 1)
+CONNECT_TIMEOUT_S = 2.0
+
 #: -ERR texts (lower case) by which nats-server refuses credentials
 AUTH_REFUSALS = ("authorization violation",)
 
@@ -68,14 +71,16 @@ class _Flush:
         self.ok = False
 
 
+def _server_items(spec: str | Sequence[str]) -> list[str]:
+    """The entries of a server list as given (`a,b` or a list), stripped, empty ones dropped."""
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    return [item.strip() for item in items if item.strip()]
+
+
 def parse_servers(spec: str | Sequence[str]) -> list[tuple[str, int]]:
     """`nats://h1:4222,nats://h2:4222` (or a list) -> [(host, port)]; raises ValueError on a bad entry."""
-    items = spec.split(",") if isinstance(spec, str) else list(spec)
     out = []
-    for item in items:
-        item = item.strip()
-        if not item:
-            continue
+    for item in _server_items(spec):
         u = urlsplit(item if "://" in item else f"nats://{item}")
         if u.scheme not in ("nats", "tls") or not u.hostname:
             raise ValueError(f"bad NATS server {item!r}: expected nats://HOST:PORT")
@@ -88,7 +93,6 @@ def parse_servers(spec: str | Sequence[str]) -> list[tuple[str, int]]:
 def _shown(url: str) -> str:
     """A server URL as an error message may show it: a `user:password@` in it (ignored here: the token is
     its own option) is dropped, so a refusal printed to a log or a terminal carries no secret."""
-    url = url.strip()
     scheme, sep, rest = url.rpartition("://")
     return f"{scheme}{sep}{rest.rpartition('@')[2]}"
 
@@ -98,11 +102,10 @@ class NatsClient:
 
     def __init__(self, servers: str | Sequence[str], name: str = "entitynet", token: str | None = None,
                  tls: ssl.SSLContext | None = None, max_pending: int = 64 << 20, reconnect_wait: float = 0.1,
-                 connect_timeout: float = 2.0, on_reconnect: Callable[[], None] | None = None,
+                 connect_timeout: float = CONNECT_TIMEOUT_S, on_reconnect: Callable[[], None] | None = None,
                  on_disconnect: Callable[[str], None] | None = None, on_batch: Callable[[], None] | None = None):
         self.servers = parse_servers(servers)
-        self.urls = ",".join(_shown(s) for s in (servers.split(",") if isinstance(servers, str) else servers)
-                             if s.strip())  # for error messages: as given, less any user:password@
+        self.urls = ",".join(map(_shown, _server_items(servers)))  # for error messages: less any user:password@
         self.name = name
         self.token = token
         self.tls = tls

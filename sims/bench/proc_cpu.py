@@ -40,17 +40,18 @@ class ProcessCpu:
 
     def _fine(self) -> float | None:
         """Sum of the live threads' nanoseconds on the CPU, in seconds; None where it cannot be read."""
-        total = 0
+        total, read = 0, 0
         try:
             for tid in os.listdir(f"/proc/{self.pid}/task"):
                 try:
                     with open(f"/proc/{self.pid}/task/{tid}/schedstat", "rb") as f:
                         total += int(f.read().split()[0])
-                except FileNotFoundError:  # the thread ended while we listed
+                    read += 1
+                except FileNotFoundError:  # the thread ended while we listed (or no schedstat: see below)
                     continue
         except (OSError, ValueError, IndexError):
             return None
-        return total / 1e9
+        return total / 1e9 if read else None  # a kernel without schedstat has none for any thread
 
     def _coarse(self) -> tuple[float, int] | None:
         """(user + system seconds of the whole thread group, in ticks; its thread count) from /proc/PID/stat,
@@ -77,6 +78,7 @@ class ProcessCpu:
             return self._last
         fine = self._fine() if self.fine else None
         if fine is None:
+            self.ticks_used = True
             self._last = coarse[0]
             return self._last
         if self._origin is None:
