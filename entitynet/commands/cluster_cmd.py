@@ -54,7 +54,6 @@ def add_cluster_options(p: argparse.ArgumentParser) -> None:
 
 def cluster_config_from(args: argparse.Namespace):
     """The ClusterConfig of `serve --cluster ...` (errors are CommandErrors)."""
-    import ssl
 
     from entitynet.cluster.link import ClusterConfig
     from entitynet.cluster.nats_client import parse_servers
@@ -80,9 +79,7 @@ def cluster_config_from(args: argparse.Namespace):
         raise CommandError(str(exc)) from None
     if not 0 <= args.shard < regions.shards:
         raise CommandError(f"--shard must be between 0 and {regions.shards - 1}")
-    tls = None
-    if args.nats_ca or args.cluster.startswith("tls://"):
-        tls = ssl.create_default_context(cafile=args.nats_ca)
+    tls = nats_tls(args.nats_ca, args.cluster)
     dead_after = DEAD_AFTER if args.dead_after is None else args.dead_after
     return ClusterConfig(args.cluster, args.shard, regions, address=args.advertise,
                          token=args.nats_token or os.environ.get("ENTITYNET_NATS_TOKEN"), tls=tls,
@@ -90,6 +87,19 @@ def cluster_config_from(args: argparse.Namespace):
                          connect_timeout_s=(NATS_CONNECT_TIMEOUT if args.nats_connect_timeout is None
                                             else args.nats_connect_timeout),
                          cell_adjacency=[sorted(a) for a in cell_adjacency(topo)])  # publishers' border band
+
+
+def nats_tls(ca: str | None, urls: str):
+    """The TLS context for NATS (`--nats-ca`, or a tls:// URL with the system's CAs), None for plain TCP; a CA
+    bundle that cannot be read is a CommandError naming it."""
+    import ssl
+
+    if not ca and not urls.startswith("tls://"):
+        return None
+    try:
+        return ssl.create_default_context(cafile=ca)
+    except (OSError, ssl.SSLError) as exc:
+        raise CommandError(f"--nats-ca {ca}: {exc}") from None
 
 
 def check_cluster_only(args: argparse.Namespace) -> None:
@@ -116,6 +126,8 @@ def register(sub) -> None:
     up.set_defaults(func=cmd_up)
     st = csub.add_parser("status", help="regions, owners, clients, entities and load of a running cluster")
     st.add_argument("--nats", metavar="URLS", help="NATS servers (default: from the state file of `cluster up`)")
+    st.add_argument("--nats-token", metavar="TOKEN", help="NATS auth token (default: $ENTITYNET_NATS_TOKEN)")
+    st.add_argument("--nats-ca", metavar="PEM", help="CA bundle for TLS to NATS (tls:// or a server that needs it)")
     st.add_argument("--state", default=str(DEFAULT_STATE))
     st.add_argument("--listen", type=bounded_float(0.1, 3600),
                     default=1.5, metavar="S", help="how long to listen (default 1.5 s)")
@@ -203,8 +215,10 @@ def cmd_status(args: argparse.Namespace) -> int:
             urls = json.loads(Path(args.state).read_text())["nats"]
         except (OSError, ValueError, KeyError) as exc:
             raise CommandError(f"no --nats and no running `cluster up` state ({args.state}): {exc}") from None
+    tls = nats_tls(args.nats_ca, str(urls))
+    token = args.nats_token or os.environ.get("ENTITYNET_NATS_TOKEN")
     try:
-        shards = trio.run(_listen, urls, args.listen)
+        shards = trio.run(_listen, urls, args.listen, token, tls)
     except (OSError, trio.TooSlowError) as exc:
         raise CommandError(f"cannot reach NATS at {urls}: {exc}") from None
     if args.json:
@@ -221,8 +235,9 @@ def cmd_status(args: argparse.Namespace) -> int:
     return 0
 
 
-async def _listen(urls: str, seconds: float) -> list[dict]:
-    """Heartbeats of every cluster on these NATS servers for `seconds`: the latest per shard, with load."""
+async def _listen(urls: str, seconds: float, token: str | None = None, tls=None) -> list[dict]:
+    """Heartbeats of every cluster on these NATS servers for `seconds`: the latest per shard, with load (`token`
+    and `tls` as a shard's: a NATS that wants a token refuses a status without it)."""
     import msgpack
     import trio
 
@@ -239,7 +254,7 @@ async def _listen(urls: str, seconds: float) -> list[dict]:
         except Exception:  # someone else's message on a matching subject
             pass
 
-    async with NatsClient(urls, name="entitynet-status") as nc:
+    async with NatsClient(urls, name="entitynet-status", token=token, tls=tls) as nc:
         nc.subscribe("en.*.hb", on_hb)
         await trio.sleep(seconds)
     out = []

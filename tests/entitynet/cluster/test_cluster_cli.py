@@ -159,3 +159,35 @@ def test_serve_cluster_with_a_refused_nats_token_is_one_line_at_once(small_town,
         err = capsys.readouterr().err
         assert "entitynet: error: cannot join the cluster: NATS at" in err and "Authorization Violation" in err, err
         assert "Traceback" not in err and time.monotonic() - t0 < 4.0
+
+
+def test_cluster_status_passes_the_nats_token(capsys, monkeypatch, nats_server_with_token):
+    """`cluster status` took no token, so against a NATS that wants one (docs/deploy.md runs it with
+    $ENTITYNET_NATS_TOKEN) it could only fail: with the token, from the option or the environment, it connects
+    (no shard runs, so it hears none: exit 1); without it or with a wrong one, one line naming the refusal."""
+    monkeypatch.delenv("ENTITYNET_NATS_TOKEN", raising=False)
+    base = ["cluster", "status", "--nats", nats_server_with_token.urls, "--listen", "0.2"]
+    assert main([*base, "--nats-token", "s3cret"]) == 1
+    assert "no switchboard heard on" in capsys.readouterr().out
+    monkeypatch.setenv("ENTITYNET_NATS_TOKEN", "s3cret")
+    assert main(base) == 1
+    monkeypatch.delenv("ENTITYNET_NATS_TOKEN")
+    for token in (["--nats-token", "wrong"], []):
+        assert main([*base, *token]) == 2
+        err = capsys.readouterr().err
+        assert "cannot reach NATS at" in err and "Authorization Violation" in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("command", ["status", "serve"])
+def test_an_unreadable_nats_ca_is_one_line(small_town, tmp_path, capsys, command):
+    """A --nats-ca that is missing or not PEM: one line naming it, before anything connects (serve's was an
+    uncaught FileNotFoundError or SSLError)."""
+    junk = tmp_path / "junk.pem"
+    junk.write_text("not a certificate\n")
+    for ca in (tmp_path / "missing.pem", junk):
+        args = (["cluster", "status", "--nats", "nats://127.0.0.1:1", "--nats-ca", str(ca)] if command == "status"
+                else ["serve", "--topology", str(small_town), "--open", "--port", "0", "--cluster",
+                      "nats://127.0.0.1:1", "--shard", "0", "--shards", "1", "--nats-ca", str(ca)])
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert f"entitynet: error: --nats-ca {ca}:" in err and "Traceback" not in err, err
