@@ -120,6 +120,9 @@ def register_bench(sub) -> None:
     p.add_argument("--quick", action="store_true", help="a smaller run that finishes in under a minute")
     p.add_argument("--out", metavar="FILE.json", help="write the JSON report here (default: print it)")
     p.add_argument("--topology", metavar="FILE", help="topology artifact (default: the bundled Helsinki map)")
+    p.add_argument("--cpus", metavar="LIST", help="where the suite, its load and the servers it starts run: 'all', "
+                   "'one' (the lowest allowed CPU) or CPU numbers like 0,1 or 0-3 (default: 'one' for e2e, whose "
+                   "brokers' CPU repeats only so on a small VM; 'all' for the others)")
     p.set_defaults(func=run_bench_command)
 
 
@@ -131,14 +134,19 @@ def progress(msg: str) -> None:
 def run_bench_command(args: argparse.Namespace) -> int:
     """Import the suite's module only now (a suite's heavy imports cost nothing to the other commands)."""
     from sims.bench import all_suites
+    from sims.bench.affinity import CpuSpecError, pinned
     from sims.bench.report import write_report
     from topology.artifact import ArtifactError
 
     module = importlib.import_module(all_suites()[args.suite])
     try:  # here once, not per suite: a bad --topology or an unwritable --out is one line in every suite
-        body = module.run(args, progress)
+        with pinned(args.cpus, getattr(module, "DEFAULT_CPUS", "all")) as placement:
+            if placement["pinned"]:
+                progress(f"running on CPU {','.join(map(str, placement['cpus']))} (--cpus {placement['cpus_asked']})")
+            body = module.run(args, progress)
+        body.setdefault("params", {})["placement"] = placement
         report = write_report(args.suite, body, args.out)
-    except (ArtifactError, OSError) as exc:
+    except (ArtifactError, OSError, CpuSpecError) as exc:
         raise CommandError(str(exc)) from None
     print(json.dumps(report["results"], indent=2, default=float))
     if args.out:

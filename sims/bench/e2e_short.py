@@ -19,11 +19,14 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from sims.bench.e2e_bench import SYSTEMS, run_one
+from sims.bench.e2e_bench import SYSTEMS, read_at_median_speed, run_one
 from sims.bench.e2e_run import RunParams
+from sims.bench.machine_speed import work_ms
 
 FIGURES = ("server_cpu_ms_per_viewer_s", "messages_per_viewer_s", "bytes_per_viewer_s", "error_p95_m",
            "loadgen_cpu_share")
+#: besides FIGURES in each run's row: the machine's speed then, and the server CPU at the sitting's median speed
+SPEED = ("machine_work_ms", "server_cpu_ms_per_viewer_s_at_median_speed")
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
@@ -33,6 +36,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--seconds", type=float, default=40.0, help="simulated seconds per run (the suite: 60)")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--idle", action="store_true", help="no entities: the barrier and subscriptions alone")
+    ap.add_argument("--cpus", default="one", help="as `entitynet bench --cpus`; the full suite's default, one CPU")
     a = ap.parse_args(argv)
     known = {s.name for s in SYSTEMS}
     a.names = [n for n in a.systems.split(",") if n]
@@ -47,6 +51,13 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     """Run the plan one broker at a time; print every run's figures and the medians."""
     a = parse(argv)
+    from sims.bench.affinity import CpuSpecError, pin
+
+    try:
+        placement = pin(a.cpus, "one")
+    except CpuSpecError as exc:
+        print(f"e2e_short: {exc}", file=sys.stderr)
+        return 2
     from entitynet.topology_cache import bundled_topology, cache_dir
     from sims.bench.hfp_geohash import cell_boxes
     from sims.bench.switch_systems import find_exe
@@ -72,14 +83,17 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="entitynet-e2e-short-") as tmp:
         for r in range(a.reps):
             for name in a.names[r % len(a.names):] + a.names[:r % len(a.names)]:
+                before = work_ms()
                 rep = run_one(by_name[name], topo, artifact, schedule, p, exes, boxes, Path(tmp), progress)
-                row = {k: rep.get(k) for k in FIGURES}
+                row = {k: rep.get(k) for k in FIGURES} | {"machine_work_ms": (before + work_ms()) / 2}
                 runs[name].append(row)
                 progress(f"{name} run {r + 1}: {row}")
-    medians = {n: {k: statistics.median(row[k] for row in rows) for k in FIGURES if rows[0][k] is not None}
+    read_at_median_speed(runs)
+    medians = {n: {k: statistics.median(row[k] for row in rows) for k in FIGURES + SPEED if rows[0][k] is not None}
                for n, rows in runs.items()}
     print(json.dumps({"params": {"seconds": a.seconds, "reps": a.reps, "idle": a.idle, "viewers": p.viewers,
-                                 "entities": p.entities, "speed": p.speed}, "runs": runs, "medians": medians},
+                                 "entities": p.entities, "speed": p.speed, "placement": placement},
+                      "runs": runs, "medians": medians},
                      indent=1))
     return 0
 
