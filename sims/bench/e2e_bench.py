@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from sims.bench.e2e_run import RunParams, System, run_system
-from sims.bench.machine_speed import at_median_speed, work_ms
 
 SYSTEMS = (
     System("entitynet", "entitynet", "pvs"),
@@ -39,8 +38,6 @@ SYSTEMS = (
 #: the figures whose repetitions are checked against the +-15 % stability target
 STABLE = ("messages_per_viewer_s", "bytes_per_viewer_s", "server_cpu_ms_per_viewer_s", "error_p95_m")
 STABILITY = 0.15
-#: the server CPU read at the sitting's median machine speed (sims.bench.machine_speed), checked the same way
-AT_MEDIAN_SPEED = "server_cpu_ms_per_viewer_s_at_median_speed"
 #: the systems also run idle (same viewers, cameras, subscriptions and barrier, no entities): what the broker
 #: spends on the lock step and the viewers' subscriptions alone, so the per-message cost can be told apart.
 #: Idle runs go at the real runs' speed: the servers' wall-clock loops (our expiry, keep-alives) cost per second
@@ -48,7 +45,7 @@ AT_MEDIAN_SPEED = "server_cpu_ms_per_viewer_s_at_median_speed"
 IDLE = ("entitynet", "mqtt-disc", "redis-disc")
 #: `entitynet bench --cpus`'s default for this suite: the bench, its load and each broker on one CPU. On a small
 #: VM a broker's CPU per wake-up depends on whether it wakes on the busy vCPU or on one that halted meanwhile,
-#: which changes from run to run (sims.bench.affinity; docs/e2e.md, "Why one CPU"); `--cpus all` measures the
+#: which changes from run to run (sims.bench.affinity; docs/e2e.md, "How it is measured"); `--cpus all` measures the
 #: other way.
 DEFAULT_CPUS = "one"
 
@@ -133,19 +130,6 @@ def run_one(system: System, topo, artifact: Path, schedule, p: RunParams, exes: 
         return rep
 
 
-def read_at_median_speed(runs: dict[str, list[dict]]) -> dict[str, Any]:
-    """Every run's server CPU per viewer-second also at the sitting's median machine speed
-    (sims.bench.machine_speed: `server_cpu_ms_per_viewer_s_at_median_speed`); the sitting's readings of the fixed
-    work and their largest deviation from the median (how much the machine's own speed moved)."""
-    readings = [r["machine_work_ms"] for reps in runs.values() for r in reps if r.get("machine_work_ms")]
-    ref = statistics.median(readings) if readings else None
-    for reps in runs.values():
-        for r in reps:
-            r[AT_MEDIAN_SPEED] = at_median_speed(r.get("server_cpu_ms_per_viewer_s"), r.get("machine_work_ms"), ref)
-    return {"work_ms_median": ref, "work_ms_runs": readings,
-            "work_spread": max(abs(v - ref) for v in readings) / ref if ref else None}
-
-
 def summarise(runs: dict[str, list[dict]]) -> dict[str, Any]:
     """Per system: the median of each figure over the repetitions, every repetition's value, and the largest
     deviation from the median as a fraction (the stability target)."""
@@ -156,7 +140,7 @@ def summarise(runs: dict[str, list[dict]]) -> dict[str, Any]:
                     "error_p95_m", "error_max_m", "missed_visibility", "stale_ghost_fraction", "loadgen_cpu_share",
                     "subscriptions_mean", "tick_lateness_p99_ms", "malformed_payloads",
                     "server_cpu_idle_ms_per_viewer_s", "server_cpu_net_ms_per_viewer_s",
-                    "server_cpu_us_per_delivered", "machine_work_ms", "server_cpu_ms_per_viewer_s_at_median_speed"):
+                    "server_cpu_us_per_delivered"):
             vals = [r[key] for r in reps if r.get(key) is not None]
             if not vals:
                 s[key] = None
@@ -164,11 +148,9 @@ def summarise(runs: dict[str, list[dict]]) -> dict[str, Any]:
             med = statistics.median(vals)
             s[key] = med
             s[f"{key}_runs"] = vals
-            if key in STABLE or key == AT_MEDIAN_SPEED:
+            if key in STABLE:
                 s[f"{key}_spread"] = max(abs(v - med) for v in vals) / med if med else 0.0
         s["stable"] = all(s.get(f"{k}_spread", 0.0) <= STABILITY for k in STABLE)
-        s["stable_at_median_speed"] = all(s.get(f"{AT_MEDIAN_SPEED if k == 'server_cpu_ms_per_viewer_s' else k}_spread",
-                                             0.0) <= STABILITY for k in STABLE)
         out[name] = s
     return out
 
@@ -200,7 +182,6 @@ def targets(summary: dict, runs: dict[str, list[dict]]) -> dict[str, Any]:
         "server_cpu_target_5x_met": c_ratio is not None and c_ratio >= 5.0,
         "server_cpu_net_of_idle_ratio_mosquitto_over_ours": med("server_cpu_net_ratio_mosquitto_over_ours"),
         "every_system_stable_15pct": all(s["stable"] for s in summary.values()),
-        "every_system_stable_15pct_at_median_speed": all(s["stable_at_median_speed"] for s in summary.values()),
     }
 
 
@@ -244,10 +225,8 @@ def run(args, progress) -> dict[str, Any]:
             order = SYSTEMS[r % len(SYSTEMS):] + SYSTEMS[:r % len(SYSTEMS)]
             for system in order:
                 progress(f"repetition {r + 1}/{reps}: {system.name}")
-                before = work_ms()
                 rep = with_idle(system, p, lambda params, system=system: _guarded(
                     system, topo, artifact, schedule, params, exes, boxes, Path(tmp), progress))
-                rep["machine_work_ms"] = (before + work_ms()) / 2
                 rep["repetition"] = r + 1
                 runs[system.name].append(rep)
                 progress(f"  {system.name}: {rep['bytes_per_viewer_s']:.0f} B and {rep['messages_per_viewer_s']:.1f} "
@@ -258,7 +237,6 @@ def run(args, progress) -> dict[str, Any]:
                     progress(f"  {system.name} idle: server {rep['server_cpu_idle_ms_per_viewer_s']:.2f} ms CPU per "
                              "viewer-s")
     load_after = _loadavg()
-    speed = read_at_median_speed(runs)
     summary = summarise(runs)
     tg = targets(summary, runs)
     out = getattr(args, "out", None)
@@ -273,7 +251,7 @@ def run(args, progress) -> dict[str, Any]:
               "topic": "/hfp/v2/journey/ongoing/vp/<mode>/<veh>/<HFP geohash levels> (HFP's topic trimmed)",
               "periodic_viewer": "shows the last position received (no extrapolation), drops after validity_s",
               "qos": "MQTT 3.1.1 QoS 0, clean sessions; Redis RESP2 pub/sub", "schedule": BUNDLED_FEED.name}
-    results = {"systems": summary, "targets": tg, "machine_speed": speed, "runs": runs}
+    results = {"systems": summary, "targets": tg, "runs": runs}
     mq = summary["mqtt-disc"]
     return {
         "params": params,
@@ -290,7 +268,7 @@ def run(args, progress) -> dict[str, Any]:
                   "thread where Linux keeps them, sims.bench.proc_cpu; else psutil's 10 ms ticks), medians of "
                   "alternated repetitions; how busy the machine was is the load average below. The bench, its "
                   "load generator and each broker ran on the CPUs in params.placement (by default one: "
-                  "docs/e2e.md, 'Why one CPU').",
+                  "docs/e2e.md, 'How it is measured').",
                   "Lock step: every tick's messages reach every viewer (a per-system barrier) before the truth is "
                   "sampled, so the error figures do not depend on how the machine scheduled the run.",
                   f"Machine load average (1, 5, 15 min) at the start {load_before} and the end {load_after}."],

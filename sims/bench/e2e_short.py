@@ -19,14 +19,11 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from sims.bench.e2e_bench import SYSTEMS, read_at_median_speed, run_one
+from sims.bench.e2e_bench import SYSTEMS, run_one
 from sims.bench.e2e_run import RunParams
-from sims.bench.machine_speed import work_ms
 
 FIGURES = ("server_cpu_ms_per_viewer_s", "messages_per_viewer_s", "bytes_per_viewer_s", "error_p95_m",
            "loadgen_cpu_share")
-#: besides FIGURES in each run's row: the machine's speed then, and the server CPU at the sitting's median speed
-SPEED = ("machine_work_ms", "server_cpu_ms_per_viewer_s_at_median_speed")
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
@@ -83,13 +80,11 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="entitynet-e2e-short-") as tmp:
         for r in range(a.reps):
             for name in a.names[r % len(a.names):] + a.names[:r % len(a.names)]:
-                before = work_ms()
                 rep = run_one(by_name[name], topo, artifact, schedule, p, exes, boxes, Path(tmp), progress)
-                row = {k: rep.get(k) for k in FIGURES} | {"machine_work_ms": (before + work_ms()) / 2}
+                row = {k: rep.get(k) for k in FIGURES}
                 runs[name].append(row)
                 progress(f"{name} run {r + 1}: {row}")
-    read_at_median_speed(runs)
-    medians = {n: {k: statistics.median(row[k] for row in rows) for k in FIGURES + SPEED if rows[0][k] is not None}
+    medians = {n: {k: statistics.median(row[k] for row in rows) for k in FIGURES if rows[0][k] is not None}
                for n, rows in runs.items()}
     print(json.dumps({"params": {"seconds": a.seconds, "reps": a.reps, "idle": a.idle, "viewers": p.viewers,
                                  "entities": p.entities, "speed": p.speed, "placement": placement},
