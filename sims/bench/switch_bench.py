@@ -235,7 +235,26 @@ def _run_load(driver, proc, walkers_factory, view_cells, p, progress, scrape=Non
                           ("entitynet_deliveries_total", "server_messages_out_per_s"),
                           ("entitynet_frames_out_total", "server_frames_out_per_s")):
             res[name] = (srv1[key] - srv0[key]) / wall
+        res.update(queue_latency(srv0, srv1))
     return res
+
+
+QUEUE_BUCKET = 'entitynet_queue_latency_seconds_bucket{le="'
+
+
+def queue_latency(srv0: dict[str, float], srv1: dict[str, float]) -> dict[str, float | None]:
+    """Our server's own share of a delivery's latency over the window (from its outbox becoming non-empty to the
+    batch written; a sample every 64 frames), from two scrapes of its histogram: the p50 and p99 as the upper
+    bound of the bucket that holds them (None past the last finite bound, or with no sample). Why: the readers'
+    latency is the server's plus the loopback and the load generator's reading; this says which part is ours."""
+    buckets = sorted((float(k[len(QUEUE_BUCKET):-2]), srv1[k] - srv0.get(k, 0.0)) for k in srv1
+                     if k.startswith(QUEUE_BUCKET))  # cumulative counts by upper bound, +Inf last
+    total = buckets[-1][1] if buckets else 0.0
+    out: dict[str, float | None] = {"server_queue_latency_samples": total}
+    for q, name in ((0.5, "server_queue_latency_p50_le_ms"), (0.99, "server_queue_latency_p99_le_ms")):
+        bound = next((b for b, c in buckets if total > 0 and c >= q * total), None)
+        out[name] = bound * 1000.0 if bound is not None and bound != float("inf") else None
+    return out
 
 
 def _topology_path(args, progress, quick: bool) -> str:

@@ -28,7 +28,8 @@ from sims.mobility import Walkers
 
 FIGURES = ("deliveries_per_s", "offered_deliveries_per_s", "latency_p50_ms", "latency_p99_ms",
            "server_cpu_cores", "machine_busy_cores", "cpu_s_per_million_deliveries", "rss_bytes_per_entity",
-           "rss_bytes_per_subscription", "server_messages_out_per_s", "server_frames_out_per_s")
+           "rss_bytes_per_subscription", "server_messages_out_per_s", "server_frames_out_per_s",
+           "server_queue_latency_p50_le_ms", "server_queue_latency_p99_le_ms")
 
 
 def runs_plan(systems: list[str], variants: dict[str, str], reps: int) -> list[tuple[int, str, str, str]]:

@@ -54,3 +54,23 @@ def test_publish_bytes_decode():
     redis = RedisDriver(1).publish_bytes([(3, 4, (5, 6), 700)], 1.5)
     payload = PAYLOAD.pack(1.5, 3, 4) + PAD
     assert redis == _resp(b"PUBLISH", b"c5", payload) + _resp(b"PUBLISH", b"c6", payload)
+
+
+def test_the_servers_queue_latency_is_read_from_two_scrapes_of_its_histogram():
+    """p50 / p99 as the upper bound of the bucket holding them, over the window only (the difference of two
+    scrapes); None past the last finite bound or with no sample."""
+    from sims.bench.switch_bench import QUEUE_BUCKET, queue_latency
+
+    bounds = ["0.001", "0.0025", "0.005", "0.01", "0.02", "0.05", "0.1", "0.25", "0.5", "1.0", "2.5", "+Inf"]
+
+    def scrape(cum):
+        return {f'{QUEUE_BUCKET}{b}"}}': float(c) for b, c in zip(bounds, cum, strict=True)} | {"other": 1.0}
+
+    before = scrape([5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5])  # five samples before the window: not counted
+    got = queue_latency(before, scrape([15, 25, 45, 75, 95, 103, 104.5, 105, 105, 105, 105, 105]))
+    assert got == {"server_queue_latency_samples": 100.0, "server_queue_latency_p50_le_ms": 10.0,
+                   "server_queue_latency_p99_le_ms": 100.0}
+    slow = queue_latency(scrape([0] * 12), scrape([0] * 10 + [40, 100]))
+    assert slow["server_queue_latency_p50_le_ms"] is None and slow["server_queue_latency_p99_le_ms"] is None
+    assert queue_latency({}, {})["server_queue_latency_p50_le_ms"] is None
+    assert queue_latency(before, before)["server_queue_latency_samples"] == 0.0
