@@ -54,7 +54,6 @@ def add_cluster_options(p: argparse.ArgumentParser) -> None:
 
 def cluster_config_from(args: argparse.Namespace):
     """The ClusterConfig of `serve --cluster ...` (errors are CommandErrors)."""
-
     from entitynet.cluster.link import ClusterConfig
     from entitynet.cluster.nats_client import parse_servers
     from topology import artifact

@@ -5,10 +5,11 @@ vCPU left idle between wake-ups halts; the next wake-up runs on a cold core (the
 slowed that core meanwhile), and where Linux places each wake-up (beside the busy load generator or on the idle
 vCPU) changes from run to run. `bench e2e` measured this on the 2-core VM of round 9: the same Redis run with the
 same wake-ups cost 0.38-0.54 s of CPU from run to run, and Redis's CPU per viewer-second followed the load
-generator's own CPU share run by run. With the bench and everything it starts on one CPU the three repetitions
-of every broker agreed within 2-7 % (docs/e2e.md, "How it is measured"). So `bench e2e` runs on one CPU unless told
-otherwise; the other suites run where the caller put them. Affinity is inherited across fork and exec, so
-setting it on the bench's own process covers every broker, server and worker it starts.
+generator's own CPU share run by run. With the bench and everything it starts on one CPU, three short runs of
+each broker agreed within 2-7 % (docs/e2e.md, "How it is measured"; full sittings still move with the VM's own
+speed). So `bench e2e` runs on one CPU unless told otherwise; the other suites run where the caller put them.
+Affinity is inherited across fork and exec, so setting it on the bench's own process covers every broker,
+server and worker it starts.
 """
 
 from __future__ import annotations
