@@ -40,6 +40,7 @@ from typing import Any
 import msgpack
 
 from entitynet import protocol as P
+from entitynet.cluster.defaults import DEAD_AFTER_S
 from entitynet.cluster.failover import HEARTBEAT, HEARTBEAT_ASK, ClusterFailoverMixin, Peer
 from entitynet.cluster.queries import QUERY_REP, QUERY_REQ, ClusterQueriesMixin
 from entitynet.cluster.roaming import (
@@ -71,7 +72,7 @@ class ClusterCore(ClusterQueriesMixin, ClusterFailoverMixin, CameraRoamingMixin,
     max_redirect_entities = MAX_REDIRECT_ENTITIES
 
     def __init__(self, sb: Any, regions: Any, shard: int, address: str, *, now: float, inbox: str,
-                 heartbeat_s: float = 0.5, dead_after_s: float = 2.0, follow_ttl_s: float = 6.0,
+                 heartbeat_s: float = 0.5, dead_after_s: float = DEAD_AFTER_S, follow_ttl_s: float = 6.0,
                  query_wait_s: float = 0.5, follow_wait_s: float = 1.0, redirect_viewers: bool = True,
                  wake: Any = None, cell_adjacency: Any = None, publisher_margin_cells: int = PUBLISHER_MARGIN_CELLS,
                  publisher_linger_s: float = PUBLISHER_LINGER_S):

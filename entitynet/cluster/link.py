@@ -19,7 +19,8 @@ from typing import Any
 import trio
 
 from entitynet.cluster.core import ClusterCore
-from entitynet.cluster.nats_client import CONNECT_TIMEOUT_S, NatsClient, NatsConnectionLost
+from entitynet.cluster.defaults import CONNECT_TIMEOUT_S, DEAD_AFTER_S
+from entitynet.cluster.nats_client import NatsClient, NatsConnectionLost
 
 log = logging.getLogger("entitynet.cluster")
 
@@ -35,7 +36,7 @@ class ClusterConfig:
     token: str | None = None  # NATS auth token
     tls: ssl.SSLContext | None = None  # TLS to NATS
     heartbeat_s: float = 0.5
-    dead_after_s: float = 2.0
+    dead_after_s: float = DEAD_AFTER_S
     connect_timeout_s: float = CONNECT_TIMEOUT_S  # one NATS connect attempt (NatsClient's connect_timeout)
     redirect_viewers: bool = True  # a client without entities whose cells lie mostly elsewhere moves there
     # cell -> neighbour cells (topology.regions.cell_adjacency): publishers near a border are served on here

@@ -30,6 +30,7 @@ from urllib.parse import urlsplit
 import trio
 
 from entitynet.cluster import nats_proto as N
+from entitynet.cluster.defaults import CONNECT_TIMEOUT_S
 
 log = logging.getLogger("entitynet.cluster.nats")
 
@@ -53,9 +54,6 @@ class NatsUnreachableError(NatsConnectFailed):
     """No server completed the handshake within the first connection's deadline (it was a bare TooSlowError in
     a nursery's group, which no caller could report: `entitynet serve --cluster` ended in a traceback)."""
 
-
-#: seconds one connect attempt may take by default (the first connection's deadline: this x max(2, servers) + 1)
-CONNECT_TIMEOUT_S = 2.0
 
 #: -ERR texts (lower case) by which nats-server refuses credentials
 AUTH_REFUSALS = ("authorization violation",)

@@ -17,18 +17,13 @@ import time
 from pathlib import Path
 
 from entitynet.cli import CommandError
+from entitynet.cluster.defaults import CONNECT_TIMEOUT_S, DEAD_AFTER_S
 from entitynet.commands.options import MAX_SHARDS, bounded_float, bounded_int, positive_seconds
-
-#: seconds of silence after which a shard is dead (`serve --dead-after`)
-DEAD_AFTER = 2.0
 
 #: the options of `serve` that only mean something with --cluster (dest -> option)
 CLUSTER_ONLY = {"shard": "--shard", "regions": "--regions", "shards": "--shards", "advertise": "--advertise",
                 "nats_token": "--nats-token", "nats_ca": "--nats-ca", "dead_after": "--dead-after",
                 "nats_connect_timeout": "--nats-connect-timeout"}
-#: seconds a NATS connect attempt may take (`serve --nats-connect-timeout`; the first connect's deadline is
-#: this x max(2, servers) + 1 s)
-NATS_CONNECT_TIMEOUT = 2.0
 
 DEFAULT_STATE = Path(os.environ.get("ENTITYNET_CLUSTER_STATE", Path.home() / ".cache/entitynet/cluster.json"))
 
@@ -46,9 +41,9 @@ def add_cluster_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--nats-token", metavar="TOKEN", help="NATS auth token (default: $ENTITYNET_NATS_TOKEN)")
     g.add_argument("--nats-ca", metavar="PEM", help="CA bundle for TLS to NATS (tls:// or a server that needs it)")
     g.add_argument("--dead-after", type=bounded_float(0.5, 3600), metavar="S",
-                   help=f"a shard silent this long is dead and its regions pass on (default {DEAD_AFTER:g} s)")
+                   help=f"a shard silent this long is dead and its regions pass on (default {DEAD_AFTER_S:g} s)")
     g.add_argument("--nats-connect-timeout", type=bounded_float(0.1, 60), metavar="S",
-                   help=f"one NATS connect attempt's timeout (default {NATS_CONNECT_TIMEOUT:g} s); joining gives up "
+                   help=f"one NATS connect attempt's timeout (default {CONNECT_TIMEOUT_S:g} s); joining gives up "
                         "after this x max(2, servers) + 1 s with one line (a far or slow NATS may need more)")
 
 
@@ -79,11 +74,11 @@ def cluster_config_from(args: argparse.Namespace):
     if not 0 <= args.shard < regions.shards:
         raise CommandError(f"--shard must be between 0 and {regions.shards - 1}")
     tls = nats_tls(args.nats_ca, args.cluster)
-    dead_after = DEAD_AFTER if args.dead_after is None else args.dead_after
+    dead_after = DEAD_AFTER_S if args.dead_after is None else args.dead_after
     return ClusterConfig(args.cluster, args.shard, regions, address=args.advertise,
                          token=args.nats_token or os.environ.get("ENTITYNET_NATS_TOKEN"), tls=tls,
                          heartbeat_s=min(0.5, dead_after / 4), dead_after_s=dead_after,
-                         connect_timeout_s=(NATS_CONNECT_TIMEOUT if args.nats_connect_timeout is None
+                         connect_timeout_s=(CONNECT_TIMEOUT_S if args.nats_connect_timeout is None
                                             else args.nats_connect_timeout),
                          cell_adjacency=[sorted(a) for a in cell_adjacency(topo)])  # publishers' border band
 

@@ -19,7 +19,7 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from sims.bench.e2e_bench import SYSTEMS, run_one
+from sims.bench.e2e_bench import DEFAULT_CPUS, SYSTEMS, run_one
 from sims.bench.e2e_run import RunParams
 
 FIGURES = ("server_cpu_ms_per_viewer_s", "messages_per_viewer_s", "bytes_per_viewer_s", "error_p95_m",
@@ -33,7 +33,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--seconds", type=float, default=40.0, help="simulated seconds per run (the suite: 60)")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--idle", action="store_true", help="no entities: the barrier and subscriptions alone")
-    ap.add_argument("--cpus", default="one", help="as `entitynet bench --cpus`; the full suite's default, one CPU")
+    ap.add_argument("--cpus", default=DEFAULT_CPUS,
+                    help="as `entitynet bench --cpus` (default: the full suite's, one CPU)")
     a = ap.parse_args(argv)
     known = {s.name for s in SYSTEMS}
     a.names = [n for n in a.systems.split(",") if n]
@@ -51,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     from sims.bench.affinity import CpuSpecError, pin
 
     try:
-        placement = pin(a.cpus, "one")
+        placement = pin(a.cpus, DEFAULT_CPUS)
     except CpuSpecError as exc:
         print(f"e2e_short: {exc}", file=sys.stderr)
         return 2
