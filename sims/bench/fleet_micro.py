@@ -50,8 +50,7 @@ def _drive(sim, fleet, ticks: int, on_tick: Callable[[int], None]) -> tuple[int,
             sim.world.step(1.0)
             for a in sim.population.step():
                 fleet.add(a)
-        sim.world.take_removed()
-        on_tick(k)
+        on_tick(k)  # (the fleet's step takes the world's removals itself)
         before = fleet.counters["fixes"]
         t = time.process_time()
         fleet.step(sim.now)

@@ -23,6 +23,10 @@ Figures (keys of `results`):
   the fraction that took the scalar path, by the first reason, `FleetCore.scalar_why`). Timed after 20 simulated s
   (3 with `--quick`) that are not: the start's burst of
   first placements and publishes is not the steady state.
+- `fleet_bytes_per_entity`, `fleet_row_bytes`, `fleet_players_leaked`, `fleet_objects_per_entity_growth`
+  (`sims.bench.fleet_memory`, whole report in `fleet_memory`): the client code's live bytes per tracked entity
+  (tracemalloc, the per-map caches apart), the record's array state per row, Players alive beyond the entities
+  tracked, and the client objects per entity at the end of an hour against half-way (a minute with `--quick`).
 - `deliveries_per_viewer_s`: UPDATEs per street-level viewer-second, subscribing by PVS and by a 500 m radius,
   from the same seeded run against the in-process switchboard core; `radius_vs_pvs_deliveries_ratio` their
   ratio; `messages_per_viewer_s` and `bytes_per_viewer_s` likewise (PVS).
@@ -148,6 +152,13 @@ def run(args, progress) -> dict[str, Any]:
     seconds = getattr(args, "sim_seconds", None) or (15.0 if quick else 60.0)
     entities, viewers = (150, 16) if quick else (400, 40)
 
+    from sims.bench.fleet_memory import measure as fleet_memory
+
+    # (first: its census of the client objects counts the process's, before the other runs leave theirs)
+    progress("fleet core: memory per tracked entity and its growth over " + ("a minute" if quick else "an hour"))
+    memory = fleet_memory(topo, 100 if quick else 1000, 60.0 if quick else 3600.0, 4 if quick else 12,
+                          10.0 if quick else 120.0, progress=progress)
+
     progress(f"PVS and radius runs: {entities} entities, {viewers} viewers, {seconds:g} simulated s")
     base = dict(entities=entities, viewers=viewers, seed=7)
     pvs_sim, pvs = _local(topo, schedule, SimConfig(**base, subscribe="pvs"), seconds)
@@ -194,6 +205,11 @@ def run(args, progress) -> dict[str, Any]:
         "fleet_core_speedup": fleet["ratio"],
         "fleet_vector_share": fleet["share"],
         "fleet_scalar_share_by_reason": fleet["scalar_why"],
+        "fleet_bytes_per_entity": memory["bytes_per_entity"],
+        "fleet_row_bytes": memory["row_bytes"],
+        "fleet_players_leaked": memory["players_leaked"],
+        "fleet_objects_per_entity_growth": memory["objects_per_entity_growth"],
+        "fleet_memory": memory,
         "deliveries_per_viewer_s": {"pvs": street_pvs["deliveries"], "radius": street_rad["deliveries"]},
         "radius_vs_pvs_deliveries_ratio": street_rad["deliveries"] / street_pvs["deliveries"]
         if street_pvs["deliveries"] else None,
