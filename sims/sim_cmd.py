@@ -21,11 +21,11 @@ def register(sub) -> None:
     """Add the `sim` subcommand and its options to the CLI's subparsers (called by `entitynet.cli`)."""
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
                                    "clients and PVS viewers, with a live summary and a JSON report",
-                       epilog="How large a run keeps real time: on a 2-core machine about 1,600 entities with 160 "
+                       epilog="How large a run keeps real time: on a 2-core machine about 3,200 entities with 320 "
                               "viewers (entitynet bench sim, entities_realtime_max; from 1,000 entities or 100 "
                               "viewers at --speed 1 or more the server runs in a child process, "
-                              "--server-process). At 3,000 entities "
-                              "and 300 viewers a tick costs about 1.4x real time, most of it the viewers "
+                              "--server-process); 4,400 with 440 viewers of which a tenth measured "
+                              "(--measured-viewers). At 3,600 entities and 360 viewers the ticks run late "
                               "(docs/simulation.md). A larger run still steps every tick, late: the live summary "
                               "shows the tick lateness, and a warning says when the run falls behind (then every "
                               "30 s while it lasts). --speed 0.5 halves the load.")

@@ -30,6 +30,11 @@ PY_ROWS = 160  # segment tables up to this size are searched by a plain loop, la
 # distance (coordinates of 1e4 m have ulps of 2e-12 m), so a skipped segment can never be the answer
 PRUNE_SLACK = 1e-6
 RING_PY = 64  # rings up to this many vertices are tested by a plain loop, larger ones by numpy
+# segment tables a placer keeps, the least recently used dropped beyond: about 14 KB each (25 segments on the
+# bundled map), so at most ~57 MB per placer on any map; the bundled map's 3,499 edges never reach it, a city
+# ten times its size would otherwise keep a table for every edge its entities ever reached (bench sim's
+# `fleet_memory`, docs/dead-reckoning.md). A dropped table is built again when asked (about 0.2 ms).
+TABLES_KEPT = 4096
 
 
 def ring_distance(ring: np.ndarray, x: float, y: float) -> float:
@@ -136,14 +141,18 @@ class Placer:
     """Per-process placement service shared by all entities on one topology and network mask."""
 
     def __init__(self, net: NetView, networks: int, *, switch_margin: float = 3.0, switch_count: int = 2,
-                 reacquire: float = 40.0) -> None:
+                 reacquire: float = 40.0, tables_kept: int = TABLES_KEPT) -> None:
+        if tables_kept < 1:
+            raise ValueError(f"a placer keeps at least one segment table, got {tables_kept}")
         self.net = net
         self.topo = net.topo
         self.networks = networks
         self.switch_margin = switch_margin
         self.switch_count = switch_count
         self.reacquire = reacquire
-        self._tables: dict[int, _SegTable] = {}
+        self.tables_kept = int(tables_kept)
+        # edge (or ("route", edges) for `on_edges`) -> its table, least recently used first
+        self._tables: dict[int | tuple, _SegTable] = {}
         self._rings: dict[int, np.ndarray] = {}
         self._segs: dict[int, list[tuple[float, ...]]] = {}
         self._ring_box: dict[int, tuple[float, float, float, float, bool]] = {}
@@ -180,10 +189,20 @@ class Placer:
     # ---- continuity ----------------------------------------------------------------------------------------
     def table(self, edge: int) -> _SegTable:
         """The cached segment table of the edges within two hops of `edge`, the only candidates continuity
-        projects a fix onto (built once per edge, reused for every later fix near it)."""
-        t = self._tables.get(edge)
+        projects a fix onto (built once per edge, reused for every later fix near it, up to `tables_kept`
+        tables)."""
+        return self._table(edge, None)
+
+    def _table(self, key: int | tuple, edges: list[int] | None) -> _SegTable:
+        """The table under `key` (an edge: its neighbourhood's; else of `edges`), now the most recently used;
+        built when absent, the least recently used dropped beyond `tables_kept`."""
+        tables = self._tables
+        t = tables.pop(key, None)
         if t is None:
-            t = self._tables[edge] = _SegTable(self.geom, *self.neighbourhood(edge))
+            t = _SegTable(self.geom, *self.neighbourhood(key)) if edges is None else _SegTable(self.geom, edges, [])
+            while len(tables) >= self.tables_kept:
+                del tables[next(iter(tables))]
+        tables[key] = t
         return t
 
     def neighbourhood(self, edge: int) -> tuple[list[int], list[int]]:
@@ -196,10 +215,7 @@ class Placer:
 
     def on_edges(self, x: float, y: float, edges: list[int]) -> Fix:
         """Nearest point on a given set of edges (a route), in one vectorised pass; cached per edge set."""
-        key = -1 - hash(tuple(sorted(set(edges))))
-        t = self._tables.get(key)
-        if t is None:
-            t = self._tables[key] = _SegTable(self.geom, list(edges), [])
+        t = self._table(("route", tuple(sorted(set(edges)))), list(edges))
         rx, ry = x - t.ax, y - t.ay
         u = np.clip((rx * t.dx + ry * t.dy) * t.inv_l2, 0.0, 1.0)
         ex, ey = rx - u * t.dx, ry - u * t.dy
