@@ -21,12 +21,13 @@ def register(sub) -> None:
     """Add the `sim` subcommand and its options to the CLI's subparsers (called by `entitynet.cli`)."""
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
                                    "clients and PVS viewers, with a live summary and a JSON report",
-                       epilog="How large a run keeps real time: on a 2-core machine about 3,200 entities with 320 "
-                              "viewers (entitynet bench sim, entities_realtime_max; from 1,000 entities or 100 "
-                              "viewers at --speed 1 or more the server runs in a child process, "
-                              "--server-process); 4,400 with 440 viewers of which a tenth measured "
-                              "(--measured-viewers). At 3,600 entities and 360 viewers the ticks run late "
-                              "(docs/simulation.md). A larger run still steps every tick, late: the live summary "
+                       epilog="How large a run keeps real time: on a quiet 2-core machine about 3,600 entities "
+                              "with 360 viewers, the viewers in a process of their own (the default on 2-4 cores "
+                              "from 200 viewers, --viewer-processes), 3,200 with them in this process (entitynet "
+                              "bench sim, entities_realtime_max); from 1,000 entities or 100 viewers at --speed 1 "
+                              "or more the server runs in a child process (--server-process). At 4,400 entities "
+                              "and 440 viewers the viewer process falls behind (docs/simulation.md). "
+                              "A larger run still steps every tick, late: the live summary "
                               "shows the tick lateness, and a warning says when the run falls behind (then every "
                               "30 s while it lasts). --speed 0.5 halves the load.")
     p.add_argument("--entities", type=bounded_int(0, 1_000_000),
@@ -73,7 +74,8 @@ def register(sub) -> None:
     p.add_argument("--viewer-processes", type=bounded_int(0, 64), metavar="K",
                    help="run the viewers in K processes of their own, each with its share of the viewers, their "
                         "server connections and their measure against the truth it steps from the seed (0: in "
-                        "this process; default: 0 on 4 cores or fewer, else one per 250 viewers up to cores - 2; "
+                        "this process; default: on 2-4 cores 1 from 200 viewers on, else 0; on more cores one per "
+                        "250 viewers up to cores - 2; "
                         "not with --shards or --mobility sumo; docs/simulation.md)")
     p.add_argument("--seed", type=SEED, default=1, help="random seed (default 1)")
     p.add_argument("--summary-every", type=positive_seconds(86400),
@@ -215,12 +217,20 @@ def run(args: argparse.Namespace) -> int:
         close_sim(sim)
 
 
+SMALL_MACHINE_VIEWERS = 200  # on 2-4 cores, one viewer process from this many viewers on
+
+
 def auto_viewer_processes(viewers: int, cores: int | None) -> int:
-    """The default of `--viewer-processes`: 0 (the viewers in this process) on 4 cores or fewer, where the
-    viewers, the server and the simulation share the same cores whatever the split (docs/simulation.md, "The
-    coordinator's part"), else one process per 250 viewers, at most cores - 2."""
+    """The default of `--viewer-processes`: on 2-4 cores one process from `SMALL_MACHINE_VIEWERS` viewers on (the
+    coordinator then keeps real time to larger runs: measured on a quiet 2-core machine, docs/simulation.md,
+    "Viewer processes"), else none; on more cores one process per 250 viewers, at most cores - 2; on one core
+    none (the processes would only take turns)."""
     cores = cores or 1
-    if cores <= 4 or viewers < 250:
+    if cores <= 1:
+        return 0
+    if cores <= 4:
+        return 1 if viewers >= SMALL_MACHINE_VIEWERS else 0
+    if viewers < 250:
         return 0
     return min(viewers // 250, cores - 2)
 
@@ -241,8 +251,10 @@ def _run_sim(args, sim, config, path: Path, topo, regions, child_server: bool, c
             f"{config.measured_viewers}")
     if viewer_procs is not None:
         sim.viewers = []  # they live in the viewer processes
-        say(f"viewers in {viewer_procs.n} processes of their own (pids "
-            f"{', '.join(map(str, viewer_procs.pids))}), each measuring its share against the truth")
+        pids = ", ".join(map(str, viewer_procs.pids))
+        say(f"viewers in {viewer_procs.n} processes of their own (pids {pids}), each measuring its share against "
+            "the truth" if viewer_procs.n > 1 else
+            f"viewers in a process of their own (pid {pids}), measuring them against the truth")
     shell = Shell(sim, ShellConfig(duration=args.duration, speed=args.speed, summary_every=args.summary_every,
                                    server=args.server, token=args.token, artifact=path,
                                    viewer_processes=viewer_procs, settle_gc=True), say)

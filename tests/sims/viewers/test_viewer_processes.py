@@ -161,10 +161,12 @@ def test_the_command_refuses_viewer_processes_it_cannot_run(capsys):
     assert info.value.code == 2
 
 
-def test_the_default_keeps_the_viewers_here_on_a_small_machine():
+def test_the_default_takes_one_viewer_process_on_a_small_machine_for_large_runs():
     from sims.sim_cmd import auto_viewer_processes
 
-    assert auto_viewer_processes(1000, 2) == 0 and auto_viewer_processes(1000, 4) == 0
+    assert auto_viewer_processes(1000, 2) == 1 and auto_viewer_processes(1000, 4) == 1
+    assert auto_viewer_processes(200, 2) == 1 and auto_viewer_processes(199, 2) == 0
+    assert auto_viewer_processes(1000, 1) == 0 and auto_viewer_processes(1000, None) == 0
     assert auto_viewer_processes(100, 16) == 0
     assert auto_viewer_processes(1000, 16) == 4 and auto_viewer_processes(1000, 5) == 3
 
