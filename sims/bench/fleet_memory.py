@@ -183,6 +183,8 @@ def measure(topo, entities: int = 1000, seconds: float = 3600.0, samples: int = 
 
 
 def main(argv: list[str] | None = None) -> None:
+    """`python -m sims.bench.fleet_memory`: both parts on the bundled map, the report printed (and written with
+    --out); bad sizes are a usage error, not a traceback."""
     ap = argparse.ArgumentParser(prog="python -m sims.bench.fleet_memory", description=__doc__.split("\n\n")[0])
     ap.add_argument("--entities", type=int, default=1000)
     ap.add_argument("--seconds", type=float, default=3600.0, help="simulated seconds of the growth run")
