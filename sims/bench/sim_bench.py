@@ -9,9 +9,6 @@ Figures (keys of `results`):
 - `entities_realtime_max_counted_viewers`: the same with the server in a child and counted viewers (a tenth of
   the viewers, at least 10, measured; `entitynet sim --measured-viewers K`), trials in
   `realtime_trials_counted_viewers`.
-- `entities_realtime_max_viewer_process`: the same with the server in a child and the viewers in one process of
-  their own (`entitynet sim --viewer-processes 1`, the default on 2-4 cores from 200 viewers), kept only where
-  that process also takes up its ticks within one tick (p99); trials in `realtime_trials_viewer_process`.
 - each real-time trial also has `sim_process_cpu_s` (this process's CPU time over the run, the in-process
   server's included) and `server_process_cpu_s` (the child server's, None in-process): what the server costs.
 - `entities_realtime_max_server_process`: the same ladder with the server in a child `entitynet serve`
@@ -202,8 +199,6 @@ def run(args, progress) -> dict[str, Any]:
         "tick_lateness_p99_ms_server_process": _lateness_of_max(ladders["server_process"]),
         "entities_realtime_max_counted_viewers": ladders["counted_viewers"]["max"],
         "tick_lateness_p99_ms_counted_viewers": _lateness_of_max(ladders["counted_viewers"]),
-        "entities_realtime_max_viewer_process": ladders["viewer_process"]["max"],
-        "tick_lateness_p99_ms_viewer_process": _lateness_of_max(ladders["viewer_process"]),
         "realtime_limit": {name: {"kept": lad["max"], "lost": lad["lost"]} for name, lad in ladders.items()},
         "fleet_fixes_per_s": fleet["fleet"],
         "fleet_fixes_per_s_player": fleet["player"],
@@ -230,7 +225,6 @@ def run(args, progress) -> dict[str, Any]:
         "realtime_trials": ladders["in_process"]["trials"],
         "realtime_trials_server_process": ladders["server_process"]["trials"],
         "realtime_trials_counted_viewers": ladders["counted_viewers"]["trials"],
-        "realtime_trials_viewer_process": ladders["viewer_process"]["trials"],
         "sumo": sumo,
         "workers": workers,
     }
@@ -258,20 +252,17 @@ def run(args, progress) -> dict[str, Any]:
 def _realtime_ladders(topo, artifact, schedule, seconds: float, quick: bool, progress) -> dict[str, dict]:
     """The real-time ladders (`sims.bench.sim_ladder`: doubling from 100 entities with a tenth as many viewers,
     then bisecting between the last size kept and the first lost), alternating trial by trial: the server in
-    this process, in a child process, in a child with counted viewers (a tenth of the viewers, at least 10,
-    measured; the others only count what they read), and in a child with the viewers in one process of their
-    own (what `entitynet sim` does on 2-4 cores from 200 viewers on). `--quick`: up to 200 entities, no
-    bisection."""
-    def variant(server_process: bool, counted: bool, viewer_processes: int = 0):
+    this process, in a child process, and in a child with counted viewers (a tenth of the viewers, at least 10,
+    measured; the others only count what they read). `--quick`: up to 200 entities, no bisection."""
+    def variant(server_process: bool, counted: bool):
         def trial(n: int) -> dict:
             v = max(10, n // 10)
             return realtime_trial(topo, artifact, schedule, n, v, seconds, server_process=server_process,
-                                  measured=min(v, max(10, v // 10)) if counted else None,
-                                  viewer_processes=viewer_processes)
+                                  measured=min(v, max(10, v // 10)) if counted else None)
         return trial
 
     return run_ladders({"in_process": variant(False, False), "server_process": variant(True, False),
-                        "counted_viewers": variant(True, True), "viewer_process": variant(True, False, 1)},
+                        "counted_viewers": variant(True, True)},
                        top=200 if quick else 20000, bisect_steps=0 if quick else 3,
                        budget_s=300.0 if quick else 2400.0, progress=progress)
 

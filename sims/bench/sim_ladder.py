@@ -1,6 +1,5 @@
 """`bench sim`'s real-time ladder: the largest population that keeps real time, found by doubling and then
-bisecting, several ladders (the server in this process, in a child, with counted viewers, with the viewers in
-a process of their own) alternating.
+bisecting, several ladders (the server in this process, in a child, with counted viewers) alternating.
 
 Why bisect: doubling alone (100, 200, ... 1,600, 3,200) says only that the limit lies between the last size kept
 and the first lost, a factor of two apart; a few more trials between them say where. Bounded: at most
@@ -75,24 +74,12 @@ def _mid(s: dict, resolution: int) -> int | None:
     return mid if lo < mid < hi else None
 
 
-def kept(realtime: dict[str, Any], delays: list, tick_s: float) -> bool:
-    """Whether a run kept real time: the shell's tick lateness p99 under one tick and no tick more than one tick
-    behind (`realtime` of its report), and each viewer process's p99 delay in taking up its ticks (`delays`,
-    ms) under one tick too (a process that is not known to keep up, None or NaN, does not)."""
-    tick_ms = 1000.0 * tick_s
-    return (realtime["tick_lateness_p99_ms"] < tick_ms and realtime["ticks_behind"] == 0
-            and all(d is not None and d < tick_ms for d in delays))
-
-
 def realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: float, server_process: bool = False,
-                   measured: int | None = None, viewer_processes: int = 0) -> dict[str, Any]:
+                   measured: int | None = None) -> dict[str, Any]:
     """One real-time run of `n` entities and `viewers` viewers over loopback sockets at speed 1, the server in
     this process or in a child; `measured`: only that many viewers measured, the others counted
-    (`SimConfig.measured_viewers`); `viewer_processes`: the viewers in that many processes of their own
-    (`entitynet sim --viewer-processes`, forked before the run as the command forks them). Real time is kept
-    when tick lateness p99 is under one tick, no tick is more than one tick behind, and every viewer process
-    takes up its ticks within one tick (p99: one later than that measures its viewers late). Also the CPU
-    seconds of this process, the child's and the viewer processes', and missed visibility."""
+    (`SimConfig.measured_viewers`). Real time is kept when tick lateness p99 is under one tick and no tick is
+    more than one tick behind. Also the CPU seconds of this process and the child's, and missed visibility."""
     import trio
 
     from sims.engine.sim import Sim, SimConfig
@@ -101,38 +88,23 @@ def realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: floa
 
     sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=RT_MEASURE_SHARE,
                               measured_viewers=measured), schedule)
-    vp = None
-    if viewer_processes:
-        from sims.viewers.procs import ViewerProcesses
-
-        vp = ViewerProcesses(viewer_processes, topo, schedule, sim.config)
-        sim.viewers = []  # (they live in the viewer processes)
     shell = Shell(sim, ShellConfig(duration=seconds + WARMUP_TICKS * sim.dt, speed=1.0, summary_every=1e9,
-                                   artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS,
-                                   viewer_processes=vp), lambda m: None)
+                                   artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS), lambda m: None)
     cpu0, server_cpu = time.process_time(), None
-    try:
-        if server_process:
-            with ServerChild(artifact) as child:
-                shell.config.server = child.address
-                rep = trio.run(child.run_shell, shell)
-                server_cpu = child.cpu_seconds()
-        else:
-            rep = trio.run(shell.run)
-    finally:
-        if vp is not None:
-            vp.close()
+    if server_process:
+        with ServerChild(artifact) as child:
+            shell.config.server = child.address
+            rep = trio.run(child.run_shell, shell)
+            server_cpu = child.cpu_seconds()
+    else:
+        rep = trio.run(shell.run)
     sim_cpu = time.process_time() - cpu0
     rt = rep["realtime"]
-    procs = rep.get("viewer_processes") or {}
-    delays = procs.get("tick_delay_p99_ms") or []
-    ok = kept(rt, delays, sim.dt)
+    ok = rt["tick_lateness_p99_ms"] < 1000.0 * sim.dt and rt["ticks_behind"] == 0
     tv = rep["truth_vs_viewer"]
     return {"entities": n, "on_map": sum(rep["entities"].values()), "viewers": viewers,
             "measured_viewers": tv.get("measured_viewers", viewers), "counted_viewers": tv.get("counted_viewers", 0),
             "server": "a child process" if server_process else "in this process",
-            "viewer_processes": viewer_processes, "viewer_tick_delay_p99_ms": delays or None,
-            "viewer_processes_cpu_s": procs.get("cpu_s"),
             "measure_share": RT_MEASURE_SHARE, "tick_lateness_p99_ms": rt["tick_lateness_p99_ms"],
             "ticks_behind": rt["ticks_behind"], "ok": ok, "sim_process_cpu_s": sim_cpu,
             "server_process_cpu_s": server_cpu, "deliveries": rep["viewers"]["deliveries"],
