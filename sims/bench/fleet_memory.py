@@ -68,7 +68,9 @@ def client_bytes(snapshot: tracemalloc.Snapshot) -> dict[str, int]:
     return out
 
 
-def _fleet(topo, entities: int, seed: int):
+def sim_fleet(topo, entities: int, seed: int):
+    """A seeded simulation of `entities` on `topo` (no viewers, no transit, 1 s ticks) and its client fleet
+    through the fleet core at 1 Hz fixes, the population started: what this module and `fleet_micro` step."""
     from sims.engine.clients import Fleet
     from sims.engine.sim import Sim, SimConfig
 
@@ -97,7 +99,7 @@ def traced(topo, entities: int, seconds: float, seed: int = 5, progress=lambda m
     if not was:
         tracemalloc.start(1)
     try:
-        sim, fleet = _fleet(topo, entities, seed)
+        sim, fleet = sim_fleet(topo, entities, seed)
         fleet.step(sim.now)
         for _ in range(int(seconds)):
             _tick(sim, fleet)
@@ -140,7 +142,7 @@ def growth(topo, entities: int, seconds: float, samples: int, seed: int = 5,
     proc = psutil.Process()
     ticks = int(seconds)
     at = sorted({max(1, round(ticks * (k + 1) / samples)) for k in range(samples)})
-    sim, fleet = _fleet(topo, entities, seed)
+    sim, fleet = sim_fleet(topo, entities, seed)
     born = weakref.WeakSet(fleet.players.values())  # this run's Players (the process may hold others')
     fleet.step(sim.now)
     rows: list[dict[str, Any]] = []

@@ -29,16 +29,10 @@ from entitynet.client.player import Player
 def _fleet(n: int):
     """A seeded simulation of n entities (no viewers, no transit) and its client fleet through the fleet core."""
     from entitynet.topology_cache import bundled_topology
-    from sims.engine.clients import Fleet
-    from sims.engine.sim import Sim, SimConfig
+    from sims.bench.fleet_memory import sim_fleet
 
     topo, _ = bundled_topology(lambda *a: None, with_pvs=True)
-    sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5, core="fleet"))
-    fleet = Fleet(sim.world, sim.config.connections, fix_interval=1.0, gps_sigma=sim.config.gps_sigma,
-                  seed=sim.config.seed, core="fleet")
-    for a in sim.population.start():
-        fleet.add(a)
-    return sim, fleet
+    return sim_fleet(topo, n, seed=5)
 
 
 def _drive(sim, fleet, ticks: int, on_tick: Callable[[int], None]) -> tuple[int, float]:
