@@ -22,8 +22,8 @@ from pathlib import Path
 from sims.bench.e2e_bench import DEFAULT_CPUS, SYSTEMS, run_one
 from sims.bench.e2e_run import RunParams
 
-FIGURES = ("server_cpu_ms_per_viewer_s", "messages_per_viewer_s", "bytes_per_viewer_s", "error_p95_m",
-           "loadgen_cpu_share")
+FIGURES = ("server_cpu_ms_per_viewer_s", "server_cpu_per_loadgen_cpu", "messages_per_viewer_s", "bytes_per_viewer_s",
+           "error_p95_m", "loadgen_cpu_share")
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
