@@ -21,13 +21,15 @@ coming and going as in `entitynet sim`, no viewers, no server), each stepped alo
    paths too). `row_bytes`: the record's own array state per row (`Record.nbytes_per_row`), a floor that the
    Python objects come on top of.
 2. **Growth** (`growth`): `seconds` simulated seconds (default an hour) untraced, sampled `samples` times after
-   a full collection: the process's RSS, the entities tracked, the client objects alive (instances of classes
-   defined in entitynet.client, in the whole process, the per-map cache objects counted apart, `seg_tables` the
-   placers' segment tables among them) and this run's `Player` objects alive (held weakly). A Player alive
-   beyond those tracked is a leak (`players_leaked`); client objects per tracked entity at the end
-   against half-way (`objects_per_entity_growth`) is the per-entity growth; the RSS's growth over the second
-   half is given as it is, caches and the world's own allocations included (its absolute figures include what
-   the traced run left in the allocator's arenas).
+   a full collection: the fleet's fixes per CPU second of its step since the previous sample (the caches cold
+   in the first interval, warm in the last; `fleet_fixes_per_s_median` over the intervals), the process's RSS,
+   the entities tracked, the client objects alive (instances of classes defined in entitynet.client, in the
+   whole process, the per-map cache objects counted apart, `seg_tables` the placers' segment tables among
+   them) and this run's `Player` objects alive (held weakly). A Player alive beyond those tracked is a leak
+   (`players_leaked`); client objects per tracked entity at the end against half-way
+   (`objects_per_entity_growth`) is the per-entity growth; the RSS's growth over the second half is given as
+   it is, caches and the world's own allocations included (its absolute figures include what the traced run
+   left in the allocator's arenas).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import argparse
 import gc
 import json
 import os
+import statistics
 import sys
 import time
 import tracemalloc
@@ -82,15 +85,18 @@ def sim_fleet(topo, entities: int, seed: int):
     return sim, fleet
 
 
-def _tick(sim, fleet, born: weakref.WeakSet | None = None) -> None:
+def _tick(sim, fleet, born: weakref.WeakSet | None = None) -> float:
     """One simulated second: the world, its arrivals, the fleet (which takes the world's removals itself);
-    `born` is given every Player made (held weakly: alive only while something else holds it)."""
+    `born` is given every Player made (held weakly: alive only while something else holds it). Returns the CPU
+    seconds of the fleet's step."""
     sim.world.step(1.0)
     for a in sim.population.step():
         fleet.add(a)
         if born is not None:
             born.add(fleet.players[a.id])
+    t = time.process_time()
     fleet.step(sim.now)
+    return time.process_time() - t
 
 
 def traced(topo, entities: int, seconds: float, seed: int = 5, progress=lambda msg: None) -> dict[str, Any]:
@@ -147,16 +153,21 @@ def growth(topo, entities: int, seconds: float, samples: int, seed: int = 5,
     fleet.step(sim.now)
     rows: list[dict[str, Any]] = []
     t0 = time.monotonic()
+    step_cpu, fixes_before = 0.0, fleet.counters["fixes"]
     for k in range(1, ticks + 1):
-        _tick(sim, fleet, born)
+        step_cpu += _tick(sim, fleet, born)
         if k in at:
+            fixes = fleet.counters["fixes"] - fixes_before
+            rate = round(fixes / step_cpu, 1) if step_cpu > 0 else 0.0
+            step_cpu, fixes_before = 0.0, fleet.counters["fixes"]
             gc.collect()
             per, shared, tables = _census()
             players = len(born)
             tracked = len(fleet.players)
             rows.append({"t_s": k, "tracked": tracked, "rss_bytes": proc.memory_info().rss,
                          "client_objects": per, "players_alive": players, "cache_objects": shared, "seg_tables": tables,
-                         "objects_per_entity": round(per / max(tracked, 1), 2), "fleet_rows": fleet.fleet_core.rec.cap})
+                         "objects_per_entity": round(per / max(tracked, 1), 2), "fleet_rows": fleet.fleet_core.rec.cap,
+                         "fleet_fixes_per_s": rate})
             progress(f"fleet memory: t={k} s, {tracked} tracked, {players} Players alive, "
                      f"{per / max(tracked, 1):.1f} client objects each, RSS {rows[-1]['rss_bytes'] / 1e6:.0f} MB "
                      f"({time.monotonic() - t0:.0f} s)")
@@ -167,6 +178,12 @@ def growth(topo, entities: int, seconds: float, samples: int, seed: int = 5,
             "objects_per_entity_growth": round(last["objects_per_entity"] / max(half["objects_per_entity"], 1e-9)
                                                - 1.0, 4),
             "rss_growth_second_half_bytes": last["rss_bytes"] - half["rss_bytes"],
+            # the fleet's fixes per CPU second of its step: the median over the intervals between samples, and
+            # the first and the last interval (the per-map caches cold, segment tables built as entities reach
+            # new edges, against warm)
+            "fleet_fixes_per_s_median": statistics.median(r["fleet_fixes_per_s"] for r in rows),
+            "fleet_fixes_per_s_first": rows[0]["fleet_fixes_per_s"],
+            "fleet_fixes_per_s_last": last["fleet_fixes_per_s"],
             "cache_objects_growth_second_half": last["cache_objects"] - half["cache_objects"]}
 
 

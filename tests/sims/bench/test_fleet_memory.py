@@ -20,6 +20,12 @@ def test_a_short_run_states_bytes_per_entity_above_the_row_and_no_leak(helsinki)
     rows = rep["growth"]["samples"]
     assert [r["t_s"] for r in rows] == [4, 8, 12]
     assert all(r["players_alive"] == r["tracked"] > 0 for r in rows)
+    # every interval between samples stepped the fleet and counted its fixes
+    assert all(r["fleet_fixes_per_s"] > 0 for r in rows)
+    assert rep["growth"]["fleet_fixes_per_s_first"] == rows[0]["fleet_fixes_per_s"]
+    assert min(r["fleet_fixes_per_s"] for r in rows) <= rep["growth"]["fleet_fixes_per_s_median"] <= max(
+        r["fleet_fixes_per_s"] for r in rows)
+    assert rep["growth"]["fleet_fixes_per_s_last"] == rows[-1]["fleet_fixes_per_s"]
 
 
 def test_a_leaked_player_is_counted(helsinki, monkeypatch):

@@ -25,3 +25,16 @@ def test_fleet_rates_measure_both_cores_in_one_run():
     r = _fleet_rates(grid(), 20, 3, 2)  # (asserts the two fleets' messages equal every tick)
     assert r["fleet"] > 0 and r["player"] > 0 and r["ratio"] == r["fleet"] / r["player"]
     assert 0.0 < r["share"] <= 1.0  # the fleet run's arrays decided some fixes (the baseline's none)
+    assert "warm" not in r
+
+
+def test_fleet_rates_time_a_second_window_of_the_same_run():
+    from sims.bench.sim_bench import _fleet_rates
+
+    r = _fleet_rates(grid(), 20, 3, 2, warm=8)
+    w = r["warm"]
+    assert (r["after_s"], w["after_s"]) == (2, 8)
+    assert w["fleet"] > 0 and w["player"] > 0 and w["ratio"] == w["fleet"] / w["player"]
+    assert 0.0 < w["share"] <= 1.0
+    # a second window that would overlap the first is not taken
+    assert "warm" not in _fleet_rates(grid(), 20, 3, 2, warm=4)
