@@ -102,6 +102,8 @@ def _fleet_rates(topo, n: int, seconds: float, warmup: float = 0.0, warm: float 
     those builds are part of its figures (the "warm" window is the steadier state)."""
     from sims.engine.clients import Fleet
 
+    if int(seconds) < 1:
+        raise ValueError(f"the fleet rates need a window of at least 1 simulated s, got {seconds!r}")
     sim = Sim(topo, SimConfig(entities=n, viewers=0, transit=False, tick_hz=1.0, seed=5, core="fleet"))
     views = {"fleet": _Removals(sim.world), "player": _Removals(sim.world)}
     fleets = {core: Fleet(views[core], sim.config.connections, fix_interval=sim.config.fix_interval,

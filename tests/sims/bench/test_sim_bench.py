@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from sims.bench.sim_bench import _per_viewer_s
 from sims.engine.local import run_local
 from sims.engine.sim import Sim, SimConfig
@@ -38,3 +40,5 @@ def test_fleet_rates_time_a_second_window_of_the_same_run():
     assert 0.0 < w["share"] <= 1.0
     # a second window that would overlap the first is not taken
     assert "warm" not in _fleet_rates(grid(), 20, 3, 2, warm=4)
+    with pytest.raises(ValueError, match="at least 1 simulated s"):
+        _fleet_rates(grid(), 20, 0, 2)
