@@ -2,6 +2,12 @@
 
 Built lazily from the artifact (shapely STRtree; a few ms for the Helsinki map). Later fixes use continuity on
 the compiled arrays in the client core, not this index.
+
+Answers for many points at once: `place_many` (kind, index, distance) and `prime`, which computes `place`'s whole
+answer for a batch of points in one vectorised pass and keeps it until the next `prime`, so that the `place`
+calls a fleet's scalar fixes then make for those points are dictionary lookups. Why: one `place` is a dozen
+shapely calls (40-100 us on the 2-core machine), the batch about 10 us a point; a fleet's first fixes, its
+re-placements and its fixes leaving an area ask it for hundreds of points a tick (issue 23: the start's burst).
 """
 
 from __future__ import annotations
@@ -13,6 +19,9 @@ import shapely
 from shapely import GeometryType
 
 from topology.networks import PEDESTRIAN, TRAM, VEHICLE, Placement
+
+_MISSING = object()
+PRIMED_MAX = 1_000_000  # the most answers `prime` keeps (a caller that keeps adding batches starts afresh)
 
 
 class PlacementIndex:
@@ -31,6 +40,9 @@ class PlacementIndex:
             self.trees[bit] = (shapely.STRtree(lines[idx]), idx)
         self.areas = topo.area_polygons.to_shapely()
         self.area_tree = shapely.STRtree(self.areas)
+        # `prime`'s answers, by (x, y, networks): only the latest batch's (a memo of a pure function)
+        self._primed: dict[tuple[float, float, int], Placement | None] = {}
+        self.primed_hits = 0
 
     def place(self, x: float, y: float, networks: int = PEDESTRIAN | VEHICLE | TRAM) -> Placement | None:
         """Where a point is on the networks `networks` (bitmask); None if the map has no such network.
@@ -38,6 +50,12 @@ class PlacementIndex:
         Deterministic: equidistant edges resolve to the lowest edge id."""
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ValueError(f"cannot place a non-finite point ({x}, {y})")
+        primed = self._primed
+        if primed:
+            hit = primed.get((x, y, networks), _MISSING)
+            if hit is not _MISSING:
+                self.primed_hits += 1
+                return hit
         pt = shapely.Point(x, y)
         for a in sorted(self.area_tree.query(pt, predicate="intersects")):
             if self.topo.area_networks[a] & networks:
@@ -95,6 +113,38 @@ class PlacementIndex:
             first = np.r_[True, s[1:] != s[:-1]]
             kind[s[first]], index[s[first]], dist[s[first]] = 1, e[first], d[first]
         return kind, index, dist
+
+    def prime(self, xy: np.ndarray, networks: int, *, keep: bool = False) -> int:
+        """Compute `place(x, y, networks)` for every finite point of the (n, 2) array `xy` in one pass and keep the
+        answers for the `place` calls that follow, in place of the earlier batches' (`keep`: beside them, for a
+        caller priming several network masks for one step), so the memo holds one step's points.
+        Points with a coordinate of 0.0 are left out (0.0 and -0.0 are one key, and an area's answer keeps the
+        point's own coordinates). The answers are `place`'s exactly: the same GEOS queries, distances and
+        projections, vectorised (tests/topology/test_placement_index.py). Returns how many points were kept."""
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        finite = np.isfinite(xy).all(axis=1) & (xy != 0.0).all(axis=1)
+        xy = xy[finite]
+        if not keep or len(self._primed) + len(xy) > PRIMED_MAX:
+            self._primed = {}
+        if not len(xy):
+            return 0
+        kind, index, dist = self.place_many(xy, networks)
+        on_edge = np.flatnonzero(kind == 1)
+        offsets = np.zeros(len(xy))
+        if len(on_edge):
+            offsets[on_edge] = shapely.line_locate_point(self.lines[index[on_edge]], shapely.points(xy[on_edge]))
+        memo = self._primed
+        point_at = self.topo.point_at
+        for (x, y), k, i, d, off in zip(xy.tolist(), kind.tolist(), index.tolist(), dist.tolist(),
+                                        offsets.tolist(), strict=True):
+            if k == 2:
+                memo[(x, y, networks)] = Placement("area", i, 0.0, x, y, 0.0)
+            elif k == 1:
+                px, py = point_at(i, off)
+                memo[(x, y, networks)] = Placement("edge", i, off, float(px), float(py), d)
+            else:
+                memo[(x, y, networks)] = None
+        return len(xy)
 
     def nearest_edges(self, xy: np.ndarray, networks: int) -> tuple[np.ndarray, np.ndarray]:
         """Vectorised: (edge id, distance) of the nearest edge of `networks` for each point in (n, 2) `xy`."""

@@ -75,11 +75,15 @@ def _mid(s: dict, resolution: int) -> int | None:
 
 
 def realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: float, server_process: bool = False,
-                   measured: int | None = None) -> dict[str, Any]:
+                   measured: int | None = None, settle_gc: bool = True) -> dict[str, Any]:
     """One real-time run of `n` entities and `viewers` viewers over loopback sockets at speed 1, the server in
     this process or in a child; `measured`: only that many viewers measured, the others counted
     (`SimConfig.measured_viewers`). Real time is kept when tick lateness p99 is under one tick and no tick is
-    more than one tick behind. Also the CPU seconds of this process and the child's, and missed visibility."""
+    more than one tick behind. Also the CPU seconds of this process and the child's, and missed visibility.
+    `settle_gc`: the garbage collector settled after the start as `entitynet sim` settles it in its own process
+    (`ShellConfig.settle_gc`, sims/engine/collector.py; given back when the trial ends). Why by default: the
+    trial measures what the command keeps in real time, and without it full collections of the run's growing
+    heap (140-260 ms each at 4,000 entities, every 5-10 s) were the ticks that fell behind."""
     import trio
 
     from sims.engine.sim import Sim, SimConfig
@@ -89,7 +93,8 @@ def realtime_trial(topo, artifact, schedule, n: int, viewers: int, seconds: floa
     sim = Sim(topo, SimConfig(entities=n, viewers=viewers, seed=11, measure_share=RT_MEASURE_SHARE,
                               measured_viewers=measured), schedule)
     shell = Shell(sim, ShellConfig(duration=seconds + WARMUP_TICKS * sim.dt, speed=1.0, summary_every=1e9,
-                                   artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS), lambda m: None)
+                                   artifact=artifact, keys=False, warmup_ticks=WARMUP_TICKS, settle_gc=settle_gc),
+                  lambda m: None)
     cpu0, server_cpu = time.process_time(), None
     if server_process:
         with ServerChild(artifact) as child:

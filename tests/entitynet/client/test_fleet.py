@@ -18,7 +18,7 @@ import pytest
 
 from entitynet.client import Player, fleet_fix, netview
 from entitynet.client.fixes import FixRejected
-from entitynet.client.fleet import FleetCore, _deadline
+from entitynet.client.fleet import PRIME_MIN, FleetCore, _deadline
 from entitynet.client.path import Path
 from tests.entitynet.client.test_player_replay import _walk_path
 from tests.entitynet.client_fixtures import area_square, chain, cross, make_topology, parallel
@@ -64,12 +64,13 @@ def _doppler(rng, path: Path, s: float, v: float) -> tuple[float, float]:
     return max(abs(v) + float(rng.normal(0.0, 0.3)), 0.0), (heading + float(rng.normal(0.0, 4.0))) % 360.0
 
 
-def _run(topo, n: int = 12, seed: int = 1, ticks: int = 240, doppler: bool = False):
+def _run(topo, n: int = 12, seed: int = 1, ticks: int = 240, doppler: bool = False, prime_min: int = PRIME_MIN):
     """Drive both sides; returns (per-tick messages per entity for each side, the core, the players).
-    `doppler`: the fixes come with the receiver's velocity (`_doppler`; one with a speed but no course, refused)."""
+    `doppler`: the fixes come with the receiver's velocity (`_doppler`; one with a speed but no course, refused).
+    `prime_min`: the fleet's batch placements from so many fixes (1: every scalar fix that asks is primed)."""
     ents = _twins(topo, n, seed)
     rng = np.random.default_rng(seed + 100)
-    core = FleetCore(capacity=4)  # grows while adding
+    core = FleetCore(capacity=4, prime_min=prime_min)  # grows while adding
     slots = [core.add(e[1]) for e in ents]
     s = [0.0] * n
     gaps = {1: (60.0, 69.0), 2: (80.0, 110.0)}  # no fixes: entity 1's ghost halts (gap), entity 2 is lost
@@ -136,8 +137,13 @@ AREA = area_square()
 def test_fleet_core_publishes_what_each_player_publishes(topo, share, seed, doppler):
     """`share`: the least fraction of fixes the arrays must carry (in the area map every way ends at the
     area: only fixes beyond the switch margin, outside the area, are decided in arrays). `doppler`: the fixes
-    carry the receiver's velocity (as a proxy's vehicles do), folded in by the arrays too."""
-    got_a, got_b, core, ents = _run(topo, seed=seed, doppler=doppler)
+    carry the receiver's velocity (as a proxy's vehicles do), folded in by the arrays too. Odd seeds prime the
+    placement index for every scalar fix that asks it (`prime_min=1`): the primed answers give the same
+    messages."""
+    prime_min = 1 if seed % 2 else PRIME_MIN
+    index = topo.placement_index()
+    hits = index.primed_hits
+    got_a, got_b, core, ents = _run(topo, seed=seed, doppler=doppler, prime_min=prime_min)
     for k, (a, b) in enumerate(zip(got_a, got_b, strict=True)):
         assert a == b, f"tick {k}: per-entity {a} != fleet {b}"
     c = core.counters
@@ -148,6 +154,8 @@ def test_fleet_core_publishes_what_each_player_publishes(topo, share, seed, dopp
     assert c["vector_best_on"] > 0 and c["vector_hysteresis"] > 0, c
     assert c["vector_publishes"] > 0  # (decided in arrays, built by the Player)
     assert (c["vector_velocity"] > 0) == doppler, c  # (the velocity folded in by the arrays)
+    if prime_min == 1:  # (the first fixes at least were primed, and their placements read from the batch)
+        assert c["primed_places"] >= len(ents) and index.primed_hits - hits >= len(ents), c
     stats: dict[str, int] = {}
     for e in ents:  # (stats change only in scalar calls: the fleet's players hold them)
         for key, v in e[1].stats.items():
