@@ -40,7 +40,7 @@ import numpy as np
 from entitynet.client.fixes import FixRejected, velocity
 from entitynet.client.fleet_fix import SCALAR_WHY, WHY, fast_fixes
 from entitynet.client.fleet_kernels import Geometry, compiled
-from entitynet.client.fleet_near import NearTables
+from entitynet.client.fleet_near import NearTables, by_placement_index
 from entitynet.client.modes import EDGE
 from entitynet.client.motion import NetworkModel
 from entitynet.client.player import Player
@@ -317,19 +317,18 @@ class FleetCore:
         ask = np.flatnonzero(~done & np.isin(why, _PRIMED_CODES))
         if len(ask) < self.prime_min:
             return
-        groups: dict[tuple[int, int], tuple[object, list[int]]] = {}
+        asking = []
         players = self.players
         for k in ask.tolist():
             p = players[int(due[k])]
             trk = None if p is None else p.tracker
             if trk is not None:
-                placer = trk.placer
-                if why[k] == _AREA_CODE and trk.area >= 0 and placer.inside_area(trk.area, float(x[k]),
-                                                                                        float(y[k])):
+                if why[k] == _AREA_CODE and trk.area >= 0 and trk.placer.inside_area(trk.area, float(x[k]),
+                                                                                            float(y[k])):
                     continue  # (a fix inside its area: `track` asks no placement)
-                groups.setdefault((id(placer.topo), placer.networks), (placer, []))[1].append(k)
+                asking.append((k, trk))
         primed: set[int] = set()  # (the indexes primed this step: each keeps its step's batches together)
-        for placer, rows in groups.values():
+        for placer, rows in by_placement_index(asking):
             if len(rows) >= self.prime_min:
                 w = np.array(rows, dtype=np.int64)
                 index = placer.topo.placement_index()

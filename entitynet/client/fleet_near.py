@@ -320,6 +320,16 @@ def near_fixes(core, sl: np.ndarray, x: np.ndarray, y: np.ndarray, s_pred: np.nd
     return why, fe, off, px, py, d, s_fix, pend_e, pend_n, retried
 
 
+def by_placement_index(rows_and_trackers) -> list[tuple[object, list[int]]]:
+    """The (row, tracker) pairs grouped by what their placement-index queries share (the map's index and the
+    placer's network mask): per group one of its placers and its rows, in first-seen order. One batch query per
+    group (`placed_afresh`, `FleetCore._prime_places`)."""
+    groups: dict[tuple[int, int], tuple[object, list[int]]] = {}
+    for i, trk in rows_and_trackers:
+        groups.setdefault((id(trk.placer.topo), trk.placer.networks), (trk.placer, []))[1].append(i)
+    return list(groups.values())
+
+
 def placed_afresh(players, sl: np.ndarray, x: np.ndarray, y: np.ndarray, fe: np.ndarray, d: np.ndarray,
                   swm: np.ndarray) -> np.ndarray:
     """Per fix whether `track`'s consistency query (`NetworkTracker._first`) places the entity afresh: an area,
@@ -331,11 +341,8 @@ def placed_afresh(players, sl: np.ndarray, x: np.ndarray, y: np.ndarray, fe: np.
     index's answer plus the route margin, as in `_first`."""
     m = len(sl)
     kind, index, dist = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64), np.zeros(m)
-    groups: dict[tuple[int, int], tuple[object, list[int]]] = {}
     trackers = [players[s].tracker for s in sl.tolist()]
-    for i, trk in enumerate(trackers):
-        groups.setdefault((id(trk.placer.topo), trk.placer.networks), (trk.placer, []))[1].append(i)
-    for placer, rows in groups.values():
+    for placer, rows in by_placement_index(enumerate(trackers)):
         w = np.array(rows, dtype=np.int64)
         kind[w], index[w], dist[w] = placer.topo.placement_index().place_many(np.column_stack([x[w], y[w]]),
                                                                               placer.networks)
