@@ -6,10 +6,11 @@ state's field accessors (entitynet/client/_columns.pyx), the lateral cover's can
 (entitynet/client/_payload.pyx), `Path.xy` (entitynet/client/_geom.pyx), the cell occupation
 (entitynet/client/_occupy.pyx; the network model's publish cover around it, _cover.pyx), the fleet core's kernels
 (entitynet/client/_fleet.pyx), the codec's PUBLISH loop (entitynet/protocol/_decode.pyx) and the ghost table's
-per-message queue (entitynet/client/_ghost_queue.pyx); everything else is in pyproject.toml. Optional on purpose:
+per-message queue (entitynet/client/_ghost_queue.pyx), and the simulation's viewer frame walk
+(sims/engine/_frame_walk.pyx); everything else is in pyproject.toml. Optional on purpose:
 without a C compiler the build goes on and the pure-Python paths (the references, `entitynet.switchboard.outbox`,
 `entitynet.server.flushloop` and `entitynet.server.hubpass`, `entitynet.client.state.column`, the codec's
-`_decode_one`) are used."""
+`_decode_one`, `sims.engine.message_cache`'s Python walk) are used."""
 
 from setuptools import Extension, setup
 
@@ -32,7 +33,8 @@ else:
          Extension("entitynet.client._cover", ["entitynet/client/_cover.pyx"], optional=True),
          Extension("entitynet.client._fleet", ["entitynet/client/_fleet.pyx"], optional=True),
          Extension("entitynet.protocol._decode", ["entitynet/protocol/_decode.pyx"], optional=True),
-         Extension("entitynet.client._ghost_queue", ["entitynet/client/_ghost_queue.pyx"], optional=True)],
+         Extension("entitynet.client._ghost_queue", ["entitynet/client/_ghost_queue.pyx"], optional=True),
+         Extension("sims.engine._frame_walk", ["sims/engine/_frame_walk.pyx"], optional=True)],
         language_level=3,
         quiet=True,
     )
