@@ -6,9 +6,9 @@ viewers, and the Python walk (msgpack's `Unpacker.skip` and `tell` per message, 
 0.75 us each: the largest single part of the coordinator's tick after the fleet. msgpack's Python API has no call
 that gives where each element of an array ends, so this walks the frame itself: it reads the array header, finds
 the end of each message by the msgpack format's type bytes (the format's own rules; it builds no objects), and
-looks each message's bytes up in the cache's table.
+looks each message's bytes up in the cache's tables.
 
-It never decides a message's validity: a message not in the table goes to the caller's `new(piece, size)` (the
+It never decides a message's validity: a message in none of the tables goes to the cache's `_decode_new` (the
 codec, alone on that message), and any frame it does not take whole (not one array, more than `max_messages`, a
 truncated or trailing object, the never-used byte 0xc1) returns None, and the caller hands the frame to the codec
 for the answer or the error. So every message it returns either came from the codec now or has the very bytes of
@@ -105,15 +105,22 @@ cdef Py_ssize_t _end_of(const unsigned char* p, Py_ssize_t i, Py_ssize_t n) noex
     return i if i <= n else -1
 
 
-def walk(bytes payload, dict known, Py_ssize_t max_messages, object out, new):
-    """Append the frame's messages to `out`: each message's bytes looked up in `known`, else `new(piece, size)`
-    (None: refused). Returns (messages decoded anew, offset of the first message), or None where the frame is not
-    taken whole (the caller asks the codec then; `out`, a list or a subclass of it, may hold part of the frame)."""
+def walk(bytes payload, cache, Py_ssize_t max_messages, object out):
+    """Append the frame's messages to `out` (a list or a subclass of it), for `cache`, a
+    `message_cache.MessageCache`: each message's bytes looked up in its tick's table (`_messages`), else in its
+    kept generations (`_kept`, `_kept_old`; then recorded as `_decode_new` records it), else handed to
+    `cache._decode_new(piece, size)` (None: refused), which also takes every case that would start a new
+    generation or clear the table. Returns (messages not in the tick's table, offset of the first message), or
+    None where the frame is not taken whole (the caller asks the codec then; `out` may hold part of the frame)."""
     cdef const unsigned char* p = <const unsigned char*>PyBytes_AS_STRING(payload)
     cdef Py_ssize_t n = PyBytes_GET_SIZE(payload), i, end, first, misses = 0
+    cdef Py_ssize_t keep = cache.keep, max_known = cache.max_entries
     cdef unsigned long long count, j
     cdef unsigned char b
     cdef PyObject* hit
+    cdef bint promote
+    cdef dict known = cache._messages, sizes = cache._sizes, kept = cache._kept, old = cache._kept_old
+    new, on_new = cache._decode_new, cache.on_new
     if n < 1:
         return None
     b = p[0]
@@ -134,14 +141,32 @@ def walk(bytes payload, dict known, Py_ssize_t max_messages, object out, new):
             return None
         piece = PyBytes_FromStringAndSize(<const char*>p + i, end - i)
         hit = PyDict_GetItem(known, piece)
-        if hit is NULL:
+        if hit is not NULL:
+            PyList_Append(out, <object>hit)
+            i = end
+            continue
+        misses += 1
+        # kept from an earlier tick: recorded here unless that would start a generation or clear the table
+        promote = False
+        if len(known) < max_known:
+            hit = PyDict_GetItem(kept, piece)
+            if hit is NULL and len(kept) < keep:
+                hit = PyDict_GetItem(old, piece)
+                promote = True
+        if hit is not NULL:
+            m = <object>hit
+            if promote:
+                kept[piece] = m
+            known[piece] = m
+            sizes[id(m)] = (m, end - i)
+            if on_new is not None:
+                on_new(m)
+        else:
             m = new(piece, end - i)
             if m is None:
                 return None
-            misses += 1
-            PyList_Append(out, m)
-        else:
-            PyList_Append(out, <object>hit)
+            known, sizes, kept, old = cache._messages, cache._sizes, cache._kept, cache._kept_old
+        PyList_Append(out, m)
         i = end
     if i != n:
         return None

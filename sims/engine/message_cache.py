@@ -117,7 +117,7 @@ class MessageCache:
             return P.decode_payload(payload, lim)  # raises FRAME_TOO_LARGE
         out = Frame()
         if self._walk is not None:  # (the same walk in C: where each message ends, by the format's type bytes)
-            got = self._walk(payload, self._messages, lim.max_messages, out, self._decode_new)
+            got = self._walk(payload, self, lim.max_messages, out)
             if got is None:
                 return P.decode_payload(payload, lim)  # not one array of whole messages, or a message refused
             self.misses += got[0]

@@ -175,7 +175,12 @@ def _pieces_by_msgpack(payload: bytes):
 def test_the_compiled_walk_finds_msgpacks_own_boundaries_for_every_kind_of_value():
     if message_cache._COMPILED is None:
         pytest.skip("sims/engine/_frame_walk.pyx was not built (no C compiler)")
-    walk = message_cache._COMPILED.walk
+    pieces = MessageCache(max_entries=10**9)
+    pieces._decode_new = lambda piece, size: piece  # (every message new: its bytes, as the walk cut them)
+
+    def walk(data: bytes, max_messages: int, out: list):
+        return message_cache._COMPILED.walk(data, pieces, max_messages, out)
+
     rng = random.Random(7)
     for trial in range(400):
         n = rng.choice([0, 1, 3, 15, 16, 40])
@@ -189,17 +194,17 @@ def test_the_compiled_walk_finds_msgpacks_own_boundaries_for_every_kind_of_value
             variants.append(bytes(b))
         for data in variants:
             got: list = []
-            res = walk(data, {}, 1_000_000, got, lambda piece, size: piece)
+            res = walk(data, 1_000_000, got)
             want = _pieces_by_msgpack(data)
             if want is None:
                 assert res is None, data[:40]
             else:
                 assert res is not None and got == want and res[0] == len(want), data[:40]
     # a frame's header counts more messages than it holds; an absurd length inside a message; an empty frame
-    assert walk(b"\xdd\xff\xff\xff\xff\x90", {}, 10**12, [], lambda p, s: p) is None
-    assert walk(b"\x91\xdb\xff\xff\xff\xff", {}, 10, [], lambda p, s: p) is None
-    assert walk(b"", {}, 10, [], lambda p, s: p) is None
-    assert walk(b"\x90", {}, 10, [], lambda p, s: p) == (0, 1)
+    assert walk(b"\xdd\xff\xff\xff\xff\x90", 10**12, []) is None
+    assert walk(b"\x91\xdb\xff\xff\xff\xff", 10, []) is None
+    assert walk(b"", 10, []) is None
+    assert walk(b"\x90", 10, []) == (0, 1)
 
 
 def test_messages_are_kept_across_clears_within_their_generations(make_cache):
@@ -238,3 +243,25 @@ def test_the_kept_messages_are_bounded_in_count_and_in_clears(make_cache):
         make_cache(keep=-1)
     with pytest.raises(ValueError):
         make_cache(keep_clears=0)
+
+
+def test_both_walks_keep_and_count_alike_through_generations_and_clears():
+    if message_cache._COMPILED is None:
+        pytest.skip("sims/engine/_frame_walk.pyx was not built (no C compiler)")
+    rng = random.Random(11)
+    pool = [P.Leave(i) for i in range(40)] + _frame(40, seed=12)[0]
+    told: dict[str, list] = {"compiled": [], "python": []}
+    caches = {w: MessageCache(max_entries=25, keep=7, keep_clears=3, on_new=told[w].append) for w in told}
+    caches["python"]._walk = None
+    for step in range(300):
+        frame = P.encode_payload(rng.sample(pool, rng.randint(1, 12)))
+        got = {w: c.decode(frame) for w, c in caches.items()}
+        assert got["compiled"] == got["python"] == P.decode_payload(frame)
+        if rng.random() < 0.2:
+            for c in caches.values():
+                c.clear()
+        a, b = caches["compiled"], caches["python"]
+        assert (a.hits, a.misses, a.decoded, a._clears) == (b.hits, b.misses, b.decoded, b._clears), step
+        assert (list(a._kept), list(a._kept_old), list(a._messages)) == \
+            (list(b._kept), list(b._kept_old), list(b._messages)), step
+    assert told["compiled"] == told["python"]
