@@ -24,6 +24,7 @@ import numpy as np
 
 from entitynet.client.ghost_table import csr_take
 from entitynet.client.network import NetView
+from sims.engine.route_table import RouteTable
 from sims.engine.source import Truth
 from sims.engine.truth_arrays import EdgeArrays, truth_arrays
 from sims.engine.viewers import SimViewer
@@ -71,7 +72,8 @@ class Measure:
         (`truth_arrays`), then per viewer its subscribed cells as a mask over every (entity, cell) the truth
         occupies; its drawn ghosts read from the viewers' ghost table over arrays (`_drawn`), and the stale test
         over (ghost, cell) pairs (`_claims_met`)."""
-        truth = truth_arrays(world.agents, self._edge_arrays(world))
+        table = getattr(world, "routes", None)  # our World's route table (another source has none)
+        truth = truth_arrays(world.agents, self._edge_arrays(world), table if isinstance(table, RouteTable) else None)
         n = len(truth.ids)
         pair_row = np.repeat(np.arange(n), np.diff(truth.cell_off))
         # the mask's slots: every cell id from `low` (below 0 only where another source's body says so) to past

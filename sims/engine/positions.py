@@ -17,53 +17,22 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sims.engine.agents import Agent
 from sims.engine.route_table import RouteTable
-from sims.engine.truth_arrays import EdgeArrays, lateral_points
+from sims.engine.truth_arrays import EdgeArrays, lateral_points, route_points
 
 
 def positions(bodies: Sequence, edges: EdgeArrays, table: RouteTable | None = None) -> np.ndarray:
     """(n, 2) local positions of `bodies` (the front, in its lane), exactly what each one's `xy()` returns.
     `table`: the world's `RouteTable` (where along its route each entity is, found for all at once); without
-    it, one `Route.edge_offset` per point."""
-    n = len(bodies)
-    out = np.zeros((n, 2))
-    rows: list[int] = []
-    lat: list[float] = []
-    pe: list[int] = []  # three points per entity on its route: its place, 1 m behind, 1 m ahead
-    po: list[float] = []
-    rts: list[tuple[int, int]] = []
-    ss: list[float] = []
+    it, one `Route.edge_offset` per point (`truth_arrays.route_points`)."""
+    out = np.zeros((len(bodies), 2))
+    rows, lat, e, o = route_points(bodies, table)
+    on_route = set(rows)
     for i, a in enumerate(bodies):
-        if type(a) is not Agent or (a.area is not None and a.in_area_since is not None):
+        if i not in on_route:
             out[i] = a.xy()
-            continue
-        rows.append(i)
-        lat.append(a.lateral)
-        if table is not None:
-            rts.append(a._rt)
-            ss.append(a.s)
-            continue
-        r = a.route
-        s = max(a.s, 0.0)
-        e0, o0 = r.edge_offset(s)
-        e1, o1 = r.edge_offset(max(s - 1.0, 0.0))
-        e2, o2 = r.edge_offset(min(s + 1.0, r.length))
-        pe += (e0, e1, e2)
-        po += (o0, o1, o2)
     if not rows:
         return out
-    if table is not None:
-        rt = np.array(rts, dtype=np.int64).reshape(-1, 2)
-        s = np.array(ss)
-        s = np.where(0.0 > s, 0.0, s)  # max(s, 0.0)
-        behind = s - 1.0
-        ahead = s + 1.0
-        length = table.rlen[rt[:, 0]]
-        q = np.stack([s, np.where(0.0 > behind, 0.0, behind), np.where(length < ahead, length, ahead)], axis=1)
-        e, o = table.edge_offsets(np.repeat(rt[:, 0], 3), np.repeat(rt[:, 1], 3), q.reshape(-1))
-    else:
-        e, o = np.array(pe, dtype=np.int64), np.array(po)
     idx = np.array(rows)
     out[idx, 0], out[idx, 1] = lateral_points(edges, e, o, lat)
     return out

@@ -2,10 +2,10 @@
 
 Why: a sample of truth against viewers asked each entity for `xy()` and `cells()`, which walk the route and the
 edge geometry through half a dozen Python calls per point (three points per entity: its place and 1 m either
-side for the lane's heading), about a third of a sample's cost at 1,600 entities. Here one Python pass per
-entity only finds where along its route it is (the route's cumulative distances, one bisection per point),
-and the edge geometry and cell breakpoints are looked up for all entities at once over the artifact's flat
-arrays (`EdgeArrays`).
+side for the lane's heading), about a third of a sample's cost at 1,600 entities. Here where along its route
+each entity is comes from the world's `RouteTable` for all at once (`route_points`; without one, one
+bisection per point on the route's cumulative distances), and the edge geometry and cell breakpoints are
+looked up for all entities at once over the artifact's flat arrays (`EdgeArrays`).
 
 Exact: the lookups repeat `NetView.point`, `NetView.cell_at` and `Route.xy`'s IEEE operations in the same
 order (the global search is corrected to the same index a per-edge bisection finds; the heading's norm goes
@@ -18,13 +18,14 @@ trams) for the cells their length covers.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from entitynet.client.network import NetView
 from sims.engine.agents import Agent
+from sims.engine.route_table import RouteTable
 
 
 def lateral_points(edges, e: np.ndarray, o: np.ndarray, lat) -> tuple[np.ndarray, np.ndarray]:
@@ -131,41 +132,71 @@ class TruthArrays:
         return tuple(self.cells[self.cell_off[row]:self.cell_off[row + 1]].tolist())
 
 
-def truth_arrays(agents: Mapping[int, object], edges: EdgeArrays | None) -> TruthArrays:
+def route_points(bodies: Sequence, table: RouteTable | None = None) -> tuple[list[int], list[float], np.ndarray,
+                                                                          np.ndarray]:
+    """Where the bodies that are on their route are: their indices in `bodies`, their lateral offsets and the
+    (edge, offset) of three points each (the place, 1 m behind, 1 m ahead: `Route.xy`'s, clamped to the route),
+    found by the world's `RouteTable` for all at once, or without it one `Route.edge_offset` per point. The
+    others (not our `Agent`, or inside an area walk) are left out: ask them. The one home of that lookup for
+    the fleet's fix positions (sims/engine/positions.py) and the truth measure."""
+    rows: list[int] = []
+    lat: list[float] = []
+    pe: list[int] = []
+    po: list[float] = []
+    rts: list[tuple[int, int]] = []
+    ss: list[float] = []
+    for i, a in enumerate(bodies):
+        if type(a) is not Agent or (a.area is not None and a.in_area_since is not None):
+            continue
+        rows.append(i)
+        lat.append(a.lateral)
+        if table is not None:
+            rts.append(a._rt)
+            ss.append(a.s)
+            continue
+        r = a.route
+        s = max(a.s, 0.0)
+        e0, o0 = r.edge_offset(s)
+        e1, o1 = r.edge_offset(max(s - 1.0, 0.0))
+        e2, o2 = r.edge_offset(min(s + 1.0, r.length))
+        pe += (e0, e1, e2)
+        po += (o0, o1, o2)
+    if table is None or not rows:
+        return rows, lat, np.array(pe, dtype=np.int64), np.array(po)
+    rt = np.array(rts, dtype=np.int64).reshape(-1, 2)
+    s = np.array(ss)
+    s = np.where(0.0 > s, 0.0, s)  # max(s, 0.0)
+    behind = s - 1.0
+    ahead = s + 1.0
+    length = table.rlen[rt[:, 0]]
+    q = np.stack([s, np.where(0.0 > behind, 0.0, behind), np.where(length < ahead, length, ahead)], axis=1)
+    e, o = table.edge_offsets(np.repeat(rt[:, 0], 3), np.repeat(rt[:, 1], 3), q.reshape(-1))
+    return rows, lat, e, o
+
+
+def truth_arrays(agents: Mapping[int, object], edges: EdgeArrays | None,
+                 table: RouteTable | None = None) -> TruthArrays:
     """The truth of `agents` (a world's live entities by id) as arrays. `edges`: the map's `EdgeArrays` (None:
-    every entity is asked for `xy()` and `cells()`, as for a source whose bodies are not our agents)."""
+    every entity is asked for `xy()` and `cells()`, as for a source whose bodies are not our agents); `table`:
+    the world's `RouteTable` (`route_points`)."""
     ids = sorted(agents)
     n = len(ids)
     x = np.zeros(n)
     y = np.zeros(n)
-    fast_rows: list[int] = []
-    lat: list[float] = []
-    pe: list[int] = []  # three points per fast entity: its place, 1 m behind, 1 m ahead (the heading's)
-    po: list[float] = []
+    bodies = [agents[aid] for aid in ids]
+    fast_rows, lat, e, o = route_points(bodies, table) if edges is not None else ([], [], None, None)
     own: dict[int, tuple[int, ...]] = {}  # row -> cells of an entity asked for them
-    for i, aid in enumerate(ids):
-        a = agents[aid]
-        if edges is None or type(a) is not Agent or (a.area is not None and a.in_area_since is not None):
+    on_route = set(fast_rows)
+    for i, a in enumerate(bodies):
+        if i not in on_route:
             x[i], y[i] = a.xy()
             own[i] = tuple(a.cells())
-            continue
-        if a.params.length > 0.0:  # a body along the route: its cells are the pieces it covers
+        elif a.params.length > 0.0:  # a body along the route: its cells are the pieces it covers
             own[i] = a.cells()
-        r = a.route
-        s = max(a.s - 0.0, 0.0)
-        e0, o0 = r.edge_offset(s)  # where along its route: the route's own rule, one bisection per point
-        e1, o1 = r.edge_offset(max(s - 1.0, 0.0))
-        e2, o2 = r.edge_offset(min(s + 1.0, r.length))
-        fast_rows.append(i)
-        lat.append(a.lateral)
-        pe += (e0, e1, e2)
-        po += (o0, o1, o2)
     cell_count = np.ones(n, dtype=np.int64)
     front = np.zeros(n, dtype=np.int64)
     if fast_rows:
         rows = np.array(fast_rows)
-        e = np.array(pe, dtype=np.int64)
-        o = np.array(po)
         x[rows], y[rows] = lateral_points(edges, e, o, lat)
         # the front's cell: `Route.cell(min(s, length))` (the place above, s already within the route)
         front[rows] = edges.cells(e[0::3], o[0::3])

@@ -46,6 +46,9 @@ def test_the_arrays_hold_exactly_what_each_entity_says(helsinki):
     ta = truth_arrays(w.agents, EdgeArrays(w.net))
     _same(w, ta)
     _same(w, truth_arrays(w.agents, None))  # no edge arrays: every entity asked
+    by_table = truth_arrays(w.agents, EdgeArrays(w.net), w.routes)  # where along the routes: the world's table
+    _same(w, by_table)
+    assert by_table.x.tobytes() == ta.x.tobytes() and by_table.cells.tolist() == ta.cells.tolist()
     assert ta.rows(np.array([ta.ids[3], -5, ta.ids[-1] + 1000])).tolist() == [3, -1, -1]
 
 
@@ -60,8 +63,10 @@ def test_other_bodies_are_asked_for_their_own_truth(helsinki):
         def cells(self):
             return (self.i, self.i + 1)
 
-    ta = truth_arrays({5: Body(5), 2: Body(2)}, EdgeArrays(World(helsinki).net))
-    assert ta.ids.tolist() == [2, 5] and ta.x.tolist() == [2.0, 5.0] and ta.cells.tolist() == [2, 3, 5, 6]
+    w = World(helsinki)
+    for table in (None, w.routes):
+        ta = truth_arrays({5: Body(5), 2: Body(2)}, EdgeArrays(w.net), table)
+        assert ta.ids.tolist() == [2, 5] and ta.x.tolist() == [2.0, 5.0] and ta.cells.tolist() == [2, 3, 5, 6]
     empty = truth_arrays({}, None)
     assert len(empty.ids) == 0 and empty.rows(np.array([1])).tolist() == [-1]
 
