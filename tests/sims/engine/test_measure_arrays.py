@@ -120,3 +120,39 @@ def test_cells_outside_the_map_count_as_the_per_entity_measure_counts_them():
     reference_sample(ref, 10.0, world, viewers, {})
     _compare(ours, ref)
     assert ref["street"].visible == 4  # -1 sees body 4, -2 body 3, 3 body 2, 2 body 4
+
+
+def test_claims_met_by_one_sort_counts_what_the_pairs_say():
+    """`_claims_met` (one sort of (ghost, cell, side) as an integer; lexsort where the integer would overflow)
+    against the plain count: a ghost meets its claim when one of its claimed cells is one its entity occupies."""
+    import random
+
+    import numpy as np
+
+    from sims.engine import measure as M
+    from sims.engine.truth_arrays import TruthArrays
+
+    class Table:
+        def __init__(self, claims):
+            self.voff = np.concatenate([[0], np.cumsum([len(c) for c in claims])]).astype(np.int64)
+            self.vcells = np.array([c for cs in claims for c in cs], dtype=np.int64)
+
+    rng = random.Random(2)
+    for trial in range(200):
+        lo, hi = (-2**60, 2**60) if trial % 5 == 0 else (-3, 40)  # (spans past the one-integer key: lexsort)
+
+        def pick(lo=lo, hi=hi):
+            return rng.randint(lo, hi)
+        truth_cells = [sorted({pick() for _ in range(rng.randint(1, 4))}) for _ in range(rng.randint(0, 12))]
+        claims = [[pick() for _ in range(rng.randint(0, 5))] for _ in range(rng.randint(0, 15))]
+        truth = TruthArrays(np.arange(len(truth_cells)), np.zeros(len(truth_cells)), np.zeros(len(truth_cells)),
+                            np.concatenate([[0], np.cumsum([len(c) for c in truth_cells])]).astype(np.int64),
+                            np.array([c for cs in truth_cells for c in cs], dtype=np.int64))
+        versions = np.array(rng.sample(range(len(claims)), rng.randint(0, len(claims))), dtype=np.int64)
+        rows = np.array([rng.randrange(-1, len(truth_cells)) if truth_cells else -1 for _ in versions],
+                        dtype=np.int64)
+        want = sum(1 for v, r in zip(versions.tolist(), rows.tolist(), strict=True)
+                   if r >= 0 and set(claims[v]) & set(truth_cells[r]))
+        assert M._claims_met(Table(claims), versions, truth, rows) == want, trial
+        a = np.sort(np.array([rng.randint(0, 9) for _ in range(rng.randint(0, 30))], dtype=np.int64))
+        assert M._distinct_sorted(a).tolist() == np.unique(a).tolist()
