@@ -78,8 +78,34 @@ def test_the_cache_is_bounded():
         with pytest.raises(PayloadError):
             cache(msgpack.packb([99, k]))
         assert len(cache) <= 2
+    one = DecodeCache(sim.world.net, max_entries=1)
+    for k in range(3):
+        with pytest.raises(PayloadError):
+            one(msgpack.packb([99, k]))
+        assert len(one) == 1
     with pytest.raises(ValueError):
         DecodeCache(None, max_entries=0)
+
+
+def test_the_cache_keeps_two_generations_so_a_full_table_is_not_decoded_again_at_once():
+    sim = Sim(grid(), small())
+    cache = DecodeCache(sim.world.net, max_entries=4)
+    pay = [msgpack.packb([99, k]) for k in range(5)]
+
+    def ask(k: int) -> None:
+        with pytest.raises(PayloadError):
+            cache(pay[k])
+
+    for k in (0, 1, 2):  # the third starts a generation: 0 and 1 are the older one
+        ask(k)
+    assert cache.misses == 3 and len(cache) == 3
+    ask(0)  # found in the older generation (not decoded again) and moved to the newer
+    assert cache.misses == 3 and cache.hits == 1
+    ask(3)  # another generation: 2 and 0 the older, 1 gone
+    ask(0)
+    assert cache.misses == 4
+    ask(1)
+    assert cache.misses == 5 and len(cache) <= 4
 
 
 def test_a_measure_share_takes_the_viewers_in_turn():
