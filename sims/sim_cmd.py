@@ -21,15 +21,14 @@ def register(sub) -> None:
     """Add the `sim` subcommand and its options to the CLI's subparsers (called by `entitynet.cli`)."""
     p = sub.add_parser("sim", help="simulate a city (pedestrians, cars, scheduled buses and trams) through honest "
                                    "clients and PVS viewers, with a live summary and a JSON report",
-                       epilog="How large a run keeps real time: on a quiet 2-core machine about 3,600 entities "
-                              "with 360 viewers, the viewers in a process of their own (the default on 2-4 cores "
-                              "from 200 viewers, --viewer-processes), 3,200 with them in this process (entitynet "
-                              "bench sim, entities_realtime_max); from 1,000 entities or 100 viewers at --speed 1 "
-                              "or more the server runs in a child process (--server-process). At 4,400 entities "
-                              "and 440 viewers the viewer process falls behind (docs/simulation.md). "
-                              "A larger run still steps every tick, late: the live summary "
-                              "shows the tick lateness, and a warning says when the run falls behind (then every "
-                              "30 s while it lasts). --speed 0.5 halves the load.")
+                       epilog="How large a run keeps real time: on a quiet 2-core machine about 5,200 entities "
+                              "with 520 viewers, the server in a child process (from 1,000 entities or 100 viewers "
+                              "at --speed 1 or more, --server-process), 4,800 with it in this process, and 8,000 "
+                              "with 800 viewers of which a tenth keep ghosts and are measured (--measured-viewers), "
+                              "the viewers in this process as in entitynet bench sim's ladders (--viewer-processes "
+                              "0; docs/simulation.md). A larger run still steps every tick, late: "
+                              "the live summary shows the tick lateness, and a warning says when the run falls "
+                              "behind (then every 30 s while it lasts). --speed 0.5 halves the load.")
     p.add_argument("--entities", type=bounded_int(0, 1_000_000),
                    default=300, help="pedestrians and cars on the map (default 300)")
     p.add_argument("--car-share", type=bounded_float(0, 1), default=0.3, help="share of cars among them (default 0.3)")
