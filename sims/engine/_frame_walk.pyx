@@ -29,6 +29,19 @@ cdef inline unsigned long long _be(const unsigned char* p, int k) noexcept nogil
     return v
 
 
+cdef inline Py_ssize_t _past_sized(const unsigned char* p, Py_ssize_t i, Py_ssize_t n, int k,
+                                   int extra) noexcept nogil:
+    """Past a sized object's body whose k-byte length starts at `i` (then `extra` bytes: ext's type byte, then
+    the data), or -1 where it does not fit within `n` bytes."""
+    cdef unsigned long long ln
+    if i + k > n:
+        return -1
+    ln = _be(p + i, k)
+    if ln + extra > <unsigned long long>(n - i - k):
+        return -1
+    return i + k + extra + <Py_ssize_t>ln
+
+
 cdef Py_ssize_t _end_of(const unsigned char* p, Py_ssize_t i, Py_ssize_t n) noexcept nogil:
     """The offset just past the msgpack object that starts at `i` (its nested elements included), or -1 where it
     does not end within `n` bytes or holds the never-used byte 0xc1. Counts the objects still to pass instead of
@@ -56,21 +69,13 @@ cdef Py_ssize_t _end_of(const unsigned char* p, Py_ssize_t i, Py_ssize_t n) noex
         elif b == 0xc1:
             return -1
         elif b <= 0xc6:  # bin 8, 16, 32
-            k = 1 << (b - 0xc4)
-            if i + k > n:
+            i = _past_sized(p, i, n, 1 << (b - 0xc4), 0)
+            if i < 0:
                 return -1
-            ln = _be(p + i, k)
-            if ln > <unsigned long long>(n - i - k):
-                return -1
-            i += k + <Py_ssize_t>ln
         elif b <= 0xc9:  # ext 8, 16, 32: length, type byte, data
-            k = 1 << (b - 0xc7)
-            if i + k > n:
+            i = _past_sized(p, i, n, 1 << (b - 0xc7), 1)
+            if i < 0:
                 return -1
-            ln = _be(p + i, k)
-            if ln + 1 > <unsigned long long>(n - i - k):
-                return -1
-            i += k + 1 + <Py_ssize_t>ln
         elif b == 0xca:  # float 32
             i += 4
         elif b == 0xcb:  # float 64
@@ -82,13 +87,9 @@ cdef Py_ssize_t _end_of(const unsigned char* p, Py_ssize_t i, Py_ssize_t n) noex
         elif b <= 0xd8:  # fixext 1, 2, 4, 8, 16: type byte, data
             i += 1 + (1 << (b - 0xd4))
         elif b <= 0xdb:  # str 8, 16, 32
-            k = 1 << (b - 0xd9)
-            if i + k > n:
+            i = _past_sized(p, i, n, 1 << (b - 0xd9), 0)
+            if i < 0:
                 return -1
-            ln = _be(p + i, k)
-            if ln > <unsigned long long>(n - i - k):
-                return -1
-            i += k + <Py_ssize_t>ln
         else:  # array 16, 32 (0xdc, 0xdd) and map 16, 32 (0xde, 0xdf)
             k = 2 if b == 0xdc or b == 0xde else 4
             if i + k > n:
