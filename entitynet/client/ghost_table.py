@@ -308,6 +308,18 @@ class GhostTable:
         self.held[gone, col] = -1
         return self._entity[gone].tolist()
 
+    def live_rows(self, col: int, now: float) -> tuple[np.ndarray, np.ndarray]:
+        """`expire(col, now)` then `rows_of(col)` in one pass over the viewer's column (the truth measure reads
+        every sampled viewer's ghosts so): the rows and versions of the ghosts still valid at `now`."""
+        self.flush()
+        held = self.held[:self._n_rows, col]
+        rows = np.flatnonzero(held >= 0)
+        vers = held[rows]
+        gone = now >= self.vexp[vers]
+        self.held[rows[gone], col] = -1
+        keep = ~gone
+        return rows[keep], vers[keep]
+
     # ---- reading ---------------------------------------------------------------------------------------------
     def rows_of(self, col: int) -> tuple[np.ndarray, np.ndarray]:
         """Viewer `col`'s ghosts: their rows and versions, in row order (after the queue is applied)."""

@@ -83,7 +83,8 @@ class Measure:
         n_cells = int(getattr(world.topo, "n_cells", 0) or 0) - low
         n_cells = max(n_cells, int(pair_cell.max()) + 1 if len(pair_cell) else 0)
         memo: dict = {}  # (table, t) -> its distinct models' xy at t (viewers share versions and models)
-        agents: dict[int, np.ndarray] = {}  # id(table) -> the truth's agent of each of its rows (-1: none)
+        # id(table) -> the truth's agent of each of its rows (-1: none), and whether no agent has two rows
+        agents: dict[int, tuple[np.ndarray, bool]] = {}
         for v in viewers:
             t = self.tallies["roof" if v.high else "street"]
             t.viewer_samples += 1
@@ -135,7 +136,7 @@ class Measure:
         return out
 
 
-def _drawn(v: SimViewer, now: float, memo: dict, agents: dict[int, np.ndarray],
+def _drawn(v: SimViewer, now: float, memo: dict, agents: dict[int, tuple[np.ndarray, bool]],
            eid_to_agent: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What `v.ghosts.positions(now)` draws (expired ghosts dropped, only the visible drawn), read from the
     viewers' ghost table over arrays: the truth's agent ids of the drawn ghosts (one per agent; ghosts of
@@ -147,18 +148,22 @@ def _drawn(v: SimViewer, now: float, memo: dict, agents: dict[int, np.ndarray],
         raise ValueError(f"now must be finite, got {now!r}")
     gs = v.ghosts
     table, col = gs.table, gs.col
-    table.expire(col, now)
-    rows, vers = table.rows_of(col)
+    rows, vers = table.live_rows(col, now)  # (`expire` then `rows_of`, in one pass over the column)
     keep = table.visible_versions(col, vers)
     rows, vers = rows[keep], vers[keep]
-    of_row = agents.get(id(table))
-    if of_row is None or len(of_row) < table.n_rows:
+    got = agents.get(id(table))
+    if got is None or len(got[0]) < table.n_rows:
         ents = table.entity(np.arange(table.n_rows)).tolist()
-        of_row = agents[id(table)] = np.array([eid_to_agent.get(e, -1) for e in ents], dtype=np.int64)
+        of_row = np.array([eid_to_agent.get(e, -1) for e in ents], dtype=np.int64)
+        known = of_row[of_row >= 0]
+        # (no agent with two rows in the table: no viewer's ghosts can name one agent twice, nothing to test)
+        got = agents[id(table)] = (of_row, len(np.unique(known)) == len(known))
+    of_row, one_row_each = got
     aids = of_row[rows]
     sim = aids >= 0
     aids, vers = aids[sim], vers[sim]
-    if len(np.unique(aids)) < len(aids):  # two entity ids of one agent: the later ghost's position, as a dict
+    if not one_row_each and len(np.unique(aids)) < len(aids):  # two entity ids of one agent: the later ghost's
+        # position, as a dict
         last = {a: i for i, a in enumerate(aids.tolist())}
         first = dict.fromkeys(aids.tolist())
         pick = np.array([last[a] for a in first], dtype=np.int64)
