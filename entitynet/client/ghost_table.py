@@ -301,24 +301,26 @@ class GhostTable:
 
     def expire(self, col: int, now: float) -> list[int]:
         """Drop viewer `col`'s ghosts whose validity ran out (`now >= expires`); their entity ids."""
-        self.flush()
-        held = self.held[:self._n_rows, col]
-        rows = np.flatnonzero(held >= 0)
-        gone = rows[now >= self.vexp[held[rows]]]
-        self.held[gone, col] = -1
-        return self._entity[gone].tolist()
+        rows, _vers, gone = self._expire_pass(col, now)
+        return self._entity[rows[gone]].tolist()
 
     def live_rows(self, col: int, now: float) -> tuple[np.ndarray, np.ndarray]:
         """`expire(col, now)` then `rows_of(col)` in one pass over the viewer's column (the truth measure reads
         every sampled viewer's ghosts so): the rows and versions of the ghosts still valid at `now`."""
+        rows, vers, gone = self._expire_pass(col, now)
+        keep = ~gone
+        return rows[keep], vers[keep]
+
+    def _expire_pass(self, col: int, now: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Viewer `col`'s held rows and versions (after the queue is applied) and which of them ran out at
+        `now`, those dropped: the one pass of `expire` and `live_rows`."""
         self.flush()
         held = self.held[:self._n_rows, col]
         rows = np.flatnonzero(held >= 0)
         vers = held[rows]
         gone = now >= self.vexp[vers]
         self.held[rows[gone], col] = -1
-        keep = ~gone
-        return rows[keep], vers[keep]
+        return rows, vers, gone
 
     # ---- reading ---------------------------------------------------------------------------------------------
     def rows_of(self, col: int) -> tuple[np.ndarray, np.ndarray]:

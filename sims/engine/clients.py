@@ -29,7 +29,7 @@ from entitynet import protocol as P
 from entitynet.client import Player
 from entitynet.client.fleet import FleetCore
 from sims.engine.positions import positions
-from sims.engine.route_table import RouteTable
+from sims.engine.route_table import route_table_of
 from sims.engine.source import Body, Truth
 from sims.engine.truth_arrays import EdgeArrays
 from sims.mobility.gps import GPS_SIGMA, entity_gps
@@ -141,8 +141,7 @@ class Fleet:
             ids = np.array([self._aid[s] for s in have], dtype=np.int64)
             if self._edges is None:
                 self._edges = EdgeArrays(self.world.net)
-            table = getattr(self.world, "routes", None)  # our World's route table; another source has none
-            xy = positions(bodies, self._edges, table if isinstance(table, RouteTable) else None)
+            xy = positions(bodies, self._edges, route_table_of(self.world))
             fixes = entity_gps(xy, self.seed, ids, np.full(len(have), now), self.gps_sigma)
         else:
             fixes = np.zeros((0, 2))

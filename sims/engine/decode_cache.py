@@ -29,6 +29,7 @@ class DecodeCache:
         self.net = net
         self.max_entries = max_entries
         self._half = max(max_entries // 2, 1)
+        self._two = 2 * self._half <= max_entries  # (room for an older generation: not at max_entries=1)
         self._models: dict[bytes, Model | str] = {}  # this generation
         self._older: dict[bytes, Model | str] = {}  # and the one before
         self.hits = 0
@@ -51,7 +52,7 @@ class DecodeCache:
             else:
                 self.hits += 1
             if len(self._models) >= self._half:  # a new generation: the older one's payloads go
-                self._older, self._models = (self._models if self.max_entries > 1 else {}), {}
+                self._older, self._models = (self._models if self._two else {}), {}
             self._models[bytes(data)] = got
         else:
             self.hits += 1

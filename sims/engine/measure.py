@@ -24,7 +24,7 @@ import numpy as np
 
 from entitynet.client.ghost_table import csr_take
 from entitynet.client.network import NetView
-from sims.engine.route_table import RouteTable
+from sims.engine.route_table import route_table_of
 from sims.engine.source import Truth
 from sims.engine.truth_arrays import EdgeArrays, truth_arrays
 from sims.engine.viewers import SimViewer
@@ -72,8 +72,7 @@ class Measure:
         (`truth_arrays`), then per viewer its subscribed cells as a mask over every (entity, cell) the truth
         occupies; its drawn ghosts read from the viewers' ghost table over arrays (`_drawn`), and the stale test
         over (ghost, cell) pairs (`_claims_met`)."""
-        table = getattr(world, "routes", None)  # our World's route table (another source has none)
-        truth = truth_arrays(world.agents, self._edge_arrays(world), table if isinstance(table, RouteTable) else None)
+        truth = truth_arrays(world.agents, self._edge_arrays(world), route_table_of(world))
         n = len(truth.ids)
         pair_row = np.repeat(np.arange(n), np.diff(truth.cell_off))
         # the mask's slots: every cell id from `low` (below 0 only where another source's body says so) to past
@@ -192,9 +191,9 @@ def _claims_met(table, versions: np.ndarray, truth, rows: np.ndarray) -> int:
     owner = np.concatenate([co, known[to]])
     cell = np.concatenate([cv, tv.astype(np.int64)])
     side = np.concatenate([np.zeros(len(co), dtype=np.int64), np.ones(len(to), dtype=np.int64)])
-    met = np.zeros(len(versions), dtype=bool)
     if not len(owner):
         return 0
+    met = np.zeros(len(versions), dtype=bool)
     low, span = int(cell.min()), int(cell.max()) - int(cell.min()) + 1
     if len(versions) * span < 2**61:  # (owner, cell, side) as one integer: one sort, in lexsort's order
         key = np.sort((owner * span + (cell - low)) * 2 + side)

@@ -21,6 +21,12 @@ from sims.engine.agents import Agent
 _COLUMNS = ("cum", "edge", "dirn", "elen", "rlen")
 
 
+def route_table_of(world: object) -> RouteTable | None:
+    """The world's route table where it is our `World` (its `routes`); None for another source's world."""
+    table = getattr(world, "routes", None)
+    return table if isinstance(table, RouteTable) else None
+
+
 class RouteTable:
     """Flat columns of routes: per route edge its start distance `cum`, `edge`, `dirn`, length `elen`, and the
     route's length `rlen`; an agent's rows are `agent._rt` = (first row, edge count)."""
